@@ -1,0 +1,216 @@
+"""The ``detcal`` command line: the one composition root.
+
+Thin by design: parse, cross-check options, call one pipeline function, print
+a result table. Library errors (:class:`profiles.errors.DetcalError`) become
+one-line messages with exit code 1 (bad data) or 2 (usage); a user never sees
+a traceback for bad input.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from calib import __version__
+from profiles.errors import DetcalError
+
+app = typer.Typer(
+    help="detcal: measure a feature detector's P_D and clutter statistics for RFS SLAM.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+log_app = typer.Typer(help="Inspect and convert sensor logs.", no_args_is_help=True)
+sim_app = typer.Typer(help="Simulate sensor logs with exported truth.", no_args_is_help=True)
+app.add_typer(log_app, name="log")
+app.add_typer(sim_app, name="simulate")
+
+out = Console(highlight=False)
+err = Console(stderr=True, highlight=False)
+
+FormatOpt = Annotated[str | None, typer.Option("--format", "-f", help="Input format: native, carmen, rosbag, victoria, utias, kitti (default: from the path).")]
+BackstepOpt = Annotated[float, typer.Option(help="Tolerated step back in time within a stream [s]; such records are re-sorted. 0 = strict.")]
+LaserOpt = Annotated[str, typer.Option(help="CARMEN: which laser, front or rear.")]
+RangeMaxOpt = Annotated[float | None, typer.Option(help="CARMEN: readings at or above this [m] are no return (default: the log's saturation value).")]
+RobotOpt = Annotated[int, typer.Option(help="UTIAS: which robot (1-5).")]
+ScanTopicOpt = Annotated[str | None, typer.Option(help="Bags: the LaserScan topic.")]
+OdomTopicOpt = Annotated[str | None, typer.Option(help="Bags: the nav_msgs/Odometry topic.")]
+TruthTopicOpt = Annotated[str | None, typer.Option(help="Bags: a ground-truth pose topic (Odometry or PoseStamped).")]
+
+
+def _read(path: Path, fmt, max_backstep, laser, range_max, robot, scan_topic, odom_topic, truth_topic):
+    from calib.io.registry import ReadOptions, read_log
+
+    opts = ReadOptions(
+        max_backstep=max_backstep,
+        laser=laser,
+        range_max=range_max,
+        robot=robot,
+        scan_topic=scan_topic,
+        odom_topic=odom_topic,
+        truth_topic=truth_topic,
+    )
+    return read_log(path, fmt, opts)
+
+
+def _version(value: bool) -> None:
+    if value:
+        out.print(f"detcal {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")] = False,
+) -> None:
+    """detcal: measure a feature detector's P_D and clutter statistics for RFS SLAM."""
+
+
+@log_app.command("info")
+def log_info(
+    path: Annotated[Path, typer.Argument(help="A log file or folder.")],
+    fmt: FormatOpt = None,
+    max_backstep: BackstepOpt = 1.0,
+    laser: LaserOpt = "front",
+    range_max: RangeMaxOpt = None,
+    robot: RobotOpt = 1,
+    scan_topic: ScanTopicOpt = None,
+    odom_topic: OdomTopicOpt = None,
+    truth_topic: TruthTopicOpt = None,
+) -> None:
+    """Print a summary of a log: streams, counts, duration, beam geometry."""
+    log = _read(path, fmt, max_backstep, laser, range_max, robot, scan_topic, odom_topic, truth_topic)
+    out.print(info_table(log, path))
+
+
+def info_table(log, path: Path) -> Table:
+    t = Table(title=f"{path} ({log.source.get('reader', 'native')})", show_header=True)
+    t.add_column("stream")
+    t.add_column("count", justify="right")
+    t.add_column("details")
+    span = log.time_span()
+    if log.scans is not None:
+        s = log.scans
+        finite = np.isfinite(s.ranges)
+        t.add_row("scans", f"{len(s):,}", f"{s.n_beams} beams, {finite.mean() * 100:.1f} % returning")
+    if log.odometry is not None:
+        t.add_row("odometry", f"{len(log.odometry):,}", f"{log.odometry.kind}: {', '.join(log.odometry.columns)}")
+    for k, r in log.reference.items():
+        t.add_row(f"reference ({k})", f"{len(r):,}", "x, y" + (", theta" if np.isfinite(r.poses[:, 2]).any() else ""))
+    if log.landmarks is not None:
+        t.add_row("landmarks", f"{len(log.landmarks):,}", "with radii" if np.isfinite(log.landmarks.radius).any() else "positions")
+    if log.detections is not None:
+        d = log.detections
+        t.add_row("detection frames", f"{d.n_frames:,}", "")
+        t.add_row("detections", f"{len(d):,}", "descriptors: " + (", ".join(sorted(d.descriptors)) or "none"))
+    if log.clouds is not None:
+        t.add_row("point clouds", f"{len(log.clouds):,}", f"{log.clouds.points.shape[0]:,} points")
+    if span is not None:
+        t.add_row("duration", "", f"{(span[1] - span[0]) / 1e9:,.3f} s")
+    sen = log.sensor
+    if sen is not None:
+        geo = f"{sen.kind}"
+        if sen.n_beams is not None:
+            geo += (
+                f", {sen.n_beams} beams from {np.rad2deg(sen.angle_min):.2f} deg every "
+                f"{np.rad2deg(sen.angle_increment):.4f} deg (fov {np.rad2deg(sen.field_of_view):.1f} deg)"
+            )
+        if sen.range_max is not None:
+            geo += f", range {sen.range_min:g}-{sen.range_max:g} m"
+        if sen.range_sigma is not None:
+            geo += f", sigma_r {sen.range_sigma:g} m"
+        m = sen.mount
+        geo += f", mounted at ({m.x:g}, {m.y:g}, {m.theta:g})"
+        t.add_row("sensor", "", geo)
+    moved = {k: v for k, v in dict(log.source.get("reordered", {})).items() if v}
+    if moved:
+        t.add_row("re-sorted", "", ", ".join(f"{k}: {v}" for k, v in moved.items()) + " records were out of time order")
+    return t
+
+
+@log_app.command("convert")
+def log_convert(
+    src: Annotated[Path, typer.Argument(help="The log to read.")],
+    dst: Annotated[Path, typer.Argument(help="Output: NAME.dlog (native) or a folder name (ROS 2 bag).")],
+    to: Annotated[str | None, typer.Option("--to", help="Output format: native or ros2 (default: from DST).")] = None,
+    force: Annotated[bool, typer.Option(help="Replace DST if it exists.")] = False,
+    fmt: FormatOpt = None,
+    max_backstep: BackstepOpt = 1.0,
+    laser: LaserOpt = "front",
+    range_max: RangeMaxOpt = None,
+    robot: RobotOpt = 1,
+    scan_topic: ScanTopicOpt = None,
+    odom_topic: OdomTopicOpt = None,
+    truth_topic: TruthTopicOpt = None,
+) -> None:
+    """Convert a log to detcal's native format or to a ROS 2 bag."""
+    from calib.io.registry import output_format, write_log
+
+    kind = output_format(dst, to)  # check before the (possibly long) read
+    if dst.exists() and not force:
+        from profiles.errors import UsageError
+
+        raise UsageError(f"{dst}: already exists (use --force to replace it)")
+    log = _read(src, fmt, max_backstep, laser, range_max, robot, scan_topic, odom_topic, truth_topic)
+    write_log(log, dst, kind, overwrite=force)
+    out.print(f"wrote {dst} ({kind}): {', '.join(log.streams())}")
+
+
+@sim_app.command("park")
+def simulate_park_cmd(
+    out_dir: Annotated[Path, typer.Option("--out", help="Run folder to create.")],
+    seed: Annotated[int, typer.Option(help="Random seed; same seed and config, same bytes.")] = 0,
+    config: Annotated[Path | None, typer.Option(help="YAML park config (unknown keys are refused); defaults otherwise.")] = None,
+    force: Annotated[bool, typer.Option(help="Replace the run folder if it exists.")] = False,
+) -> None:
+    """Simulate a 2D park (trees, bushes, walls, posts, dust) seen by a laser on a moving vehicle."""
+    from calib.config import load_yaml_model
+    from calib.sim.park import ParkConfig
+    from calib.sim.run import simulate_to
+
+    if seed < 0:
+        from profiles.errors import UsageError
+
+        raise UsageError(f"--seed: expected a non-negative integer, got {seed}")
+    cfg = load_yaml_model(ParkConfig, config)
+    summary = simulate_to(out_dir, seed, cfg, overwrite=force)
+    t = Table(title=f"simulated park -> {out_dir}")
+    t.add_column("quantity")
+    t.add_column("value", justify="right")
+    for k, v in summary.items():
+        t.add_row(k, f"{v:.3f}" if isinstance(v, float) else str(v))
+    out.print(t)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: run the app, map DetcalError to a one-line message and its exit code.
+
+    Usage errors found by the option parser are reported by typer itself (exit 2).
+    """
+    try:
+        app(args=argv, prog_name="detcal")
+    except SystemExit as exc:
+        code = exc.code
+        return code if isinstance(code, int) else (0 if code is None else 1)
+    except DetcalError as exc:
+        err.print(f"detcal: error: {exc}", soft_wrap=True)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        err.print("detcal: interrupted")
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
+
+
+def run() -> None:
+    """Console-script entry point."""
+    sys.exit(main())

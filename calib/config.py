@@ -1,0 +1,51 @@
+"""YAML configs into pydantic models, with errors that name the file and the field path."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TypeVar
+
+import yaml
+from pydantic import BaseModel, ValidationError
+
+from profiles.errors import UsageError
+
+M = TypeVar("M", bound=BaseModel)
+
+
+def validation_message(exc: ValidationError, where: str) -> str:
+    """One line: ``where: a.b.c: what was wrong`` for the first error (and how many more)."""
+    errs = exc.errors()
+    e = errs[0]
+    loc = ".".join(str(p) for p in e["loc"]) or "(top level)"
+    msg = e["msg"]
+    if e["type"] == "extra_forbidden":
+        msg = "unknown key"
+    more = f" (and {len(errs) - 1} more)" if len(errs) > 1 else ""
+    return f"{where}: {loc}: {msg}{more}"
+
+
+def load_yaml_model(model: type[M], path: str | Path | None) -> M:
+    """Defaults when ``path`` is None; otherwise the YAML file validated against ``model``."""
+    if path is None:
+        return model()
+    path = Path(path)
+    if not path.is_file():
+        raise UsageError(f"{path}: no such config file")
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        line = f":{mark.line + 1}" if mark is not None else ""
+        raise UsageError(f"{path}{line}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
+    if not isinstance(data, dict):
+        raise UsageError(f"{path}: expected a mapping at the top level")
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        raise UsageError(validation_message(exc, str(path))) from None
+
+
+def dump_yaml(data: object) -> str:
+    """Deterministic YAML (sorted keys, exact floats)."""
+    return yaml.safe_dump(data, sort_keys=True, default_flow_style=None, width=120)

@@ -1,0 +1,209 @@
+"""CARMEN log reader (``FLASER``, ``RLASER``, ``ROBOTLASER1``, ``ODOM``, ``TRUEPOS``).
+
+Plain, ``.gz`` or ``.bz2``. Line formats (``../shared/data/README.md``)::
+
+    FLASER n r1..rn x y theta odom_x odom_y odom_theta ipc_timestamp hostname logger_timestamp
+    ODOM x y theta tv rv accel ipc_timestamp hostname logger_timestamp
+    TRUEPOS true_x true_y true_theta odom_x odom_y odom_theta ipc_timestamp hostname logger_timestamp
+    ROBOTLASER1 type start_angle fov resolution max_range accuracy remission_mode
+                n r1..rn m i1..im laser_x laser_y laser_theta robot_x robot_y robot_theta
+                tv rv fwd_safety side_safety turn_axis ipc_timestamp hostname logger_timestamp
+
+Timestamps are the ``ipc_timestamp`` field. Beam geometry of ``FLASER``/``RLASER``
+(which carry none): the beams span pi radians starting at -pi/2; with an odd
+count (181, 361) the last beam is at +pi/2 (increment pi/(n-1)), with an even
+count (180) at +pi/2 - pi/n (increment pi/n), the SICK LMS convention.
+No return is encoded by CARMEN as a saturated reading: when the largest
+reading of the log makes up at least 0.05 % of all readings it is taken as the
+sensor's maximum and such readings become NaN (Intel: 81.83 m, ACES: 50.00 m);
+``range_max`` overrides this.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from calib.io.common import DEFAULT_MAX_BACKSTEP, file_digest, iter_lines, parse_floats, parse_stamp, time_order
+from detectors.logs import Mount, Odometry, ReferencePoses, ScanBatch, SensorLog, SensorModel
+from profiles.errors import DataError, UsageError
+
+LASER_TYPES = ("FLASER", "RLASER", "ROBOTLASER1")
+_SATURATION_SHARE = 5e-4
+
+
+def looks_like_carmen(path: Path) -> bool:
+    name = path.name.lower()
+    return any(name.endswith(s) for s in (".clf", ".clf.gz", ".clf.bz2", ".log", ".log.gz", ".log.bz2", ".carmen"))
+
+
+def read_carmen(
+    path: str | Path,
+    *,
+    laser: str = "front",
+    range_max: float | None = None,
+    max_backstep: float = DEFAULT_MAX_BACKSTEP,
+) -> SensorLog:
+    """Read one laser and the odometry of a CARMEN log.
+
+    laser: ``front`` (FLASER, or ROBOTLASER1 when the log has no FLASER) or ``rear`` (RLASER).
+    """
+    path = Path(path)
+    if laser not in ("front", "rear"):
+        raise UsageError(f"--laser: expected 'front' or 'rear', got {laser!r}")
+    scan_rows: list[np.ndarray] = []
+    scan_stamp: list[int] = []
+    scan_line: list[int] = []
+    scan_odom: list[np.ndarray] = []
+    scan_kind: str | None = None
+    geometry: tuple[float, float] | None = None
+    odom_rows: list[np.ndarray] = []
+    odom_stamp: list[int] = []
+    odom_line: list[int] = []
+    true_rows: list[np.ndarray] = []
+    true_stamp: list[int] = []
+    true_line: list[int] = []
+    params: dict[str, str] = {}
+    n_beams: int | None = None
+    wanted = {"front": ("FLASER", "ROBOTLASER1"), "rear": ("RLASER",)}[laser]
+
+    for lineno, line in iter_lines(path):
+        if not line or line.startswith("#"):
+            continue
+        tok = line.split()
+        kind = tok[0]
+        if kind == "PARAM" and len(tok) >= 3:
+            params[tok[1]] = tok[2]
+        elif kind in wanted:
+            if scan_kind is None:
+                scan_kind = kind
+            elif kind != scan_kind:
+                continue  # a log with FLASER and ROBOTLASER1 for the same laser: keep the first kind
+            if kind == "ROBOTLASER1":
+                ranges, odom, stamp, geom = _robotlaser(tok, path, lineno)
+                if geometry is None:
+                    geometry = geom
+            else:
+                ranges, odom, stamp = _flaser(tok, path, lineno)
+            if n_beams is None:
+                n_beams = ranges.size
+            elif ranges.size != n_beams:
+                raise DataError(f"{path}:{lineno}: {kind} has {ranges.size} beams, earlier scans have {n_beams}")
+            scan_rows.append(ranges)
+            scan_odom.append(odom)
+            scan_stamp.append(stamp)
+            scan_line.append(lineno)
+        elif kind == "ODOM":
+            if len(tok) != 10:
+                raise DataError(f"{path}:{lineno}: ODOM has {len(tok)} fields, expected 10")
+            odom_rows.append(parse_floats(tok[1:4], path, lineno, "ODOM pose"))
+            odom_stamp.append(parse_stamp(tok[7], path, lineno))
+            odom_line.append(lineno)
+        elif kind == "TRUEPOS":
+            if len(tok) != 10:
+                raise DataError(f"{path}:{lineno}: TRUEPOS has {len(tok)} fields, expected 10")
+            true_rows.append(parse_floats(tok[1:4], path, lineno, "TRUEPOS pose"))
+            true_stamp.append(parse_stamp(tok[7], path, lineno))
+            true_line.append(lineno)
+
+    if not scan_rows and not odom_rows:
+        raise DataError(f"{path}: no {'/'.join(wanted)} or ODOM lines; is this a CARMEN log?")
+
+    reordered = {}
+    scans = sensor = None
+    if scan_rows:
+        perm, reordered["scan"] = time_order(np.array(scan_stamp), np.array(scan_line), path, str(scan_kind), max_backstep)
+        raw = np.stack(scan_rows)[perm]
+        if range_max is None:
+            range_max = _param_range_max(params, laser)
+        if range_max is None:
+            top = float(raw.max())
+            range_max = top if np.count_nonzero(raw >= top) >= _SATURATION_SHARE * raw.size else np.nextafter(top, np.inf)
+        ranges = raw.astype(np.float32)
+        ranges[raw >= range_max] = np.nan
+        assert n_beams is not None
+        if geometry is None:
+            inc = np.pi / (n_beams - 1) if n_beams % 2 else np.pi / n_beams
+            geometry = (-np.pi / 2, inc)
+        offset = float(params.get(f"robot_{laser}laser_offset", 0.0) or 0.0)
+        sensor = SensorModel(
+            kind="laser2d",
+            n_beams=n_beams,
+            angle_min=geometry[0],
+            angle_increment=geometry[1],
+            range_min=0.0,
+            range_max=float(range_max),
+            mount=Mount(x=offset, theta=np.pi if laser == "rear" else 0.0),
+        )
+        scans = ScanBatch(np.array(scan_stamp, dtype=np.int64)[perm], ranges, None, np.stack(scan_odom)[perm])
+    odometry = None
+    if odom_rows:
+        perm, reordered["odometry"] = time_order(np.array(odom_stamp), np.array(odom_line), path, "ODOM", max_backstep)
+        odometry = Odometry("pose", np.array(odom_stamp, dtype=np.int64)[perm], np.stack(odom_rows)[perm])
+    reference = {}
+    if true_rows:
+        perm, reordered["reference:ground_truth"] = time_order(np.array(true_stamp), np.array(true_line), path, "TRUEPOS", max_backstep)
+        reference["ground_truth"] = ReferencePoses("ground_truth", np.array(true_stamp, dtype=np.int64)[perm], np.stack(true_rows)[perm])
+    return SensorLog(
+        name=path.name.split(".")[0],
+        sensor=sensor,
+        scans=scans,
+        odometry=odometry,
+        reference=reference,
+        source={"reader": "carmen", "file": path.name, "sha256": file_digest(path), "laser": laser, "reordered": reordered},
+    )
+
+
+def _param_range_max(params: dict[str, str], laser: str) -> float | None:
+    for key in (f"laser_{laser}_laser_max_range", f"robot_{laser}_laser_max", f"{laser}_laser_max_range"):
+        if key in params:
+            try:
+                return float(params[key])
+            except ValueError:
+                return None
+    return None
+
+
+def _count(tok: list[str], i: int, path: Path, lineno: int) -> int:
+    try:
+        n = int(tok[i])
+    except (IndexError, ValueError):
+        raise DataError(f"{path}:{lineno}: {tok[0]} beam count missing or not an integer") from None
+    if n <= 0:
+        raise DataError(f"{path}:{lineno}: {tok[0]} beam count {n} must be positive")
+    return n
+
+
+def _ranges(tok: list[str], path: Path, lineno: int) -> np.ndarray:
+    r = parse_floats(tok, path, lineno, "range reading")
+    neg = np.flatnonzero(r < 0)
+    if neg.size:
+        raise DataError(f"{path}:{lineno}: range reading {int(neg[0]) + 1} is negative ({r[neg[0]]})")
+    if np.isinf(r).any():
+        raise DataError(f"{path}:{lineno}: infinite range reading")
+    return r
+
+
+def _flaser(tok: list[str], path: Path, lineno: int) -> tuple[np.ndarray, np.ndarray, int]:
+    n = _count(tok, 1, path, lineno)
+    if len(tok) != n + 11:
+        raise DataError(f"{path}:{lineno}: {tok[0]} declares {n} beams but has {len(tok)} fields (expected {n + 11})")
+    ranges = _ranges(tok[2 : 2 + n], path, lineno)
+    odom = parse_floats(tok[2 + n + 3 : 2 + n + 6], path, lineno, "odometry pose")
+    return ranges, odom, parse_stamp(tok[2 + n + 6], path, lineno)
+
+
+def _robotlaser(tok: list[str], path: Path, lineno: int) -> tuple[np.ndarray, np.ndarray, int, tuple[float, float]]:
+    n = _count(tok, 8, path, lineno)
+    if len(tok) < 9 + n + 1:
+        raise DataError(f"{path}:{lineno}: ROBOTLASER1 is truncated")
+    m = _count(tok, 9 + n, path, lineno) if tok[9 + n] != "0" else 0
+    expected = 9 + n + 1 + m + 14
+    if len(tok) != expected:
+        raise DataError(f"{path}:{lineno}: ROBOTLASER1 has {len(tok)} fields, expected {expected}")
+    head = parse_floats(tok[2:5], path, lineno, "ROBOTLASER1 geometry")
+    ranges = _ranges(tok[9 : 9 + n], path, lineno)
+    rest = 9 + n + 1 + m
+    odom = parse_floats(tok[rest + 3 : rest + 6], path, lineno, "robot pose")
+    return ranges, odom, parse_stamp(tok[rest + 11], path, lineno), (float(head[0]), float(head[2]))

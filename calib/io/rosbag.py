@@ -1,0 +1,409 @@
+"""ROS 1 (``.bag``) and ROS 2 (folder, sqlite3 or mcap) bags through ``rosbags``.
+
+Reading a foreign bag: ``sensor_msgs/LaserScan`` on the scan topic becomes the
+scan stream (REP 117: NaN, +-inf and readings outside [range_min, range_max]
+are no returns, stored as NaN; a negative reading is an error),
+``nav_msgs/Odometry`` on the odometry topic becomes ``pose`` odometry (x, y,
+yaw) and an optional truth topic (``nav_msgs/Odometry`` or
+``geometry_msgs/PoseStamped``) becomes the ``ground_truth`` reference. With one
+topic of a type the topic is picked automatically; with several, name it.
+Stamps are the message headers'.
+
+Writing (ROS 2, :func:`write_ros2`): standard topics for ROS tools --
+``/scan`` (LaserScan) and ``/odom`` (nav_msgs/Odometry, for pose or velocity
+odometry) -- plus exact float64 copies under ``/detcal/...``
+(``std_msgs/Float64MultiArray``) and the log's metadata as the bag's
+``custom_data["detcal"]``, so that native -> ROS 2 -> native is lossless:
+LaserScan angles are float32 and a quaternion does not give back a yaw bit
+for bit, so the exact values travel beside them.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import yaml
+from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.rosbag2 import Writer
+from rosbags.typesys import Stores, get_typestore
+
+from calib.io.atomic import atomic_output
+from calib.io.common import DEFAULT_MAX_BACKSTEP, file_digest, time_order
+from detectors.logs import (
+    Detections,
+    Landmarks,
+    Odometry,
+    ReferencePoses,
+    ScanBatch,
+    SensorLog,
+    SensorModel,
+    Vehicle,
+    wrap_angle,
+)
+from profiles.errors import DataError, UsageError
+
+SCAN_TYPE = "sensor_msgs/msg/LaserScan"
+ODOM_TYPE = "nav_msgs/msg/Odometry"
+POSE_TYPES = (ODOM_TYPE, "geometry_msgs/msg/PoseStamped")
+ARRAY_TYPE = "std_msgs/msg/Float64MultiArray"
+CUSTOM_KEY = "detcal"
+META_VERSION = 1
+
+
+def looks_like_bag(path: Path) -> bool:
+    return path.suffix in (".bag", ".mcap", ".db3") or (path.is_dir() and (path / "metadata.yaml").is_file())
+
+
+def _yaw(qz: np.ndarray, qw: np.ndarray, qx: np.ndarray, qy: np.ndarray) -> np.ndarray:
+    return wrap_angle(np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz)))
+
+
+def _stamp(msg) -> int:
+    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+
+
+def _pick(conns: dict[str, str], want: tuple[str, ...], topic: str | None, what: str, path: Path, required: bool) -> str | None:
+    if topic is not None:
+        if topic not in conns:
+            have = ", ".join(f"{t} ({m})" for t, m in sorted(conns.items())) or "none"
+            raise UsageError(f"{path}: unknown {what} topic {topic!r}; the bag has: {have}")
+        if conns[topic] not in want:
+            raise UsageError(f"{path}: topic {topic!r} is {conns[topic]}, expected {' or '.join(want)} for the {what}")
+        return topic
+    cands = sorted(t for t, m in conns.items() if m in want and not t.startswith("/detcal/"))
+    if len(cands) > 1:
+        raise UsageError(f"{path}: several {what} topics ({', '.join(cands)}); choose one with --{what}-topic")
+    if not cands and required:
+        raise UsageError(f"{path}: no {' or '.join(want)} topic for the {what}")
+    return cands[0] if cands else None
+
+
+def read_rosbag(
+    path: str | Path,
+    *,
+    scan_topic: str | None = None,
+    odom_topic: str | None = None,
+    truth_topic: str | None = None,
+    max_backstep: float = DEFAULT_MAX_BACKSTEP,
+) -> SensorLog:
+    path = Path(path)
+    if not path.exists():
+        raise UsageError(f"{path}: no such file or folder")
+    default = get_typestore(Stores.ROS1_NOETIC if path.suffix == ".bag" else Stores.ROS2_HUMBLE)
+    try:
+        reader = AnyReader([path], default_typestore=default)
+        reader.open()
+    except (AnyReaderError, Exception) as exc:  # rosbags raises several unrelated types for damaged bags
+        raise DataError(f"{path}: not a readable ROS bag ({exc})") from None
+    try:
+        custom = _custom_data(path)
+        conns = {c.topic: c.msgtype for c in reader.connections}
+        if CUSTOM_KEY in custom and all(t is None for t in (scan_topic, odom_topic, truth_topic)):
+            return _read_detcal(reader, json.loads(custom[CUSTOM_KEY]), path)
+        return _read_foreign(reader, conns, path, scan_topic, odom_topic, truth_topic, max_backstep)
+    except (DataError, UsageError):
+        raise
+    except Exception as exc:  # a damaged message deep in rosbags' deserialiser
+        raise DataError(f"{path}: damaged bag ({type(exc).__name__}: {exc})") from None
+    finally:
+        reader.close()
+
+
+def _custom_data(path: Path) -> dict:
+    """``custom_data`` of a ROS 2 bag's metadata.yaml (empty for ROS 1 or when absent)."""
+    meta = path / "metadata.yaml" if path.is_dir() else path.parent / "metadata.yaml"
+    if not meta.is_file():
+        return {}
+    try:
+        info = yaml.safe_load(meta.read_text()) or {}
+    except yaml.YAMLError:
+        return {}
+    return (info.get("rosbag2_bagfile_information") or {}).get("custom_data") or {}
+
+
+def _messages(reader: AnyReader, topic: str):
+    conns = [c for c in reader.connections if c.topic == topic]
+    for conn, _t, raw in reader.messages(connections=conns):
+        yield reader.deserialize(raw, conn.msgtype)
+
+
+def _read_foreign(reader, conns, path, scan_topic, odom_topic, truth_topic, max_backstep) -> SensorLog:
+    scan_t = _pick(conns, (SCAN_TYPE,), scan_topic, "scan", path, required=False)
+    odom_t = _pick(conns, (ODOM_TYPE,), odom_topic, "odom", path, required=False)
+    truth_t = _pick(conns, POSE_TYPES, truth_topic, "truth", path, required=False) if truth_topic else None
+    if scan_t is None and odom_t is None:
+        have = ", ".join(f"{t} ({m})" for t, m in sorted(conns.items())) or "none"
+        raise UsageError(f"{path}: no LaserScan or Odometry topic; the bag has: {have}")
+    reordered: dict[str, int] = {}
+    scans = sensor = None
+    if scan_t is not None:
+        stamps, rows, inten, geom = [], [], [], None
+        for k, msg in enumerate(_messages(reader, scan_t)):
+            g = (float(msg.angle_min), float(msg.angle_increment), len(msg.ranges), float(msg.range_min), float(msg.range_max))
+            if geom is None:
+                geom = g
+            elif g[2] != geom[2]:
+                raise DataError(f"{path}: {scan_t} message {k} has {g[2]} beams, earlier messages have {geom[2]}")
+            elif g[:2] != geom[:2]:
+                raise DataError(f"{path}: {scan_t} message {k} changes the beam geometry (angle_min/angle_increment)")
+            r = np.asarray(msg.ranges, dtype=np.float32)
+            neg = np.flatnonzero(r < 0)
+            if neg.size:
+                raise DataError(f"{path}: {scan_t} message {k} beam {int(neg[0])}: negative range {r[neg[0]]}")
+            r = np.where(np.isfinite(r) & (r >= g[3]) & (r <= g[4]), r, np.float32(np.nan))
+            rows.append(r)
+            i = np.asarray(msg.intensities, dtype=np.float32)
+            inten.append(i if i.size == r.size else None)
+            stamps.append(_stamp(msg))
+        if geom is None:
+            raise DataError(f"{path}: topic {scan_t} has no messages")
+        perm, reordered["scan"] = time_order(np.array(stamps), np.arange(len(stamps)), path, f"{scan_t} message", max_backstep)
+        has_i = all(i is not None for i in inten)
+        sensor = SensorModel(
+            kind="laser2d", n_beams=geom[2], angle_min=geom[0], angle_increment=geom[1], range_min=geom[3], range_max=geom[4]
+        )
+        scans = ScanBatch(
+            np.array(stamps, dtype=np.int64)[perm], np.stack(rows)[perm], np.stack(inten)[perm] if has_i else None
+        )
+    odometry = None
+    if odom_t is not None:
+        stamps, poses = _poses(reader, odom_t)
+        perm, reordered["odometry"] = time_order(stamps, np.arange(stamps.size), path, f"{odom_t} message", max_backstep)
+        odometry = Odometry("pose", stamps[perm], poses[perm])
+    reference = {}
+    if truth_t is not None:
+        stamps, poses = _poses(reader, truth_t)
+        perm, reordered["reference:ground_truth"] = time_order(stamps, np.arange(stamps.size), path, f"{truth_t} message", max_backstep)
+        reference["ground_truth"] = ReferencePoses("ground_truth", stamps[perm], poses[perm])
+    return SensorLog(
+        name=path.stem,
+        sensor=sensor,
+        scans=scans,
+        odometry=odometry,
+        reference=reference,
+        source={
+            "reader": "rosbag",
+            "file": path.name,
+            "sha256": file_digest(path),
+            "topics": {"scan": scan_t, "odometry": odom_t, "truth": truth_t},
+            "reordered": reordered,
+        },
+    )
+
+
+def _poses(reader: AnyReader, topic: str) -> tuple[np.ndarray, np.ndarray]:
+    stamps, rows = [], []
+    for msg in _messages(reader, topic):
+        pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
+        p, q = pose.position, pose.orientation
+        rows.append((p.x, p.y, q.z, q.w, q.x, q.y))
+        stamps.append(_stamp(msg))
+    a = np.array(rows, dtype=np.float64).reshape(-1, 6)
+    poses = np.column_stack([a[:, 0], a[:, 1], _yaw(a[:, 2], a[:, 3], a[:, 4], a[:, 5])])
+    return np.array(stamps, dtype=np.int64), poses
+
+
+# --------------------------------------------------------------------------- detcal-written bags
+
+
+def _topics(log: SensorLog) -> dict[str, str]:
+    t = {}
+    if log.scans is not None:
+        t["/scan"] = SCAN_TYPE
+        t["/detcal/scan/ranges"] = ARRAY_TYPE
+        if log.scans.intensities is not None:
+            t["/detcal/scan/intensities"] = ARRAY_TYPE
+        if log.scans.odom_pose is not None:
+            t["/detcal/scan/odom_pose"] = ARRAY_TYPE
+    if log.odometry is not None:
+        t["/detcal/odometry"] = ARRAY_TYPE
+        if log.odometry.kind in ("pose", "velocity"):
+            t["/odom"] = ODOM_TYPE
+    for k in log.reference:
+        t[f"/detcal/reference/{k}"] = ARRAY_TYPE
+    if log.detections is not None:
+        t["/detcal/detections"] = ARRAY_TYPE
+    return t
+
+
+def write_ros2(log: SensorLog, path: str | Path, *, overwrite: bool = False) -> Path:
+    """Write ``log`` as a ROS 2 bag folder (sqlite3, format version 9), atomically."""
+    path = Path(path)
+    if log.clouds is not None:
+        raise UsageError(f"{path}: writing point clouds to a ROS 2 bag is not supported; convert to .dlog instead")
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    T = ts.types
+    det = log.detections
+    meta = {
+        "version": META_VERSION,
+        "name": log.name,
+        "sensor": None if log.sensor is None else log.sensor.model_dump(mode="json"),
+        "vehicle": None if log.vehicle is None else log.vehicle.model_dump(mode="json"),
+        "source": dict(log.source),
+        "odometry_kind": None if log.odometry is None else log.odometry.kind,
+        "references": sorted(log.reference),
+        "scan": None if log.scans is None else {"intensities": log.scans.intensities is not None, "odom_pose": log.scans.odom_pose is not None},
+        "detections": None
+        if det is None
+        else {"n_frames": det.n_frames, "descriptors": {k: str(v.dtype) for k, v in sorted(det.descriptors.items())}},
+        "landmarks": None
+        if log.landmarks is None
+        else {k: getattr(log.landmarks, k).tolist() for k in ("ids", "xy", "radius", "sigma")},
+    }
+
+    def header(stamp: int, frame: str):
+        return T["std_msgs/msg/Header"](
+            stamp=T["builtin_interfaces/msg/Time"](sec=stamp // 1_000_000_000, nanosec=stamp % 1_000_000_000), frame_id=frame
+        )
+
+    def array(values: np.ndarray, labels: tuple[str, ...]):
+        values = np.ascontiguousarray(values, dtype=np.float64)
+        shape = values.shape if values.ndim == 2 else (1, values.size)
+        dims = [
+            T["std_msgs/msg/MultiArrayDimension"](label=labels[0], size=shape[0], stride=shape[0] * shape[1]),
+            T["std_msgs/msg/MultiArrayDimension"](label=labels[1], size=shape[1], stride=shape[1]),
+        ]
+        return T[ARRAY_TYPE](layout=T["std_msgs/msg/MultiArrayLayout"](dim=dims, data_offset=0), data=values.ravel())
+
+    with atomic_output(path, overwrite=overwrite, directory=True) as tmp:
+        writer = Writer(tmp, version=9)
+        writer.set_custom_data(CUSTOM_KEY, json.dumps(meta, sort_keys=True))
+        with writer:
+            conn = {topic: writer.add_connection(topic, mt, typestore=ts) for topic, mt in _topics(log).items()}
+
+            def put(topic: str, stamp: int, msg) -> None:
+                writer.write(conn[topic], stamp, ts.serialize_cdr(msg, msg.__msgtype__))
+
+            det_off = det.frame_slices() if det is not None else None
+            odom_pose = _odom_poses_for_ros(log)
+            sensor = log.sensor
+            for ev in log.events():
+                i = ev.index
+                if ev.stream == "scan":
+                    s = log.scans
+                    assert sensor is not None and s is not None
+                    ranges = s.ranges[i]
+                    put(
+                        "/scan",
+                        ev.stamp,
+                        T[SCAN_TYPE](
+                            header=header(ev.stamp, "laser"),
+                            angle_min=float(sensor.angle_min),
+                            angle_max=float(sensor.angle_min + sensor.angle_increment * (sensor.n_beams - 1)),
+                            angle_increment=float(sensor.angle_increment),
+                            time_increment=0.0,
+                            scan_time=0.0,
+                            range_min=float(sensor.range_min),
+                            range_max=float(sensor.range_max or np.inf),
+                            ranges=ranges,
+                            intensities=s.intensities[i] if s.intensities is not None else np.zeros(0, np.float32),
+                        ),
+                    )
+                    put("/detcal/scan/ranges", ev.stamp, array(ranges.astype(np.float64), ("scan", "beam")))
+                    if s.intensities is not None:
+                        put("/detcal/scan/intensities", ev.stamp, array(s.intensities[i].astype(np.float64), ("scan", "beam")))
+                    if s.odom_pose is not None:
+                        put("/detcal/scan/odom_pose", ev.stamp, array(s.odom_pose[i], ("row", "x_y_theta")))
+                elif ev.stream == "odometry":
+                    o = log.odometry
+                    put("/detcal/odometry", ev.stamp, array(o.values[i], ("row", "_".join(o.columns))))
+                    if odom_pose is not None:
+                        put("/odom", ev.stamp, _odom_msg(T, header(ev.stamp, "odom"), odom_pose, o, i))
+                elif ev.stream.startswith("reference:"):
+                    k = ev.stream.split(":", 1)[1]
+                    put(f"/detcal/reference/{k}", ev.stamp, array(log.reference[k].poses[i], ("row", "x_y_theta")))
+                elif ev.stream == "detections":
+                    a, b = int(det_off[i]), int(det_off[i + 1])
+                    cols = [det.range[a:b], det.bearing[a:b]] + [det.descriptors[k][a:b].astype(np.float64) for k in sorted(det.descriptors)]
+                    put("/detcal/detections", ev.stamp, array(np.column_stack(cols).reshape(b - a, len(cols)), ("detection", "field")))
+    return path
+
+
+def _odom_poses_for_ros(log: SensorLog) -> np.ndarray | None:
+    o = log.odometry
+    if o is None or o.kind not in ("pose", "velocity"):
+        return None
+    return o.values
+
+
+def _odom_msg(T, hdr, values: np.ndarray, o: Odometry, i: int):
+    pose = T["geometry_msgs/msg/Pose"](
+        position=T["geometry_msgs/msg/Point"](x=0.0, y=0.0, z=0.0),
+        orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+    )
+    twist = T["geometry_msgs/msg/Twist"](
+        linear=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0), angular=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+    )
+    if o.kind == "pose":
+        x, y, th = (float(v) for v in values[i])
+        pose.position.x, pose.position.y = x, y
+        pose.orientation.z, pose.orientation.w = float(np.sin(th / 2)), float(np.cos(th / 2))
+    else:
+        twist.linear.x, twist.angular.z = float(values[i, 0]), float(values[i, 1])
+    cov = np.zeros(36)
+    return T[ODOM_TYPE](
+        header=hdr,
+        child_frame_id="base_link",
+        pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=cov),
+        twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=cov),
+    )
+
+
+def _read_detcal(reader: AnyReader, meta: dict, path: Path) -> SensorLog:
+    if meta.get("version") != META_VERSION:
+        raise DataError(f"{path}: detcal bag metadata version {meta.get('version')!r} is not supported (expected {META_VERSION})")
+
+    def table(topic: str) -> tuple[np.ndarray, list[np.ndarray]]:
+        stamps, rows = [], []
+        conns = [c for c in reader.connections if c.topic == topic]
+        for conn, t, raw in reader.messages(connections=conns):
+            msg = reader.deserialize(raw, conn.msgtype)
+            dims = msg.layout.dim
+            rows.append(np.asarray(msg.data, dtype=np.float64).reshape(dims[0].size, dims[1].size))
+            stamps.append(t)
+        return np.array(stamps, dtype=np.int64), rows
+
+    sensor = None if meta["sensor"] is None else SensorModel.model_validate(meta["sensor"])
+    vehicle = None if meta.get("vehicle") is None else Vehicle.model_validate(meta["vehicle"])
+    scans = odometry = detections = landmarks = None
+    if meta["scan"] is not None:
+        st, rows = table("/detcal/scan/ranges")
+        inten = np.concatenate(table("/detcal/scan/intensities")[1]) if meta["scan"]["intensities"] else None
+        odom = np.concatenate(table("/detcal/scan/odom_pose")[1]) if meta["scan"]["odom_pose"] else None
+        scans = ScanBatch(st, np.concatenate(rows).astype(np.float32), None if inten is None else inten.astype(np.float32), odom)
+    if meta["odometry_kind"] is not None:
+        st, rows = table("/detcal/odometry")
+        odometry = Odometry(meta["odometry_kind"], st, np.concatenate(rows))
+    reference = {}
+    for k in meta["references"]:
+        st, rows = table(f"/detcal/reference/{k}")
+        reference[k] = ReferencePoses(k, st, np.concatenate(rows))
+    if meta["detections"] is not None:
+        st, rows = table("/detcal/detections")
+        names = list(meta["detections"]["descriptors"])
+        counts = np.array([r.shape[0] for r in rows], dtype=np.int64)
+        allrows = np.concatenate(rows) if rows else np.zeros((0, 2 + len(names)))
+        allrows = allrows.reshape(-1, 2 + len(names))
+        desc = {n: allrows[:, 2 + j].astype(meta["detections"]["descriptors"][n]) for j, n in enumerate(names)}
+        detections = Detections(st, np.repeat(np.arange(st.size), counts), allrows[:, 0], allrows[:, 1], desc)
+    if meta["landmarks"] is not None:
+        lm = meta["landmarks"]
+        landmarks = Landmarks(
+            np.array(lm["ids"], dtype=np.int64),
+            np.array(lm["xy"], dtype=np.float64).reshape(-1, 2),
+            np.array(lm["radius"], dtype=np.float64),
+            np.array(lm["sigma"], dtype=np.float64).reshape(-1, 2),
+        )
+    return SensorLog(
+        name=meta["name"],
+        sensor=sensor,
+        vehicle=vehicle,
+        scans=scans,
+        odometry=odometry,
+        reference=reference,
+        landmarks=landmarks,
+        detections=detections,
+        source=meta["source"],
+    )

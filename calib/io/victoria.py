@@ -1,0 +1,76 @@
+"""Victoria Park ASCII release (ACFR; Guivant & Nebot 2001).
+
+A folder with ``measurements.dat`` (``t range bearing diameter``, bearing in
+the laser frame 0..pi with pi/2 straight ahead), ``inputs.dat`` (``t speed
+steering``: encoder speed of the rear left wheel, front-wheel steering) and
+``gps.dat`` (``t x y``, local frame, dropouts and jumps). The log carries:
+
+* detections, one frame per distinct timestamp, bearing moved to the sensor
+  frame (0 = straight ahead, left positive) and ``diameter`` as a descriptor;
+* Ackermann odometry (speed at the encoder, as recorded);
+* GPS as a ``gps`` reference (theta NaN);
+* the commonly used geometry: wheelbase 2.83 m, encoder 0.76 m from the
+  rear-axle centre, laser 3.78 m forward and 0.50 m left of the rear axle.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from calib.io.common import DEFAULT_MAX_BACKSTEP, file_digest, read_table, table_time_order
+from detectors.logs import Detections, Mount, Odometry, ReferencePoses, SensorLog, SensorModel, Vehicle, seconds_to_stamp
+from profiles.errors import UsageError
+
+FILES = ("measurements.dat", "inputs.dat", "gps.dat")
+WHEELBASE = 2.83
+ENCODER_OFFSET = 0.76
+LASER_MOUNT = Mount(x=3.78, y=0.50, theta=0.0)
+
+
+def looks_like_victoria(path: Path) -> bool:
+    return path.is_dir() and all((path / f).is_file() for f in FILES[:2])
+
+
+def read_victoria(path: str | Path, *, max_backstep: float = DEFAULT_MAX_BACKSTEP) -> SensorLog:
+    path = Path(path)
+    if not path.is_dir():
+        raise UsageError(f"{path}: expected the Victoria Park folder (with {', '.join(FILES)})")
+    for f in FILES[:2]:
+        if not (path / f).is_file():
+            raise UsageError(f"{path / f}: missing; a Victoria Park folder needs {', '.join(FILES)}")
+    meas = read_table(path / "measurements.dat", 4, "t range bearing diameter")
+    stamp = seconds_to_stamp(meas[:, 0])
+    perm, moved_m = table_time_order(stamp, path / "measurements.dat", "measurement", max_backstep)
+    meas, stamp = meas[perm], stamp[perm]
+    frame_stamp, frame = np.unique(stamp, return_inverse=True)
+    detections = Detections(
+        frame_stamp, frame, meas[:, 1], meas[:, 2] - np.pi / 2, {"diameter": meas[:, 3]}
+    )
+    inputs = read_table(path / "inputs.dat", 3, "t speed steering")
+    istamp = seconds_to_stamp(inputs[:, 0])
+    perm, moved_i = table_time_order(istamp, path / "inputs.dat", "input", max_backstep)
+    odometry = Odometry("ackermann", istamp[perm], inputs[perm, 1:])
+    reference = {}
+    moved_g = 0
+    if (path / "gps.dat").is_file():
+        gps = read_table(path / "gps.dat", 3, "t x y")
+        gstamp = seconds_to_stamp(gps[:, 0])
+        perm, moved_g = table_time_order(gstamp, path / "gps.dat", "GPS", max_backstep)
+        poses = np.column_stack([gps[perm, 1:], np.full(gps.shape[0], np.nan)])
+        reference["gps"] = ReferencePoses("gps", gstamp[perm], poses)
+    sensor = SensorModel(kind="detector", range_min=0.0, range_max=80.0, fov=np.pi, mount=LASER_MOUNT)
+    return SensorLog(
+        name="victoria_park",
+        sensor=sensor,
+        odometry=odometry,
+        reference=reference,
+        detections=detections,
+        vehicle=Vehicle(wheelbase=WHEELBASE, encoder_offset=ENCODER_OFFSET),
+        source={
+            "reader": "victoria",
+            "files": {f: file_digest(path / f) for f in FILES if (path / f).is_file()},
+            "reordered": {"detections": moved_m, "odometry": moved_i, "reference:gps": moved_g},
+        },
+    )

@@ -1,0 +1,104 @@
+"""``detcal simulate park``: run the simulator and write its run folder.
+
+The folder (written to a temporary name and renamed, so never half-written):
+``log.dlog`` (scans, odometry, true poses, trees as landmarks, sensor model),
+``world.yaml`` (all geometry: trees, posts, bushes, walls), ``config.yaml``
+(the config actually used, with the seed), ``summary.yaml`` and
+``overview.png`` (the park, the path and one scan).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from calib.config import dump_yaml
+from calib.io.atomic import atomic_output
+from calib.io.native import write_native
+from calib.sim.park import ParkConfig, Simulation, World, sensor_poses, simulate_park
+from profiles.errors import DataError
+
+
+def log_summary(sim: Simulation) -> dict:
+    log = sim.log
+    r = log.scans.ranges
+    return {
+        "seed": sim.seed,
+        "scans": len(log.scans),
+        "beams": log.scans.n_beams,
+        "odometry_rows": len(log.odometry),
+        "duration_s": float((log.scans.stamp[-1] - log.scans.stamp[0]) / 1e9),
+        "path_length_m": float(np.sum(np.hypot(*np.diff(log.reference["ground_truth"].poses[:, :2], axis=0).T))),
+        "returning_beam_share": float(np.isfinite(r).mean()),
+        "trees": int(sim.world.tree_r.size),
+        "posts": int(sim.world.post_r.size),
+        "bushes": int(sim.world.bush_offsets.size - 1),
+        "wall_segments": int(sim.world.wall_p0.shape[0]),
+    }
+
+
+def write_simulation(sim: Simulation, out: Path, *, overwrite: bool = False, figure: bool = True) -> dict:
+    summary = log_summary(sim)
+    with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
+        tmp.mkdir()
+        write_native(sim.log, tmp / "log.dlog")
+        (tmp / "world.yaml").write_text(dump_yaml(sim.world.to_dict()))
+        (tmp / "config.yaml").write_text(dump_yaml({"seed": sim.seed, "park": sim.config.model_dump(mode="json")}))
+        (tmp / "summary.yaml").write_text(dump_yaml(summary))
+        if figure:
+            plot_overview(sim, tmp / "overview.png")
+    return summary
+
+
+def load_world(path: Path) -> World:
+    try:
+        return World.from_dict(yaml.safe_load(path.read_text()), str(path))
+    except (OSError, yaml.YAMLError) as exc:
+        raise DataError(f"{path}: cannot read the world ({exc})") from None
+
+
+def plot_overview(sim: Simulation, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection, PatchCollection
+    from matplotlib.patches import Circle, Polygon
+
+    w, log = sim.world, sim.log
+    fig, ax = plt.subplots(figsize=(10, 7.5), dpi=100)
+    ax.add_collection(PatchCollection([Circle(c, r) for c, r in zip(w.tree_xy, w.tree_r, strict=True)], color="tab:green", label="trees"))
+    ax.add_collection(PatchCollection([Circle(c, max(r, 0.15)) for c, r in zip(w.post_xy, w.post_r, strict=True)], color="k"))
+    polys = [Polygon(w.bush_vertices[a:b]) for a, b in zip(w.bush_offsets[:-1], w.bush_offsets[1:], strict=True)]
+    ax.add_collection(PatchCollection(polys, color="olive", alpha=0.6))
+    ax.add_collection(LineCollection(np.stack([w.wall_p0, w.wall_p1], axis=1), colors="tab:brown", linewidths=2))
+    truth = log.reference["ground_truth"].poses
+    ax.plot(truth[:, 0], truth[:, 1], "b-", lw=0.8, label="true path")
+    k = len(log.scans) // 3
+    scan_t = log.scans.stamp[k]
+    pose = truth[np.searchsorted(log.reference["ground_truth"].stamp, scan_t)]
+    sp = sensor_poses(pose[None], log.sensor.mount)[0]
+    a = sp[2] + log.sensor.angles()
+    r = log.scans.ranges[k].astype(np.float64)
+    ok = np.isfinite(r)
+    ax.plot(sp[0] + r[ok] * np.cos(a[ok]), sp[1] + r[ok] * np.sin(a[ok]), "r.", ms=2, label=f"scan {k}")
+    ax.set_aspect("equal")
+    ax.set_xlim(-5, sim.config.width + 5)
+    ax.set_ylim(-5, sim.config.height + 5)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"simulated park, seed {sim.seed}: {w.tree_r.size} trees, {len(log.scans)} scans")
+    ax.legend(loc="upper right")
+    fig.tight_layout()
+    fig.savefig(path, metadata={"Software": None})
+    plt.close(fig)
+
+
+def simulate_to(out: Path, seed: int, cfg: ParkConfig | None = None, *, overwrite: bool = False) -> dict:
+    sim = simulate_park(cfg or ParkConfig(), seed)
+    return write_simulation(sim, out, overwrite=overwrite)
+
+
+__all__ = ["load_world", "plot_overview", "simulate_to", "write_simulation"]

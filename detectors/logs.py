@@ -1,0 +1,506 @@
+"""The sensor-log model every part of detcal reads.
+
+A :class:`SensorLog` is a bundle of optional, independently timed streams,
+each a struct-of-arrays batch:
+
+* :class:`ScanBatch`   -- 2D laser scans, ranges (N, B) float32, NaN = no return;
+* :class:`Odometry`    -- pose, pose increments, (v, omega) or Ackermann inputs;
+* :class:`ReferencePoses` -- ground truth or GPS, marked as which;
+* :class:`Landmarks`   -- reference landmark positions (world frame);
+* :class:`Detections`  -- detection-level records for logs without scans;
+* :class:`PointClouds` -- 3D point clouds (Velodyne frames);
+* :class:`SensorModel` -- beam geometry, range limits and noise, mounting pose;
+* :class:`Vehicle`     -- geometry for motion models that need it (Ackermann).
+
+Time is stored as int64 nanoseconds (``stamp``), the resolution of ROS time,
+so that conversions between formats are exact; ``t`` gives float64 seconds.
+Frames: the vehicle frame has x forward, y left; the sensor frame is the vehicle
+frame moved by ``SensorModel.mount``; poses are (x, y, theta) in the world
+frame, theta wrapped to (-pi, pi].
+
+The one time-ordered iteration API is :meth:`SensorLog.events` (every record
+of every stream, merged by time) and :meth:`SensorLog.frames` (one item per
+scan or detection frame with the odometry rows since the previous frame).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from typing import Literal, NamedTuple
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from profiles.errors import DataError
+
+NS = 1_000_000_000
+
+#: Odometry kinds and the meaning of their value columns.
+ODOMETRY_KINDS: dict[str, tuple[str, ...]] = {
+    # cumulative odometry-frame pose, as wheel odometry publishes it
+    "pose": ("x", "y", "theta"),
+    # motion since the previous row, expressed in the vehicle frame of that row
+    "increment": ("dx", "dy", "dtheta"),
+    # unicycle velocity commands, held until the next row
+    "velocity": ("v", "omega"),
+    # encoder speed [m/s] and front-wheel steering angle [rad] (Victoria Park)
+    "ackermann": ("speed", "steer"),
+}
+
+REFERENCE_SOURCES = ("ground_truth", "gps")
+
+
+def wrap_angle(a: np.ndarray | float) -> np.ndarray:
+    """Wrap angles to (-pi, pi]."""
+    w = np.mod(np.asarray(a, dtype=np.float64) + np.pi, 2.0 * np.pi) - np.pi
+    return np.where(w == -np.pi, np.pi, w)
+
+
+def seconds_to_stamp(t: np.ndarray | float) -> np.ndarray:
+    """Float seconds -> int64 nanoseconds (rounded to the nearest ns)."""
+    return np.rint(np.asarray(t, dtype=np.float64) * NS).astype(np.int64)
+
+
+class Mount(BaseModel):
+    """Sensor pose in the vehicle frame: (x [m] forward, y [m] left, theta [rad])."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    x: float = 0.0
+    y: float = 0.0
+    theta: float = 0.0
+
+
+class Vehicle(BaseModel):
+    """Vehicle geometry needed by some motion models (Ackermann).
+
+    Origin of the vehicle frame: the rear-axle centre. ``encoder_offset`` is the
+    lateral distance of the speed encoder (rear left wheel) from that centre.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    wheelbase: float = Field(gt=0.0)
+    encoder_offset: float = Field(default=0.0, ge=0.0)
+
+
+class SensorModel(BaseModel):
+    """What the sensor is and how it is mounted.
+
+    For a 2D laser, beam ``i`` points at ``angle_min + i * angle_increment``
+    (sensor frame, radians). Detection-only sensors (a camera, a vendor's tree
+    extractor) give ``fov`` instead of a beam geometry.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    kind: Literal["laser2d", "lidar3d", "camera", "detector"] = "laser2d"
+    n_beams: int | None = Field(default=None, ge=1)
+    angle_min: float | None = None
+    angle_increment: float | None = None
+    range_min: float = Field(default=0.0, ge=0.0)
+    range_max: float | None = Field(default=None, gt=0.0)
+    range_sigma: float | None = Field(default=None, ge=0.0)
+    fov: float | None = Field(default=None, gt=0.0, le=2 * np.pi + 1e-9)
+    mount: Mount = Mount()
+
+    def angles(self) -> np.ndarray:
+        """Beam angles in the sensor frame, (B,) float64 radians."""
+        if self.n_beams is None or self.angle_min is None or self.angle_increment is None:
+            raise DataError(f"sensor model of kind {self.kind!r} has no beam geometry")
+        return self.angle_min + self.angle_increment * np.arange(self.n_beams, dtype=np.float64)
+
+    @property
+    def field_of_view(self) -> float | None:
+        """Angular width [rad] covered by the beams (or ``fov``)."""
+        if self.n_beams is not None and self.angle_increment is not None:
+            return abs(self.angle_increment) * (self.n_beams - 1)
+        return self.fov
+
+
+def _check_stamp(stamp: np.ndarray, what: str) -> np.ndarray:
+    stamp = np.ascontiguousarray(stamp, dtype=np.int64)
+    if stamp.ndim != 1:
+        raise DataError(f"{what}.stamp: expected a 1-D array, got shape {stamp.shape}")
+    if stamp.size > 1:
+        back = np.flatnonzero(np.diff(stamp) < 0)
+        if back.size:
+            i = int(back[0]) + 1
+            raise DataError(
+                f"{what}.stamp[{i}]: time goes backwards "
+                f"({stamp[i] / NS:.9f} s after {stamp[i - 1] / NS:.9f} s)"
+            )
+    return stamp
+
+
+def _check_rows(a: np.ndarray, n: int, cols: int | None, what: str, dtype=np.float64) -> np.ndarray:
+    a = np.ascontiguousarray(a, dtype=dtype)
+    if a.shape[0] != n or (cols is not None and (a.ndim != 2 or a.shape[1] != cols)):
+        want = f"({n}, {cols})" if cols is not None else f"({n}, ...)"
+        raise DataError(f"{what}: expected shape {want}, got {a.shape}")
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class ScanBatch:
+    """Scans of one 2D laser.
+
+    stamp:       (N,) int64 ns
+    ranges:      (N, B) float32 metres, sensor frame; NaN = no return
+    intensities: (N, B) float32 or None
+    odom_pose:   (N, 3) float64 or None -- the odometry pose logged with each
+                 scan (CARMEN ``FLASER``), odometry frame
+    """
+
+    stamp: np.ndarray
+    ranges: np.ndarray
+    intensities: np.ndarray | None = None
+    odom_pose: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        stamp = _check_stamp(self.stamp, "scans")
+        ranges = np.ascontiguousarray(self.ranges, dtype=np.float32)
+        if ranges.ndim != 2 or ranges.shape[0] != stamp.size:
+            raise DataError(f"scans.ranges: expected shape ({stamp.size}, B), got {ranges.shape}")
+        neg = np.flatnonzero((ranges < 0).any(axis=1))
+        if neg.size:
+            raise DataError(f"scans.ranges[{int(neg[0])}]: negative range (use NaN for no return)")
+        if np.isinf(ranges).any():
+            raise DataError("scans.ranges: infinite range (use NaN for no return)")
+        object.__setattr__(self, "stamp", stamp)
+        object.__setattr__(self, "ranges", ranges)
+        if self.intensities is not None:
+            inten = np.ascontiguousarray(self.intensities, dtype=np.float32)
+            if inten.shape != ranges.shape:
+                raise DataError(f"scans.intensities: expected shape {ranges.shape}, got {inten.shape}")
+            object.__setattr__(self, "intensities", inten)
+        if self.odom_pose is not None:
+            object.__setattr__(self, "odom_pose", _check_rows(self.odom_pose, stamp.size, 3, "scans.odom_pose"))
+
+    def __len__(self) -> int:
+        return int(self.stamp.size)
+
+    @property
+    def n_beams(self) -> int:
+        return int(self.ranges.shape[1])
+
+    @property
+    def t(self) -> np.ndarray:
+        """(N,) float64 seconds."""
+        return self.stamp / NS
+
+
+@dataclass(frozen=True, eq=False)
+class Odometry:
+    """Odometry rows; the meaning of ``values`` columns is ``ODOMETRY_KINDS[kind]``.
+
+    stamp:  (M,) int64 ns
+    values: (M, k) float64
+    """
+
+    kind: str
+    stamp: np.ndarray
+    values: np.ndarray
+
+    def __post_init__(self) -> None:
+        if self.kind not in ODOMETRY_KINDS:
+            raise DataError(f"odometry.kind: expected one of {sorted(ODOMETRY_KINDS)}, got {self.kind!r}")
+        stamp = _check_stamp(self.stamp, "odometry")
+        values = _check_rows(self.values, stamp.size, len(ODOMETRY_KINDS[self.kind]), "odometry.values")
+        bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
+        if bad.size:
+            raise DataError(f"odometry.values[{int(bad[0])}]: not a finite number")
+        object.__setattr__(self, "stamp", stamp)
+        object.__setattr__(self, "values", values)
+
+    def __len__(self) -> int:
+        return int(self.stamp.size)
+
+    @property
+    def t(self) -> np.ndarray:
+        return self.stamp / NS
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        return ODOMETRY_KINDS[self.kind]
+
+
+@dataclass(frozen=True, eq=False)
+class ReferencePoses:
+    """Reference trajectory of the vehicle, world frame.
+
+    source: ``"ground_truth"`` (e.g. Vicon, simulator) or ``"gps"`` (partial truth)
+    stamp:  (M,) int64 ns
+    poses:  (M, 3) float64 (x, y, theta); theta is NaN when not measured (GPS)
+    """
+
+    source: str
+    stamp: np.ndarray
+    poses: np.ndarray
+
+    def __post_init__(self) -> None:
+        if self.source not in REFERENCE_SOURCES:
+            raise DataError(f"reference.source: expected one of {REFERENCE_SOURCES}, got {self.source!r}")
+        stamp = _check_stamp(self.stamp, f"reference[{self.source}]")
+        poses = _check_rows(self.poses, stamp.size, 3, f"reference[{self.source}].poses")
+        bad = np.flatnonzero(~np.isfinite(poses[:, :2]).all(axis=1))
+        if bad.size:
+            raise DataError(f"reference[{self.source}].poses[{int(bad[0])}]: position is not finite")
+        object.__setattr__(self, "stamp", stamp)
+        object.__setattr__(self, "poses", poses)
+
+    def __len__(self) -> int:
+        return int(self.stamp.size)
+
+    @property
+    def t(self) -> np.ndarray:
+        return self.stamp / NS
+
+
+@dataclass(frozen=True, eq=False)
+class Landmarks:
+    """Reference landmarks, world frame.
+
+    ids:    (L,) int64 identifiers (unique)
+    xy:     (L, 2) float64 metres
+    radius: (L,) float64 metres, NaN when unknown
+    sigma:  (L, 2) float64 standard deviation of xy, NaN when unknown
+    """
+
+    ids: np.ndarray
+    xy: np.ndarray
+    radius: np.ndarray | None = None
+    sigma: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        ids = np.ascontiguousarray(self.ids, dtype=np.int64)
+        if ids.ndim != 1:
+            raise DataError(f"landmarks.ids: expected a 1-D array, got shape {ids.shape}")
+        if np.unique(ids).size != ids.size:
+            raise DataError("landmarks.ids: identifiers are not unique")
+        n = ids.size
+        object.__setattr__(self, "ids", ids)
+        object.__setattr__(self, "xy", _check_rows(self.xy, n, 2, "landmarks.xy"))
+        radius = np.full(n, np.nan) if self.radius is None else self.radius
+        object.__setattr__(self, "radius", _check_rows(np.reshape(radius, (-1,)), n, None, "landmarks.radius"))
+        sigma = np.full((n, 2), np.nan) if self.sigma is None else self.sigma
+        object.__setattr__(self, "sigma", _check_rows(sigma, n, 2, "landmarks.sigma"))
+
+    def __len__(self) -> int:
+        return int(self.ids.size)
+
+
+@dataclass(frozen=True, eq=False)
+class Detections:
+    """Detection-level records for logs that carry detections, not raw scans.
+
+    frame_stamp: (F,) int64 ns, one per detection frame (scan or image), sorted
+    frame:       (D,) int64 index into ``frame_stamp``, non-decreasing
+    range:       (D,) float64 metres, sensor frame
+    bearing:     (D,) float64 radians, sensor frame (0 = straight ahead)
+    descriptors: name -> (D,) array (e.g. ``diameter`` [m], ``barcode``, ``subject``)
+    """
+
+    frame_stamp: np.ndarray
+    frame: np.ndarray
+    range: np.ndarray
+    bearing: np.ndarray
+    descriptors: Mapping[str, np.ndarray] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        fs = _check_stamp(self.frame_stamp, "detections.frame")
+        frame = np.ascontiguousarray(self.frame, dtype=np.int64)
+        n = frame.size
+        if frame.ndim != 1:
+            raise DataError(f"detections.frame: expected a 1-D array, got shape {frame.shape}")
+        if n and (frame.min() < 0 or frame.max() >= fs.size or (np.diff(frame) < 0).any()):
+            raise DataError("detections.frame: indices must be sorted and within the frames")
+        rng = _check_rows(self.range, n, None, "detections.range")
+        brg = _check_rows(self.bearing, n, None, "detections.bearing")
+        bad = np.flatnonzero(~np.isfinite(rng) | (rng < 0) | ~np.isfinite(brg))
+        if bad.size:
+            raise DataError(f"detections[{int(bad[0])}]: range must be finite and >= 0, bearing finite")
+        desc = {}
+        for name, arr in self.descriptors.items():
+            a = np.ascontiguousarray(arr)
+            if a.shape != (n,):
+                raise DataError(f"detections.descriptors[{name!r}]: expected shape ({n},), got {a.shape}")
+            desc[str(name)] = a
+        object.__setattr__(self, "frame_stamp", fs)
+        object.__setattr__(self, "frame", frame)
+        object.__setattr__(self, "range", rng)
+        object.__setattr__(self, "bearing", brg)
+        object.__setattr__(self, "descriptors", desc)
+
+    def __len__(self) -> int:
+        return int(self.frame.size)
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.frame_stamp.size)
+
+    def frame_slices(self) -> np.ndarray:
+        """(F + 1,) int64 offsets: detections of frame f are ``[off[f], off[f+1])``."""
+        return np.searchsorted(self.frame, np.arange(self.n_frames + 1), side="left").astype(np.int64)
+
+
+@dataclass(frozen=True, eq=False)
+class PointClouds:
+    """3D point clouds (e.g. Velodyne frames), sensor frame.
+
+    stamp:   (F,) int64 ns
+    offsets: (F + 1,) int64; points of frame f are ``points[offsets[f]:offsets[f+1]]``
+    points:  (P, 4) float32 (x, y, z [m], reflectance)
+    """
+
+    stamp: np.ndarray
+    offsets: np.ndarray
+    points: np.ndarray
+
+    def __post_init__(self) -> None:
+        stamp = _check_stamp(self.stamp, "clouds")
+        off = np.ascontiguousarray(self.offsets, dtype=np.int64)
+        pts = np.ascontiguousarray(self.points, dtype=np.float32)
+        if pts.ndim != 2 or pts.shape[1] != 4:
+            raise DataError(f"clouds.points: expected shape (P, 4), got {pts.shape}")
+        if off.shape != (stamp.size + 1,) or off[0] != 0 or off[-1] != pts.shape[0] or (np.diff(off) < 0).any():
+            raise DataError("clouds.offsets: expected F + 1 non-decreasing offsets from 0 to the number of points")
+        object.__setattr__(self, "stamp", stamp)
+        object.__setattr__(self, "offsets", off)
+        object.__setattr__(self, "points", pts)
+
+    def __len__(self) -> int:
+        return int(self.stamp.size)
+
+    def frame(self, i: int) -> np.ndarray:
+        """(P_i, 4) float32 points of frame ``i``."""
+        return self.points[self.offsets[i] : self.offsets[i + 1]]
+
+
+class Event(NamedTuple):
+    """One record of one stream: ``stream`` in {scan, odometry, reference:<source>, detections, clouds}."""
+
+    stamp: int
+    stream: str
+    index: int
+
+
+class Frame(NamedTuple):
+    """One scan or detection frame with the odometry rows that led to it.
+
+    index: frame number; stamp: int64 ns; kind: "scan" or "detections";
+    rows: the scan row, or the slice into ``log.detections`` arrays;
+    odometry: slice into ``log.odometry`` rows with stamp in (previous frame, this frame].
+    """
+
+    index: int
+    stamp: int
+    kind: str
+    rows: int | slice
+    odometry: slice
+
+
+@dataclass(frozen=True, eq=False)
+class SensorLog:
+    """A log: metadata plus optional streams; see the module docstring.
+
+    ``source`` records where the log came from (reader, file names, hashes);
+    ``reordered`` counts records a reader had to sort back into time order.
+    """
+
+    name: str
+    sensor: SensorModel | None = None
+    scans: ScanBatch | None = None
+    odometry: Odometry | None = None
+    reference: Mapping[str, ReferencePoses] = field(default_factory=dict)
+    landmarks: Landmarks | None = None
+    detections: Detections | None = None
+    clouds: PointClouds | None = None
+    vehicle: Vehicle | None = None
+    source: Mapping[str, object] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for key, ref in self.reference.items():
+            if key != ref.source:
+                raise DataError(f"reference[{key!r}]: keyed under a different source ({ref.source!r})")
+        if self.scans is not None:
+            if self.sensor is None or self.sensor.n_beams is None:
+                raise DataError("scans need a sensor model with a beam geometry")
+            if self.scans.n_beams != self.sensor.n_beams:
+                raise DataError(
+                    f"scans.ranges: {self.scans.n_beams} beams per scan but the sensor model "
+                    f"declares n_beams={self.sensor.n_beams}"
+                )
+
+    def streams(self) -> list[str]:
+        out = []
+        if self.scans is not None:
+            out.append("scan")
+        if self.odometry is not None:
+            out.append("odometry")
+        out += [f"reference:{k}" for k in self.reference]
+        if self.landmarks is not None:
+            out.append("landmarks")
+        if self.detections is not None:
+            out.append("detections")
+        if self.clouds is not None:
+            out.append("clouds")
+        return out
+
+    def time_span(self) -> tuple[int, int] | None:
+        """(first, last) stamp over all timed streams, ns; None if there is none."""
+        stamps = [s for s in self._timed() if s[1].size]
+        if not stamps:
+            return None
+        return int(min(s[1][0] for s in stamps)), int(max(s[1][-1] for s in stamps))
+
+    def _timed(self) -> list[tuple[str, np.ndarray]]:
+        out: list[tuple[str, np.ndarray]] = []
+        if self.scans is not None:
+            out.append(("scan", self.scans.stamp))
+        if self.odometry is not None:
+            out.append(("odometry", self.odometry.stamp))
+        out += [(f"reference:{k}", r.stamp) for k, r in self.reference.items()]
+        if self.detections is not None:
+            out.append(("detections", self.detections.frame_stamp))
+        if self.clouds is not None:
+            out.append(("clouds", self.clouds.stamp))
+        return out
+
+    def events(self) -> Iterator[Event]:
+        """Every record of every timed stream in time order.
+
+        Ties are broken by stream order (odometry before references before
+        scans/detections), so the motion up to a frame is known when it arrives.
+        """
+        order = {"odometry": 0, "scan": 2, "detections": 2, "clouds": 2}
+        timed = self._timed()
+        if not timed:
+            return
+        stamps = np.concatenate([s for _, s in timed])
+        which = np.concatenate([np.full(s.size, k, dtype=np.int64) for k, (_, s) in enumerate(timed)])
+        index = np.concatenate([np.arange(s.size, dtype=np.int64) for _, s in timed])
+        prio = np.array([order.get(name, 1) for name, _ in timed], dtype=np.int64)[which]
+        perm = np.lexsort((index, which, prio, stamps))
+        names = [name for name, _ in timed]
+        for st, w, i in zip(stamps[perm].tolist(), which[perm].tolist(), index[perm].tolist(), strict=True):
+            yield Event(st, names[w], i)
+
+    def frames(self) -> Iterator[Frame]:
+        """Scan frames, or detection frames when the log has no scans, in time order."""
+        if self.scans is not None:
+            fstamp, kind = self.scans.stamp, "scan"
+            rows: list[int | slice] = list(range(len(self.scans)))
+        elif self.detections is not None:
+            fstamp, kind = self.detections.frame_stamp, "detections"
+            off = self.detections.frame_slices()
+            rows = [slice(int(a), int(b)) for a, b in zip(off[:-1], off[1:], strict=True)]
+        else:
+            return
+        if self.odometry is not None:
+            cut = np.searchsorted(self.odometry.stamp, fstamp, side="right")
+        else:
+            cut = np.zeros(fstamp.size, dtype=np.int64)
+        prev = 0
+        for i in range(fstamp.size):
+            c = int(cut[i])
+            yield Frame(i, int(fstamp[i]), kind, rows[i], slice(prev, c))
+            prev = c
