@@ -418,6 +418,7 @@ class SensorLog:
     source: Mapping[str, object] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "reference", {k: self.reference[k] for k in sorted(self.reference)})
         for key, ref in self.reference.items():
             if key != ref.source:
                 raise DataError(f"reference[{key!r}]: keyed under a different source ({ref.source!r})")
