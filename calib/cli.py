@@ -179,6 +179,10 @@ def simulate_park_cmd(
 
         raise UsageError(f"--seed: expected a non-negative integer, got {seed}")
     cfg = load_yaml_model(ParkConfig, config)
+    if out_dir.exists() and not force:
+        from profiles.errors import UsageError
+
+        raise UsageError(f"{out_dir}: already exists (use --force to replace it)")
     summary = simulate_to(out_dir, seed, cfg, overwrite=force)
     t = Table(title=f"simulated park -> {out_dir}")
     t.add_column("quantity")

@@ -283,21 +283,22 @@ def _radii(rng: np.random.Generator, d: RadiusDist, n: int) -> np.ndarray:
 def make_world(cfg: ParkConfig, rng: np.random.Generator, path: np.ndarray) -> World:
     path_tree = cKDTree(path[::5])
     taken: list = []
-    tree_r = _radii(rng, cfg.trees.radius, cfg.trees.count)
-    tree_xy = _place(rng, cfg.trees.count, tree_r, cfg, path_tree, taken, cfg.trees.min_spacing)
-    b = cfg.bushes
-    bush_r = rng.uniform(b.min_radius, max(b.min_radius, b.max_radius), b.count)
-    bush_c = _place(rng, b.count, bush_r, cfg, path_tree, taken, 0.5)
-    ang = np.sort(rng.uniform(0, 2 * np.pi, (b.count, b.vertices)), axis=1)
-    rad = bush_r[:, None] * (1.0 - b.irregularity * rng.uniform(0, 1, (b.count, b.vertices)))
-    verts = bush_c[:, None, :] + rad[..., None] * np.stack([np.cos(ang), np.sin(ang)], axis=-1)
-    p = cfg.posts
-    post_r = rng.uniform(p.min_radius, max(p.min_radius, p.max_radius), p.count)
-    post_xy = _place(rng, p.count, post_r, cfg, path_tree, taken, 0.5)
+    # largest objects first: a wall needs a free disc of its half length
     w = cfg.walls
     length = rng.uniform(w.min_length, max(w.min_length, w.max_length), w.count)
     half = length / 2
     wall_c = _place(rng, w.count, half, cfg, path_tree, taken, 0.5)
+    b = cfg.bushes
+    bush_r = rng.uniform(b.min_radius, max(b.min_radius, b.max_radius), b.count)
+    bush_c = _place(rng, b.count, bush_r, cfg, path_tree, taken, 0.5)
+    tree_r = _radii(rng, cfg.trees.radius, cfg.trees.count)
+    tree_xy = _place(rng, cfg.trees.count, tree_r, cfg, path_tree, taken, cfg.trees.min_spacing)
+    p = cfg.posts
+    post_r = rng.uniform(p.min_radius, max(p.min_radius, p.max_radius), p.count)
+    post_xy = _place(rng, p.count, post_r, cfg, path_tree, taken, 0.5)
+    ang = np.sort(rng.uniform(0, 2 * np.pi, (b.count, b.vertices)), axis=1)
+    rad = bush_r[:, None] * (1.0 - b.irregularity * rng.uniform(0, 1, (b.count, b.vertices)))
+    verts = bush_c[:, None, :] + rad[..., None] * np.stack([np.cos(ang), np.sin(ang)], axis=-1)
     heading = rng.uniform(0, np.pi, w.count)
     u = np.column_stack([np.cos(heading), np.sin(heading)])
     fence = rng.uniform(0, 1, w.count) < w.fence_fraction
