@@ -15,9 +15,9 @@ $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e ".[test]"
 	touch $(STAMP)
 
-# The main job on the embedded default: simulate the default park log and summarise it.
+# The main job on the embedded default: simulate the default park log (seed 1) and summarise it.
 demo: $(STAMP)
-	$(BIN)/detcal simulate park --seed 7 --out $(DEMO) --force
+	$(BIN)/detcal simulate park --seed 1 --out $(DEMO) --force
 	$(BIN)/detcal log info $(DEMO)/log.dlog
 
 test: $(STAMP)

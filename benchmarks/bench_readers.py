@@ -40,7 +40,7 @@ def best_of(fn, n=3) -> tuple[float, object]:
 
 def main() -> None:
     tmp = Path(tempfile.mkdtemp(prefix="detcal-bench-"))
-    sim = simulate_park(ParkConfig(), seed=7)
+    sim = simulate_park(ParkConfig(), seed=1)
     write_log(sim.log, tmp / "park.dlog")
     write_log(sim.log, tmp / "park_bag")
     foreign = ReadOptions(scan_topic="/scan", odom_topic=None)

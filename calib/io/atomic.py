@@ -31,8 +31,10 @@ def atomic_output(path: str | Path, *, overwrite: bool = False, directory: bool 
     path = Path(path)
     if path.exists() and not overwrite:
         raise UsageError(f"{path}: already exists (use --force to replace it)")
-    if not path.parent.exists():
-        raise UsageError(f"{path.parent}: output folder does not exist")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"{path.parent}: cannot create the output folder ({exc.strerror})") from None
     fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
     os.close(fd)
     tmp = Path(name)
