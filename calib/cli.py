@@ -192,6 +192,38 @@ def simulate_park_cmd(
     out.print(t)
 
 
+@app.command("detect")
+def detect_cmd(
+    log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A log with laser scans.")],
+    out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/detect_<log name>).")] = None,
+    config: Annotated[Path | None, typer.Option(help="YAML with `detector:` parameters and an optional `hotelling:` gate.")] = None,
+    plot: Annotated[int | None, typer.Option("--plot", metavar="SCAN", help="Also draw this scan: clusters, circles, P_D field.")] = None,
+    force: Annotated[bool, typer.Option(help="Replace the run folder if it exists.")] = False,
+    fmt: FormatOpt = None,
+    max_backstep: BackstepOpt = 1.0,
+    laser: LaserOpt = "front",
+    range_max: RangeMaxOpt = None,
+    scan_topic: ScanTopicOpt = None,
+) -> None:
+    """Run the circle (tree) detector over every scan and write a detections table."""
+    from calib.config import load_yaml_model
+    from calib.detect import DetectConfig, write_detect_run
+    from profiles.errors import UsageError
+
+    cfg = load_yaml_model(DetectConfig, config)
+    log = _read(log_path, fmt, max_backstep, laser, range_max, 1, scan_topic, None, None)
+    target = out_dir or Path("runs") / f"detect_{log.name}"
+    if target.exists() and not force:
+        raise UsageError(f"{target}: already exists (use --force to replace it)")
+    summary = write_detect_run(log, cfg, target, plot_scan=plot, overwrite=force)
+    t = Table(title=f"detections -> {target}")
+    t.add_column("quantity")
+    t.add_column("value", justify="right")
+    for k, v in summary.items():
+        t.add_row(k, f"{v:.3f}" if isinstance(v, float) else str(v))
+    out.print(t)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: run the app, map DetcalError to a one-line message and its exit code.
 

@@ -1,0 +1,151 @@
+"""The runtime detection model a filter calls: P_D, clutter intensity and descriptor likelihoods.
+
+Built from the parts of a detector profile (``profiles.schema``); a filter
+passes arrays and gets arrays back:
+
+* :meth:`DetectionModel.pd_landmarks` -- P_D of L landmarks from one sensor pose
+  given the current scan, through n_p (eqs. 4.1, 6.1) and the P_D table, with
+  the buffer-zone flag of sec. 6.1 (for eq. 3.21);
+* :meth:`DetectionModel.pd_covariate` -- P_D from the covariate directly (e.g.
+  range, for detectors without scans);
+* :meth:`DetectionModel.clutter_intensity` -- kappa(z) = lambda / |FoV| inside
+  the field of view, 0 outside (sec. 4.2);
+* :meth:`DetectionModel.g_true` / :meth:`DetectionModel.g_false` -- the
+  descriptor likelihoods of eq. 5.6 for the amplitude-feature update (eq. 2.26).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from math import gamma as gamma_fn
+from math import pi
+
+import numpy as np
+from scipy.stats import chi2
+
+from detectors.circle import hotelling_maha2
+from detectors.logs import SensorModel
+from detectors.raytrace import buffer_zone, count_unoccluded
+from profiles.errors import DataError
+from profiles.schema import ClutterParams, HotellingParams, PdTable
+
+
+@dataclass(frozen=True, eq=False)
+class DetectionModel:
+    """P_D table + clutter + optional Hotelling model of one detector on one sensor.
+
+    ``k_sigma`` is the occlusion tolerance of the ray tracer (in sigma_r);
+    ``buffer_samples`` the number of lateral positions of the buffer-zone rule.
+    """
+
+    pd_table: PdTable
+    clutter: ClutterParams
+    sensor: SensorModel
+    hotelling: HotellingParams | None = None
+    k_sigma: float = 3.0
+    buffer_samples: int = 5
+
+    def __post_init__(self) -> None:
+        if self.pd_table.covariate == "n_p" and self.sensor.n_beams is None:
+            raise DataError("an n_p P_D table needs a sensor model with a beam geometry")
+        if self.pd_table.covariate == "n_p" and self.sensor.range_sigma is None:
+            raise DataError("an n_p P_D table needs the sensor's range_sigma (for the occlusion test)")
+
+    # ------------------------------------------------------------------ P_D
+    def pd_of_np(self, n_p: np.ndarray) -> np.ndarray:
+        return self.pd_table.lookup(n_p)
+
+    def pd_covariate(self, v: np.ndarray) -> np.ndarray:
+        """P_D for covariate values (any shape): n_p counts or ranges, as the table says."""
+        return self.pd_table.lookup(v)
+
+    def pd_landmarks(
+        self,
+        sensor_pose: np.ndarray,
+        ranges: np.ndarray,
+        centres: np.ndarray,
+        radii: np.ndarray,
+        lateral: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """P_D (L,) and buffer-zone flags (L,) of landmarks seen from one sensor pose.
+
+        sensor_pose (3,) world; ranges (B,) the current scan; centres (L, 2) world;
+        radii (L,) or scalar; lateral (L,) spread [m] for the buffer rule (e.g. 2
+        standard deviations of the position across the line of sight); without it
+        only the 0 < P_D < 0.5 rule applies.
+        """
+        s = self.sensor
+        if lateral is None:
+            n_p, _ = count_unoccluded(
+                np.asarray(sensor_pose)[None], s.angles(), np.asarray(ranges)[None], centres, radii,
+                range_sigma=float(s.range_sigma), k_sigma=self.k_sigma, range_max=s.range_max,
+            )
+            pd = self.pd_of_np(n_p[0])
+            return pd, (pd > 0) & (pd < 0.5)
+        return buffer_zone(
+            sensor_pose, s.angles(), ranges, centres, radii, lateral, self.pd_of_np,
+            samples=self.buffer_samples, range_sigma=float(s.range_sigma), k_sigma=self.k_sigma, range_max=s.range_max,
+        )
+
+    # ------------------------------------------------------------------ clutter
+    def in_fov(self, z: np.ndarray) -> np.ndarray:
+        """(M,) whether range-bearing measurements z (M, 2) lie in the field of view."""
+        z = np.atleast_2d(z)
+        s = self.sensor
+        ok = z[:, 0] >= s.range_min
+        if s.range_max is not None:
+            ok &= z[:, 0] <= s.range_max
+        fov = s.field_of_view
+        if fov is not None:
+            if s.angle_min is not None and s.angle_increment is not None and s.n_beams is not None:
+                lo = min(s.angle_min, s.angle_min + s.angle_increment * (s.n_beams - 1))
+                ok &= (z[:, 1] >= lo) & (z[:, 1] <= lo + fov)
+            else:
+                ok &= np.abs(z[:, 1]) <= fov / 2
+        return ok
+
+    def clutter_intensity(self, z: np.ndarray) -> np.ndarray:
+        """kappa(z) (M,) for range-bearing measurements z (M, 2), per unit of the clutter space."""
+        z = np.atleast_2d(np.asarray(z, dtype=np.float64))
+        k = self.clutter.kappa
+        if self.clutter.space == "xy":
+            # a uniform density in x-y is r times a density in (r, bearing)
+            return np.where(self.in_fov(z), k * z[:, 0], 0.0)
+        return np.where(self.in_fov(z), k, 0.0)
+
+    # ------------------------------------------------------------------ descriptors (eq. 5.6)
+    def _need_hotelling(self) -> HotellingParams:
+        if self.hotelling is None:
+            raise DataError("this profile has no Hotelling model: descriptor likelihoods are unavailable")
+        return self.hotelling
+
+    def g_true(self, desc: np.ndarray) -> np.ndarray:
+        """g_x (eq. 5.6): the Gaussian of true detections truncated to the ellipsoid, renormalised."""
+        h = self._need_hotelling()
+        desc = np.atleast_2d(desc)
+        d = len(h.names)
+        m2 = hotelling_maha2(desc, h)
+        cov = np.asarray(h.covariance)
+        norm = np.sqrt((2 * pi) ** d * np.linalg.det(cov))
+        mass = chi2.cdf(h.gamma, d)  # the Gaussian's mass inside the ellipsoid
+        return np.where(m2 <= h.gamma, np.exp(-0.5 * m2) / norm / mass, 0.0)
+
+    def g_false(self, desc: np.ndarray) -> np.ndarray:
+        """g_FA (eq. 5.6): uniform over the ellipsoid, 1 / its volume inside and 0 outside."""
+        h = self._need_hotelling()
+        desc = np.atleast_2d(desc)
+        d = len(h.names)
+        m2 = hotelling_maha2(desc, h)
+        unit_ball = pi ** (d / 2) / gamma_fn(d / 2 + 1)
+        vol = unit_ball * h.gamma ** (d / 2) * np.sqrt(np.linalg.det(np.asarray(h.covariance)))
+        return np.where(m2 <= h.gamma, 1.0 / vol, 0.0)
+
+
+def fov_volume(sensor: SensorModel, space: str = "range_bearing") -> float:
+    """Size of the field of view: range span x angular span [m rad], or its area [m^2]."""
+    if sensor.range_max is None or sensor.field_of_view is None:
+        raise DataError("the sensor model needs range_max and a field of view to spread clutter over")
+    span = sensor.field_of_view
+    if space == "xy":
+        return 0.5 * span * (sensor.range_max**2 - sensor.range_min**2)
+    return span * (sensor.range_max - sensor.range_min)

@@ -1,0 +1,113 @@
+"""Pydantic models of the parts of a detector profile.
+
+Every model forbids unknown keys and bounds its fields; defaults work. The
+runtime (``detectors.model``) and the calibration (``calib``) both read these.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class CircleDetectorParams(Strict):
+    """Parameters of the circle detector (thesis sec. 5.3)."""
+
+    jump: float = Field(default=0.5, gt=0.0, description="distance between consecutive returns that breaks a cluster [m]")
+    min_points: int = Field(default=3, ge=3, description="fewest returns in a cluster (a circle needs 3)")
+    max_points: int | None = Field(default=None, ge=3, description="most returns in a cluster (None: no limit)")
+    max_radius: float | None = Field(default=None, gt=0.0, description="drop fitted circles larger than this [m]")
+    lm_iterations: int = Field(default=30, ge=1, le=500, description="Levenberg-Marquardt iterations at most")
+
+
+class HotellingParams(Strict):
+    """Hotelling ellipsoid of true detections' descriptors (thesis eq. 5.4).
+
+    A detection with descriptor vector x is kept when
+    (x - mean)^T covariance^-1 (x - mean) <= gamma.
+    """
+
+    names: list[str] = Field(min_length=1)
+    mean: list[float]
+    covariance: list[list[float]]
+    confidence: float = Field(default=0.999, gt=0.0, lt=1.0)
+    gamma: float = Field(gt=0.0, description="threshold on the squared Mahalanobis distance")
+
+    @model_validator(mode="after")
+    def _shapes(self) -> HotellingParams:
+        d = len(self.names)
+        if len(self.mean) != d:
+            raise ValueError(f"mean has {len(self.mean)} entries for {d} descriptor names")
+        cov = np.asarray(self.covariance, dtype=np.float64)
+        if cov.shape != (d, d):
+            raise ValueError(f"covariance must be {d}x{d}, got {cov.shape}")
+        if not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-15):
+            raise ValueError("covariance is not symmetric")
+        if np.linalg.eigvalsh(cov).min() <= 0:
+            raise ValueError("covariance is not positive definite")
+        return self
+
+
+class PdTable(Strict):
+    """P_D against a covariate, piecewise constant (thesis eq. 6.2, Table 6.1).
+
+    Bin i covers ``edges[i] <= v < edges[i+1]``; a value at or beyond the last
+    edge uses the last bin, a value below the first edge has P_D = 0. For
+    ``n_p`` the edges are integers, one bin per count.
+    """
+
+    covariate: Literal["n_p", "range"] = "n_p"
+    edges: list[float] = Field(min_length=2)
+    pd: list[float]
+    counts: list[int] | None = None
+    detections: list[int] | None = None
+    wilson_low: list[float] | None = None
+    wilson_high: list[float] | None = None
+    clamping: str = Field(default="none", description="how the raw estimates were clamped")
+
+    @model_validator(mode="after")
+    def _shapes(self) -> PdTable:
+        e = np.asarray(self.edges)
+        if np.any(np.diff(e) <= 0):
+            raise ValueError("edges must increase strictly")
+        n = e.size - 1
+        for name in ("pd", "counts", "detections", "wilson_low", "wilson_high"):
+            v = getattr(self, name)
+            if v is not None and len(v) != n:
+                raise ValueError(f"{name} has {len(v)} entries for {n} bins")
+        if any(not 0.0 <= p <= 1.0 for p in self.pd):
+            raise ValueError("pd values must lie in [0, 1]")
+        return self
+
+    def lookup(self, v: np.ndarray) -> np.ndarray:
+        """P_D for covariate values ``v`` (any shape)."""
+        e = np.asarray(self.edges)
+        pd = np.asarray(self.pd)
+        i = np.clip(np.searchsorted(e, v, side="right") - 1, 0, pd.size - 1)
+        return np.where(np.asarray(v) < e[0], 0.0, pd[i])
+
+
+class ClutterParams(Strict):
+    """Poisson clutter: ``rate`` false alarms per scan spread uniformly over ``volume``.
+
+    space: ``range_bearing`` (volume in m*rad) or ``xy`` (area in m^2).
+    """
+
+    rate: float = Field(ge=0.0, description="lambda: mean false alarms per scan")
+    space: Literal["range_bearing", "xy"] = "range_bearing"
+    volume: float = Field(gt=0.0, description="size of the field of view in the measurement space")
+    chi2: float | None = None
+    dof: int | None = None
+    p_value: float | None = Field(default=None, ge=0.0, le=1.0)
+    dispersion: float | None = Field(default=None, ge=0.0, description="variance / mean of the per-scan counts")
+
+    @property
+    def kappa(self) -> float:
+        """Clutter intensity per unit of the measurement space."""
+        return self.rate / self.volume

@@ -1,0 +1,69 @@
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from detectors.logs import SensorModel
+from detectors.model import DetectionModel, fov_volume
+from profiles.errors import DataError
+from profiles.schema import ClutterParams, HotellingParams, PdTable
+
+SENSOR = SensorModel(n_beams=361, angle_min=-np.pi / 2, angle_increment=np.pi / 360, range_max=80.0, range_sigma=0.02)
+TABLE = PdTable(edges=[0, 1, 2, 3, 4, 5, 6, 7], pd=[0.0, 0.0, 0.0, 0.36, 0.76, 0.89, 0.9])
+H = HotellingParams(
+    names=["fit_error", "radius", "convexity"],
+    mean=[0.001, 0.2, 0.15],
+    covariance=[[1e-6, 0.0, 0.0], [0.0, 0.01, 0.004], [0.0, 0.004, 0.005]],
+    gamma=float(chi2.ppf(0.999, 3)),
+)
+
+
+def model(**kw):
+    clutter = ClutterParams(rate=6.18, volume=fov_volume(SENSOR))
+    return DetectionModel(TABLE, clutter, SENSOR, hotelling=H, **kw)
+
+
+def test_pd_table_lookup_and_clamping_semantics():
+    assert TABLE.lookup(np.array([-1, 0, 2, 3, 6, 50])).tolist() == [0.0, 0.0, 0.0, 0.36, 0.9, 0.9]
+    with pytest.raises(ValueError, match="pd has 2 entries for 3 bins"):
+        PdTable(edges=[0, 1, 2, 3], pd=[0.1, 0.2])
+
+
+def test_pd_of_landmarks_through_n_p():
+    m = model()
+    meas = np.full(361, np.nan)
+    pd, buf = m.pd_landmarks(np.zeros(3), meas, np.array([[3.0, 0.0], [60.0, 0.0], [-5.0, 0.0]]), 0.2)
+    assert pd[0] == pytest.approx(0.9) and pd[1] == 0.0 and pd[2] == 0.0  # close; far; behind the sensor
+    assert not buf.any()
+
+
+def test_clutter_intensity_integrates_to_the_rate():
+    m = model()
+    rng = np.random.default_rng(0)
+    z = np.column_stack([rng.uniform(0, 100, 200_000), rng.uniform(-np.pi, np.pi, 200_000)])
+    box = 100 * 2 * np.pi
+    integral = m.clutter_intensity(z).mean() * box
+    assert integral == pytest.approx(6.18, rel=0.01)  # Monte Carlo s.e. ~0.4 %
+    assert m.clutter_intensity(np.array([[10.0, 2.0]]))[0] == 0.0  # outside the 180 deg field of view
+
+
+def test_descriptor_likelihoods_integrate_to_one_over_the_ellipsoid():
+    m = model()
+    rng = np.random.default_rng(1)
+    cov = np.asarray(H.covariance)
+    # sample the bounding box of the ellipsoid and integrate both densities
+    half = np.sqrt(np.diag(cov) * H.gamma)
+    lo, hi = np.asarray(H.mean) - half, np.asarray(H.mean) + half
+    x = rng.uniform(lo, hi, (400_000, 3))
+    vol = np.prod(hi - lo)
+    assert m.g_true(x).mean() * vol == pytest.approx(1.0, rel=0.02)
+    assert m.g_false(x).mean() * vol == pytest.approx(1.0, rel=0.02)
+    far = np.array([[1.0, 5.0, 5.0]])
+    assert m.g_true(far)[0] == 0.0 and m.g_false(far)[0] == 0.0
+
+
+def test_model_needs_what_its_table_needs():
+    with pytest.raises(DataError, match="needs the sensor's range_sigma"):
+        DetectionModel(TABLE, ClutterParams(rate=1.0, volume=1.0), SensorModel(n_beams=3, angle_min=0, angle_increment=0.1, range_max=5))
+    m = DetectionModel(TABLE, ClutterParams(rate=1.0, volume=1.0), SENSOR)
+    with pytest.raises(DataError, match="no Hotelling model"):
+        m.g_true(np.zeros((1, 3)))
