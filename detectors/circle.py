@@ -121,25 +121,21 @@ def segment(ranges: np.ndarray, angles: np.ndarray, jump: float, min_points: int
     return idx // b, idx % b, label, x.ravel()[idx], y.ravel()[idx]
 
 
-def _sums(label: np.ndarray, k: int, *w: np.ndarray) -> list[np.ndarray]:
-    return [np.bincount(label, weights=v, minlength=k) for v in w]
+def _sums(label: np.ndarray, k: int, *w: np.ndarray) -> np.ndarray:
+    """Per-cluster sums of several per-point weights in one bincount: (len(w), K)."""
+    m = len(w)
+    idx = (label[None, :] + k * np.arange(m)[:, None]).ravel()
+    return np.bincount(idx, weights=np.concatenate(w), minlength=m * k).reshape(m, k)
 
 
 def _kasa(label, k, x, y, cnt):
     """Algebraic circle fit per cluster; returns (K, 3) (xc, yc, r) and a validity mask."""
     z = x * x + y * y
     sx, sy, sxx, syy, sxy, sz, sxz, syz = _sums(label, k, x, y, x * x, y * y, x * y, z, x * z, y * z)
-    a = np.empty((k, 3, 3))
-    a[:, 0] = np.stack([sxx, sxy, sx], axis=1)
-    a[:, 1] = np.stack([sxy, syy, sy], axis=1)
-    a[:, 2] = np.stack([sx, sy, cnt], axis=1)
-    rhs = np.stack([sxz, syz, sz], axis=1)
-    det = np.linalg.det(a)
-    scale = np.maximum(np.abs(a).max(axis=(1, 2)), 1e-300) ** 3
-    good = np.abs(det) > 1e-12 * scale
-    sol = np.zeros((k, 3))
-    if good.any():
-        sol[good] = np.linalg.solve(a[good], rhs[good][..., None])[..., 0]
+    sol = _solve_sym3(sxx, sxy, sx, syy, sy, cnt, sxz, syz, sz)
+    # exactly collinear points make the system singular: no start from Kasa then
+    good = np.isfinite(sol).all(axis=1)
+    sol = np.where(good[:, None], sol, 0.0)
     xc, yc = sol[:, 0] / 2, sol[:, 1] / 2
     r2 = sol[:, 2] + xc * xc + yc * yc
     good &= r2 > 0
@@ -147,12 +143,21 @@ def _kasa(label, k, x, y, cnt):
 
 
 def fit_circles(
-    label: np.ndarray, x: np.ndarray, y: np.ndarray, k: int, first_xy: np.ndarray, last_xy: np.ndarray, iterations: int = 30
+    label: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    k: int,
+    first_xy: np.ndarray,
+    last_xy: np.ndarray,
+    iterations: int = 30,
+    line_radius: float = np.inf,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Batched Levenberg-Marquardt fit of eq. 5.1 for K clusters.
 
     label (P,) cluster of each point; x, y (P,) sensor frame; first_xy/last_xy (K, 2)
-    end points of each cluster (for the half-chord start).
+    end points of each cluster (for the half-chord start). A cluster stops being
+    refined once its radius exceeds ``line_radius`` (its cost keeps falling as the
+    circle flattens towards the line it really is).
     returns params (K, 3) (xc, yc, r), fit error (K,) (eq. 5.2) and J^T J (K, 3, 3).
     """
     cnt = np.bincount(label, minlength=k).astype(np.float64)
@@ -172,38 +177,59 @@ def fit_circles(
     lam = np.full(k, 1e-3)
     f, d, res = cost(p)
     active = np.ones(k, dtype=bool)
-    jtj = np.zeros((k, 3, 3))
-    for _ in range(iterations):  # fixed small number of batched steps, not a loop over clusters
+    for _ in range(iterations):  # a few batched steps for all clusters, not a loop over clusters
         dd = np.maximum(d, 1e-12)
         jx, jy = -(x - p[label, 0]) / dd, -(y - p[label, 1]) / dd  # d res / d (xc, yc); d res / d r = -1
         sxx, sxy, syy, sx, sy, gx, gy, gr = _sums(label, k, jx * jx, jx * jy, jy * jy, jx, jy, jx * res, jy * res, res)
-        jtj = np.empty((k, 3, 3))
-        jtj[:, 0] = np.stack([sxx, sxy, -sx], axis=1)
-        jtj[:, 1] = np.stack([sxy, syy, -sy], axis=1)
-        jtj[:, 2] = np.stack([-sx, -sy, cnt], axis=1)
-        g = np.stack([gx, gy, -gr], axis=1)
-        diag = np.einsum("kii->ki", jtj)
-        a = jtj + (lam[:, None] * np.maximum(diag, 1e-12))[:, :, None] * np.eye(3)
-        # a degenerate cluster (coincident points) gives a singular system: no step for it
-        sing = ~np.isfinite(a).all(axis=(1, 2)) | (np.abs(np.linalg.det(a)) <= 1e-300)
-        a[sing] = np.eye(3)
-        g[sing] = 0.0
-        step = -np.linalg.solve(a, g[..., None])[..., 0]
-        step[~active] = 0.0
+        # Marquardt's damping scales the diagonal; the symmetric 3x3 is solved in closed form
+        damp = 1.0 + lam
+        step = _solve_sym3(sxx * damp, sxy, -sx, syy * damp, -sy, cnt * damp, gx, gy, -gr)
+        step = np.where((np.isfinite(step).all(axis=1) & active)[:, None], -step, 0.0)
         trial = p + step
         f_new, d_new, res_new = cost(trial)
         better = (f_new < f) & active
         p = np.where(better[:, None], trial, p)
         d = np.where(better[label], d_new, d)
         res = np.where(better[label], res_new, res)
-        rel = np.abs(f - f_new) / np.maximum(f, 1e-30)
+        # converged: the cost no longer changes (to rounding) or the step is negligible
+        flat = np.abs(f - f_new) <= 1e-12 * np.maximum(f, 1e-300) + 1e-300
+        tiny = np.abs(step).max(axis=1) <= 1e-7  # metres: far below any range noise
         f = np.where(better, f_new, f)
         lam = np.where(better, lam * 0.3, lam * 10.0)
-        active &= ~((better & (rel < 1e-10)) | (np.abs(step).max(axis=1) < 1e-12) | (lam > 1e8))
+        active &= ~(flat | tiny | (lam > 1e8) | (np.abs(p[:, 2]) > line_radius))
         if not active.any():
             break
     p[:, 2] = np.abs(p[:, 2])
+    # J^T J at the solution, for the covariance
+    d = np.maximum(np.hypot(x - p[label, 0], y - p[label, 1]), 1e-12)
+    jx, jy = -(x - p[label, 0]) / d, -(y - p[label, 1]) / d
+    sxx, sxy, syy, sx, sy = _sums(label, k, jx * jx, jx * jy, jy * jy, jx, jy)
+    jtj = np.empty((k, 3, 3))
+    jtj[:, 0, 0], jtj[:, 0, 1], jtj[:, 0, 2] = sxx, sxy, -sx
+    jtj[:, 1, 0], jtj[:, 1, 1], jtj[:, 1, 2] = sxy, syy, -sy
+    jtj[:, 2, 0], jtj[:, 2, 1], jtj[:, 2, 2] = -sx, -sy, cnt
     return p, f, jtj
+
+
+def _solve_sym3(a00, a01, a02, a11, a12, a22, g0, g1, g2) -> np.ndarray:
+    """Batched solve of symmetric 3x3 systems given by their six entries (each (K,)) -> (K, 3)."""
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        return _solve_sym3_raw(a00, a01, a02, a11, a12, a22, g0, g1, g2)
+
+
+def _solve_sym3_raw(a00, a01, a02, a11, a12, a22, g0, g1, g2) -> np.ndarray:
+    c00 = a11 * a22 - a12 * a12
+    c01 = a12 * a02 - a01 * a22
+    c02 = a01 * a12 - a11 * a02
+    c11 = a00 * a22 - a02 * a02
+    c12 = a01 * a02 - a00 * a12
+    c22 = a00 * a11 - a01 * a01
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    out = np.empty((a00.size, 3))
+    out[:, 0] = (c00 * g0 + c01 * g1 + c02 * g2) / det
+    out[:, 1] = (c01 * g0 + c11 * g1 + c12 * g2) / det
+    out[:, 2] = (c02 * g0 + c12 * g1 + c22 * g2) / det
+    return out
 
 
 def _fit_covariance(label, x, y, p, fe, cnt, jtj, range_sigma):
@@ -281,7 +307,7 @@ def detect_circles(
     ends = np.r_[starts[1:], label.size] - 1
     first_xy = np.column_stack([x[starts], y[starts]])
     last_xy = np.column_stack([x[ends], y[ends]])
-    p, fe, jtj = fit_circles(label, x, y, k, first_xy, last_xy, params.lm_iterations)
+    p, fe, jtj = fit_circles(label, x, y, k, first_xy, last_xy, params.lm_iterations, params.line_radius)
     cnt = np.bincount(label, minlength=k)
     mean = np.column_stack(_sums(label, k, x, y)) / cnt[:, None]
     rng_c = np.hypot(p[:, 0], p[:, 1])

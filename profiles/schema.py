@@ -24,6 +24,9 @@ class CircleDetectorParams(Strict):
     max_points: int | None = Field(default=None, ge=3, description="most returns in a cluster (None: no limit)")
     max_radius: float | None = Field(default=None, gt=0.0, description="drop fitted circles larger than this [m]")
     lm_iterations: int = Field(default=30, ge=1, le=500, description="Levenberg-Marquardt iterations at most")
+    line_radius: float = Field(
+        default=100.0, gt=0.0, description="LM stops refining a circle whose radius exceeds this [m]: the cluster is a straight line"
+    )
 
 
 class HotellingParams(Strict):
