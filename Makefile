@@ -25,6 +25,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_readers.py
+	$(BIN)/python benchmarks/bench_detectors.py
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache
