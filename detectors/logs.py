@@ -27,12 +27,12 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
-from typing import Literal, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 
 from profiles.errors import DataError
+from profiles.schema import Mount, SensorModel, Vehicle  # noqa: F401  (re-exported: part of the log model)
 
 NS = 1_000_000_000
 
@@ -60,60 +60,6 @@ def wrap_angle(a: np.ndarray | float) -> np.ndarray:
 def seconds_to_stamp(t: np.ndarray | float) -> np.ndarray:
     """Float seconds -> int64 nanoseconds (rounded to the nearest ns)."""
     return np.rint(np.asarray(t, dtype=np.float64) * NS).astype(np.int64)
-
-
-class Mount(BaseModel):
-    """Sensor pose in the vehicle frame: (x [m] forward, y [m] left, theta [rad])."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-    x: float = 0.0
-    y: float = 0.0
-    theta: float = 0.0
-
-
-class Vehicle(BaseModel):
-    """Vehicle geometry needed by some motion models (Ackermann).
-
-    Origin of the vehicle frame: the rear-axle centre. ``encoder_offset`` is the
-    lateral distance of the speed encoder (rear left wheel) from that centre.
-    """
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-    wheelbase: float = Field(gt=0.0)
-    encoder_offset: float = Field(default=0.0, ge=0.0)
-
-
-class SensorModel(BaseModel):
-    """What the sensor is and how it is mounted.
-
-    For a 2D laser, beam ``i`` points at ``angle_min + i * angle_increment``
-    (sensor frame, radians). Detection-only sensors (a camera, a vendor's tree
-    extractor) give ``fov`` instead of a beam geometry.
-    """
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-    kind: Literal["laser2d", "lidar3d", "camera", "detector"] = "laser2d"
-    n_beams: int | None = Field(default=None, ge=1)
-    angle_min: float | None = None
-    angle_increment: float | None = None
-    range_min: float = Field(default=0.0, ge=0.0)
-    range_max: float | None = Field(default=None, gt=0.0)
-    range_sigma: float | None = Field(default=None, ge=0.0)
-    fov: float | None = Field(default=None, gt=0.0, le=2 * np.pi + 1e-9)
-    mount: Mount = Mount()
-
-    def angles(self) -> np.ndarray:
-        """Beam angles in the sensor frame, (B,) float64 radians."""
-        if self.n_beams is None or self.angle_min is None or self.angle_increment is None:
-            raise DataError(f"sensor model of kind {self.kind!r} has no beam geometry")
-        return self.angle_min + self.angle_increment * np.arange(self.n_beams, dtype=np.float64)
-
-    @property
-    def field_of_view(self) -> float | None:
-        """Angular width [rad] covered by the beams (or ``fov``)."""
-        if self.n_beams is not None and self.angle_increment is not None:
-            return abs(self.angle_increment) * (self.n_beams - 1)
-        return self.fov
 
 
 def _check_stamp(stamp: np.ndarray, what: str) -> np.ndarray:
