@@ -44,7 +44,39 @@ import numpy as np
 from profiles.errors import DataError
 from profiles.schema import CircleDetectorParams, HotellingParams
 
-DESCRIPTORS = ("fit_error", "radius", "convexity")
+DESCRIPTORS = ("fit_error", "radius", "convexity")  # the thesis's three (sec. 5.3.3)
+
+#: Floor of the mean-square residual in ``log_mse`` [m^2], (3.2 mm)^2: below any
+#: laser's range noise, it keeps exact 3-point fits (FE = 0) finite.
+MSE_FLOOR = 1e-5
+
+#: Every descriptor a Hotelling model may use. The derived ones are closer to
+#: Gaussian than the thesis's raw three: FE is exactly 0 for every 3-point
+#: cluster, trunk radii are log-normal and convexity grows with the radius.
+DESCRIPTOR_NAMES = ("fit_error", "radius", "convexity", "points", "mse", "log_mse", "log_radius", "rel_convexity")
+
+
+def descriptor_matrix(fit_error, radius, convexity, points, names) -> np.ndarray:
+    """(D, len(names)) descriptors from the per-detection arrays, base or derived."""
+    fe, r = np.asarray(fit_error, dtype=np.float64), np.asarray(radius, dtype=np.float64)
+    c, n = np.asarray(convexity, dtype=np.float64), np.asarray(points, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        table = {
+            "fit_error": lambda: fe,
+            "radius": lambda: r,
+            "convexity": lambda: c,
+            "points": lambda: n,
+            "mse": lambda: fe / n,
+            "log_mse": lambda: np.log(fe / n + MSE_FLOOR),
+            "log_radius": lambda: np.log(r),
+            "rel_convexity": lambda: c / r,
+        }
+        cols = []
+        for name in names:
+            if name not in table:
+                raise DataError(f"unknown descriptor {name!r}; choose from {', '.join(DESCRIPTOR_NAMES)}")
+            cols.append(table[name]())
+    return np.column_stack(cols) if cols else np.zeros((fe.size, 0))
 
 
 @dataclass(frozen=True, eq=False)
@@ -83,8 +115,8 @@ class CircleDetections:
         return int(self.scan.size)
 
     def descriptors(self, names: tuple[str, ...] = DESCRIPTORS) -> np.ndarray:
-        """(D, len(names)) descriptor matrix in the given order."""
-        return np.column_stack([getattr(self, n) for n in names]) if len(self) else np.zeros((0, len(names)))
+        """(D, len(names)) descriptor matrix in the given order (see :data:`DESCRIPTOR_NAMES`)."""
+        return descriptor_matrix(self.fit_error, self.radius, self.convexity, self.n_points, names)
 
     def select(self, keep: np.ndarray) -> CircleDetections:
         return CircleDetections(**{f: getattr(self, f)[keep] for f in self.__dataclass_fields__})
@@ -337,7 +369,10 @@ def detect_circles(
     if params.max_radius is not None:
         det = det.select(det.radius <= params.max_radius)
     if hotelling is not None:
-        m2 = hotelling_maha2(det.descriptors(tuple(hotelling.names)), hotelling)
+        desc = det.descriptors(tuple(hotelling.names))
+        m2 = np.full(len(det), np.inf)
+        fin = np.isfinite(desc).all(axis=1)
+        m2[fin] = hotelling_maha2(desc[fin], hotelling)
         det = CircleDetections(**{**{f: getattr(det, f) for f in det.__dataclass_fields__}, "maha2": m2})
         det = det.select(m2 <= hotelling.gamma)
     return det

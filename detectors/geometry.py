@@ -103,3 +103,16 @@ def cast(
     r = d[np.arange(a.size), k]
     hit = r <= max_range
     return np.where(hit, r, np.inf), np.where(hit, ids[k], -1)
+
+
+def interpolate_poses(stamp_ref: np.ndarray, poses_ref: np.ndarray, stamps: np.ndarray) -> np.ndarray:
+    """Poses (M, 3) at ``stamps`` by linear interpolation of x, y and the unwrapped heading.
+
+    stamp_ref (K,) int64 ns sorted; poses_ref (K, 3); stamps outside the range are clamped to the ends.
+    """
+    t = np.asarray(stamp_ref, dtype=np.float64)
+    q = np.asarray(stamps, dtype=np.float64)
+    th = np.unwrap(poses_ref[:, 2])
+    out = np.column_stack([np.interp(q, t, poses_ref[:, 0]), np.interp(q, t, poses_ref[:, 1]), np.interp(q, t, th)])
+    out[:, 2] = np.mod(out[:, 2] + np.pi, 2 * np.pi) - np.pi
+    return out

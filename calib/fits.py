@@ -1,0 +1,243 @@
+"""The fits of a calibration (Inostroza 2015, sec. 4.2, ch. 5-6).
+
+* :func:`fit_hotelling` -- mean and covariance of true detections' descriptors,
+  gamma from the chi-square quantile at the chosen confidence (eq. 5.4);
+* :func:`roc_curves` -- ROC of the Hotelling score beside Fisher's linear
+  discriminant, with both AUCs (fig. 5.5);
+* :func:`fit_pd_table` -- P_D per covariate bin (eq. 6.2) with counts, 95 %
+  Wilson intervals and the thesis's clamping (ch. 6);
+* :func:`fit_clutter` -- Poisson rate of false alarms per scan (maximum
+  likelihood: the mean), Pearson chi-square goodness of fit, p-value and
+  dispersion index (sec. 6.1, fig. 6.4).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+from scipy.stats import chi2, poisson, rankdata
+
+from profiles.errors import DataError
+from profiles.schema import ClutterParams, PdTable
+
+Z95 = 1.959963984540054
+
+
+def wilson(k: np.ndarray, n: np.ndarray, z: float = Z95) -> tuple[np.ndarray, np.ndarray]:
+    """95 % Wilson score interval for k successes in n trials (NaN where n = 0)."""
+    k = np.asarray(k, dtype=np.float64)
+    n = np.asarray(n, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        p = k / n
+        den = 1 + z * z / n
+        centre = (p + z * z / (2 * n)) / den
+        half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return centre - half, centre + half
+
+
+class PdFitConfig(BaseModel):
+    """How the P_D table is binned and clamped.
+
+    ``min_count``: a bin is well populated with at least this many (landmark,
+    scan) pairs. ``tail``: above the last well-populated bin, ``last`` uses that
+    bin's own estimate (the thesis: n_p > 6 uses n_p = 6), ``pool`` pools every
+    pair at or above it into that bin (more data for the same rule; the default,
+    because the tail is where counts are thin). ``zero_below``: estimates under
+    this become 0 (thesis: 0.1), so a filter does not keep expecting features
+    that are out of view.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+    min_count: int = Field(default=200, ge=1)
+    tail: str = Field(default="pool", pattern="^(pool|last)$")
+    zero_below: float = Field(default=0.1, ge=0.0, lt=1.0)
+    range_bin: float = Field(default=0.5, gt=0.0, description="bin width for a range covariate [m]")
+
+
+def fit_pd_table(values: np.ndarray, detected: np.ndarray, covariate: str, cfg: PdFitConfig) -> PdTable:
+    """P_D against ``n_p`` (integer bins) or ``range`` (bins of ``cfg.range_bin``), eq. 6.2.
+
+    values (M,) covariate of each (landmark, scan) pair; detected (M,) bool: C(m, j).
+    """
+    values = np.asarray(values, dtype=np.float64)
+    detected = np.asarray(detected, dtype=bool)
+    if values.size == 0:
+        raise DataError("no (landmark, scan) pairs to fit P_D to: are the landmarks ever in view?")
+    if covariate == "n_p":
+        edges = np.arange(0, int(values.max()) + 2, dtype=np.float64)
+    else:
+        edges = np.arange(0.0, values.max() + cfg.range_bin, cfg.range_bin)
+        if edges.size < 2:
+            edges = np.array([0.0, cfg.range_bin])
+    idx = np.clip(np.searchsorted(edges, values, side="right") - 1, 0, edges.size - 2)
+    n = np.bincount(idx, minlength=edges.size - 1)
+    k = np.bincount(idx, weights=detected, minlength=edges.size - 1).astype(np.int64)
+    well = np.flatnonzero(n >= cfg.min_count)
+    if well.size == 0:
+        raise DataError(f"no P_D bin holds {cfg.min_count} pairs; lower --min-count or calibrate on more data")
+    last = int(well[-1])
+    if cfg.tail == "pool":
+        n[last] = n[last:].sum()
+        k[last] = k[last:].sum()
+    n, k = n[: last + 1], k[: last + 1]
+    edges = edges[: last + 2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        raw = np.where(n > 0, k / n, 0.0)
+    pd = np.where(raw < cfg.zero_below, 0.0, raw)
+    lo, hi = wilson(k, n)
+    unit = "n_p" if covariate == "n_p" else "range"
+    return PdTable(
+        covariate=covariate,
+        edges=edges.tolist(),
+        pd=pd.tolist(),
+        counts=n.tolist(),
+        detections=k.tolist(),
+        wilson_low=np.nan_to_num(lo, nan=0.0).tolist(),
+        wilson_high=np.nan_to_num(hi, nan=1.0).tolist(),
+        clamping=(
+            f"{unit} >= {edges[last]:g} uses the last well-populated bin (>= {cfg.min_count} pairs, tail={cfg.tail}); "
+            f"P_D < {cfg.zero_below:g} set to 0"
+        ),
+    )
+
+
+@dataclass(frozen=True)
+class HotellingFit:
+    names: tuple[str, ...]
+    mean: np.ndarray
+    cov: np.ndarray
+    gamma: float
+    confidence: float
+    samples: int
+
+
+def fit_hotelling(desc: np.ndarray, names: tuple[str, ...], confidence: float) -> HotellingFit:
+    """Eq. 5.4: the ellipsoid of true detections' descriptors (D, d) at ``confidence``."""
+    desc = np.asarray(desc, dtype=np.float64)
+    d = len(names)
+    if desc.shape[0] <= d + 1:
+        raise DataError(f"only {desc.shape[0]} true detections: too few to fit a {d}-D Hotelling ellipsoid")
+    mean = desc.mean(axis=0)
+    cov = np.cov(desc, rowvar=False).reshape(d, d)
+    if np.linalg.eigvalsh(cov).min() <= 1e-18 * max(1.0, np.abs(cov).max()):
+        raise DataError("the true detections' descriptors are degenerate (a descriptor does not vary)")
+    return HotellingFit(tuple(names), mean, cov, float(chi2.ppf(confidence, d)), confidence, int(desc.shape[0]))
+
+
+def maha2(desc: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    diff = np.asarray(desc, dtype=np.float64) - mean
+    return np.einsum("ij,ij->i", diff, np.linalg.solve(cov, diff.T).T)
+
+
+def auc(score_true: np.ndarray, score_false: np.ndarray) -> float:
+    """Area under the ROC curve = P(score of a true > score of a false), ties counted half (Mann-Whitney)."""
+    nt, nf = score_true.size, score_false.size
+    if nt == 0 or nf == 0:
+        return float("nan")
+    r = rankdata(np.concatenate([score_true, score_false]))
+    return float((r[:nt].sum() - nt * (nt + 1) / 2) / (nt * nf))
+
+
+def roc(score_true: np.ndarray, score_false: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(false-positive rate, true-positive rate) over every threshold, from the strictest down."""
+    s = np.concatenate([score_true, score_false])
+    lab = np.concatenate([np.ones(score_true.size), np.zeros(score_false.size)])
+    order = np.argsort(-s, kind="stable")
+    tp = np.concatenate([[0], np.cumsum(lab[order])])
+    fp = np.concatenate([[0], np.cumsum(1 - lab[order])])
+    return fp / max(1, score_false.size), tp / max(1, score_true.size)
+
+
+def fisher_direction(desc_true: np.ndarray, desc_false: np.ndarray) -> np.ndarray:
+    """Fisher's linear discriminant w = (S_t + S_f)^-1 (mu_t - mu_f)."""
+    sw = np.cov(desc_true, rowvar=False) + np.cov(desc_false, rowvar=False)
+    sw = np.atleast_2d(sw)
+    return np.linalg.lstsq(sw, desc_true.mean(axis=0) - desc_false.mean(axis=0), rcond=None)[0]
+
+
+def roc_curves(desc_true: np.ndarray, desc_false: np.ndarray, fit: HotellingFit) -> dict:
+    """ROC curves and AUCs of the Hotelling score (-Mahalanobis^2) and Fisher's discriminant.
+
+    Both are measured on the calibration data itself (in-sample), as in the thesis's fig. 5.5.
+    """
+    h_t, h_f = -maha2(desc_true, fit.mean, fit.cov), -maha2(desc_false, fit.mean, fit.cov)
+    if desc_false.shape[0] > desc_false.shape[1]:
+        w = fisher_direction(desc_true, desc_false)
+        f_t, f_f = desc_true @ w, desc_false @ w
+    else:
+        f_t, f_f = np.zeros(desc_true.shape[0]), np.zeros(desc_false.shape[0])
+    return {
+        "hotelling": roc(h_t, h_f),
+        "fisher": roc(f_t, f_f),
+        "auc_hotelling": auc(h_t, h_f),
+        "auc_fisher": auc(f_t, f_f),
+    }
+
+
+@dataclass(frozen=True)
+class ClutterFit:
+    rate: float
+    counts: np.ndarray
+    chi2: float
+    dof: int
+    p_value: float
+    dispersion: float
+    observed: np.ndarray  # per merged bin
+    expected: np.ndarray
+    bin_low: np.ndarray  # smallest count of each merged bin (the last is open-ended)
+
+
+def fit_clutter(counts: np.ndarray) -> ClutterFit:
+    """Poisson fit to false alarms per scan with Pearson's chi-square test.
+
+    Bins k = 0, 1, ... with the upper tail pooled into the last bin, then
+    neighbouring bins merged until every expected count is at least 5;
+    degrees of freedom = bins - 1 - 1 (the rate is estimated).
+    """
+    counts = np.asarray(counts, dtype=np.int64)
+    n = counts.size
+    if n == 0:
+        raise DataError("no scans to fit the clutter to")
+    lam = float(counts.mean())
+    var = float(counts.var(ddof=1)) if n > 1 else 0.0
+    kmax = int(counts.max())
+    obs = np.bincount(counts, minlength=kmax + 1).astype(np.float64)
+    pk = poisson.pmf(np.arange(kmax + 1), lam)
+    pk[-1] = poisson.sf(kmax - 1, lam)  # P(X >= kmax)
+    exp = n * pk
+    lows, o_m, e_m = [], [], []
+    cur_o = cur_e = 0.0
+    start = 0
+    for k in range(kmax + 1):  # merging runs over at most max(count)+1 bins
+        cur_o += obs[k]
+        cur_e += exp[k]
+        if cur_e >= 5.0:
+            lows.append(start), o_m.append(cur_o), e_m.append(cur_e)
+            cur_o = cur_e = 0.0
+            start = k + 1
+    if cur_e > 0 or cur_o > 0:
+        if e_m:
+            o_m[-1] += cur_o
+            e_m[-1] += cur_e
+        else:
+            lows.append(start), o_m.append(cur_o), e_m.append(cur_e)
+    o_m, e_m = np.array(o_m), np.array(e_m)
+    dof = int(o_m.size - 2)
+    stat = float(((o_m - e_m) ** 2 / e_m).sum()) if dof > 0 else float("nan")
+    p = float(chi2.sf(stat, dof)) if dof > 0 else float("nan")
+    return ClutterFit(lam, counts, stat, dof, p, var / lam if lam > 0 else float("nan"), o_m, e_m, np.array(lows))
+
+
+def clutter_params(fit: ClutterFit, space: str, volume: float) -> ClutterParams:
+    finite = np.isfinite(fit.chi2)
+    return ClutterParams(
+        rate=fit.rate,
+        space=space,
+        volume=volume,
+        chi2=fit.chi2 if finite else None,
+        dof=fit.dof if finite else None,
+        p_value=fit.p_value if finite else None,
+        dispersion=fit.dispersion if np.isfinite(fit.dispersion) else None,
+    )
