@@ -28,8 +28,10 @@ app = typer.Typer(
 )
 log_app = typer.Typer(help="Inspect and convert sensor logs.", no_args_is_help=True)
 sim_app = typer.Typer(help="Simulate sensor logs with exported truth.", no_args_is_help=True)
+profile_app = typer.Typer(help="List, show, validate, compare and export detector profiles.", no_args_is_help=True)
 app.add_typer(log_app, name="log")
 app.add_typer(sim_app, name="simulate")
+app.add_typer(profile_app, name="profile")
 
 out = Console(highlight=False)
 err = Console(stderr=True, highlight=False)
@@ -222,6 +224,203 @@ def detect_cmd(
     for k, v in summary.items():
         t.add_row(k, f"{v:.3f}" if isinstance(v, float) else str(v))
     out.print(t)
+
+
+def _summary_table(title: str, rows: dict) -> Table:
+    t = Table(title=title)
+    t.add_column("quantity")
+    t.add_column("value", justify="right")
+    for k, v in rows.items():
+        if isinstance(v, float):
+            v = f"{v:.4g}"
+        elif isinstance(v, list):
+            v = ", ".join(str(x) for x in v)
+        t.add_row(k, str(v))
+    return t
+
+
+@app.command("calibrate")
+def calibrate_cmd(
+    logs: Annotated[list[Path] | None, typer.Argument(metavar="[LOG]...", help="Logs with truth; none: the embedded default park log.")] = None,
+    name: Annotated[str | None, typer.Option(help="Profile name (default: sim-park-laser for the default log, else the first log's name).")] = None,
+    version: Annotated[str, typer.Option("--version", help="Profile version MAJOR.MINOR.PATCH; an existing one is never replaced silently.")] = "1.0.0",
+    description: Annotated[str, typer.Option(help="Free text stored in the profile.")] = "",
+    config: Annotated[Path | None, typer.Option(help="YAML calibration config (detector, descriptors, confidence, gate, pd, ...).")] = None,
+    landmarks: Annotated[Path | None, typer.Option(help="CSV of landmark truth: id, x, y, radius (world frame).")] = None,
+    poses: Annotated[str | None, typer.Option(help="Scan poses from: auto (truth if the log has it, else ICP), reference, icp.")] = None,
+    out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/calibrate_<name>@<version>).")] = None,
+    profiles_dir: Annotated[Path | None, typer.Option(help="Where to save the profile (default: the user profile folder).")] = None,
+    force: Annotated[bool, typer.Option(help="Replace an existing run folder and profile version.")] = False,
+    fmt: FormatOpt = None,
+    max_backstep: BackstepOpt = 1.0,
+    laser: LaserOpt = "front",
+    range_max: RangeMaxOpt = None,
+    scan_topic: ScanTopicOpt = None,
+    truth_topic: TruthTopicOpt = None,
+) -> None:
+    """Calibrate the circle detector on logs with truth: P_D(n_p), Hotelling ellipsoid, Poisson clutter -> a profile and a report."""
+    import shlex
+
+    from calib.calibrate import CalibrateConfig, calibrate
+    from calib.config import load_yaml_model
+    from calib.default import DEFAULT_PROFILE_NAME, default_log
+    from calib.runs import write_calibration_run
+    from profiles.errors import UsageError
+    from profiles.profile import NAME_RE, SEMVER_RE
+    from profiles.store import save_profile
+
+    cfg = load_yaml_model(CalibrateConfig, config)
+    if poses is not None:
+        if poses not in ("auto", "reference", "icp"):
+            raise UsageError(f"--poses: expected auto, reference or icp, got {poses!r}")
+        cfg = cfg.model_copy(update={"poses": poses})
+    if not SEMVER_RE.match(version):
+        raise UsageError(f"--version: {version!r} is not MAJOR.MINOR.PATCH")
+    if logs:
+        loaded = [_read(p, fmt, max_backstep, laser, range_max, 1, scan_topic, None, truth_topic) for p in logs]
+        prof_name = name or loaded[0].name.lower().replace("_", "-")
+    else:
+        log, path = default_log()
+        loaded = [log]
+        prof_name = name or DEFAULT_PROFILE_NAME
+    if not NAME_RE.match(prof_name):
+        raise UsageError(f"--name: {prof_name!r} must match [a-z0-9][a-z0-9._-]*")
+    target = out_dir or Path("runs") / f"calibrate_{prof_name}@{version}"
+    if target.exists() and not force:
+        raise UsageError(f"{target}: already exists (use --force to replace it)")
+    command = "detcal calibrate " + " ".join(shlex.quote(a) for a in sys.argv[2:]) if len(sys.argv) > 1 else "detcal calibrate"
+    cal = calibrate(loaded, cfg, name=prof_name, version=version, description=description, landmarks_csv=landmarks, command=command)
+    figures = write_calibration_run(cal, target, overwrite=force)
+    saved, status = save_profile(cal.profile, profiles_dir, force=force)
+    p = cal.profile
+    rows = {
+        "profile": f"{p.ref} ({status}: {saved})",
+        "run folder": f"{target} ({len(figures)} figures)",
+        **{k: v for k, v in cal.summary.items() if k not in ("logs",)},
+        "P_D table": ", ".join(f"{int(e) if float(e).is_integer() else e}:{v:.2f}" for e, v in zip(p.pd.edges[:-1], p.pd.pd, strict=True)),
+    }
+    out.print(_summary_table(f"calibration of {', '.join(cal.summary['logs'])}", rows))
+
+
+@app.command("validate")
+def validate_cmd(
+    profile_ref: Annotated[str, typer.Argument(metavar="PROFILE", help="name[@version] or a profile file.")],
+    log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A held-out log with truth.")],
+    landmarks: Annotated[Path | None, typer.Option(help="CSV of landmark truth: id, x, y, radius.")] = None,
+    poses: Annotated[str, typer.Option(help="Scan poses from: auto, reference, icp.")] = "auto",
+    out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/validate_<profile>_<log>).")] = None,
+    force: Annotated[bool, typer.Option(help="Replace the run folder if it exists.")] = False,
+    fmt: FormatOpt = None,
+    max_backstep: BackstepOpt = 1.0,
+    laser: LaserOpt = "front",
+    range_max: RangeMaxOpt = None,
+    scan_topic: ScanTopicOpt = None,
+    truth_topic: TruthTopicOpt = None,
+) -> None:
+    """Check a profile on a held-out log: P_D reliability (ECE), false alarms per scan, Hotelling coverage."""
+    from calib.validate import validate, write_validation_run
+    from profiles.errors import UsageError
+    from profiles.store import resolve
+
+    if poses not in ("auto", "reference", "icp"):
+        raise UsageError(f"--poses: expected auto, reference or icp, got {poses!r}")
+    prof = resolve(profile_ref)
+    log = _read(log_path, fmt, max_backstep, laser, range_max, 1, scan_topic, None, truth_topic)
+    target = out_dir or Path("runs") / f"validate_{prof.ref}_{log.name}"
+    if target.exists() and not force:
+        raise UsageError(f"{target}: already exists (use --force to replace it)")
+    v = validate(prof, log, landmarks_csv=landmarks, poses=poses)
+    write_validation_run(v, target, overwrite=force)
+    out.print(_summary_table(f"validation of {prof.ref} on {log.name} -> {target}", v.summary))
+
+
+@profile_app.command("list")
+def profile_list() -> None:
+    """List the bundled and user profiles (name@version, origin, file)."""
+    from profiles.store import registry, user_dirs
+
+    t = Table(title="detector profiles (user folders: " + ", ".join(str(d) for d in user_dirs()) + ")")
+    for col in ("profile", "origin", "file"):
+        t.add_column(col)
+    for e in registry():
+        t.add_row(f"{e.name}@{e.version}", e.origin, str(e.path))
+    out.print(t)
+
+
+@profile_app.command("show")
+def profile_show(ref: Annotated[str, typer.Argument(metavar="PROFILE", help="name[@version] or a file.")]) -> None:
+    """Print a profile as YAML."""
+    from profiles.store import dump_profile, resolve
+
+    sys.stdout.write(dump_profile(resolve(ref)))
+
+
+@profile_app.command("validate")
+def profile_validate(path: Annotated[Path, typer.Argument(metavar="FILE", help="A profile file (YAML or JSON).")]) -> None:
+    """Check a profile file against the schema; errors name the field path."""
+    from profiles.store import load_profile_file
+
+    p = load_profile_file(path)
+    out.print(f"{path}: valid profile {p.ref} (schema {p.schema_version})")
+
+
+@profile_app.command("diff")
+def profile_diff(
+    a: Annotated[str, typer.Argument(metavar="A", help="name[@version] or a file.")],
+    b: Annotated[str, typer.Argument(metavar="B", help="name[@version] or a file.")],
+) -> None:
+    """Show the fields in which two profiles differ."""
+    from profiles.store import diff_profiles, resolve
+
+    pa, pb = resolve(a), resolve(b)
+    rows = diff_profiles(pa, pb)
+    if not rows:
+        out.print(f"{pa.ref} and {pb.ref} are identical")
+        return
+    t = Table(title=f"{pa.ref} -> {pb.ref}: {len(rows)} fields differ")
+    for col in ("field", pa.ref, pb.ref):
+        t.add_column(col, overflow="fold")
+    for k, va, vb in rows:
+        t.add_row(k, _short(va), _short(vb))
+    out.print(t)
+
+
+def _short(v) -> str:
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if isinstance(v, list):
+        return "[" + ", ".join(_short(x) for x in v[:8]) + (", ..." if len(v) > 8 else "") + "]"
+    return "-" if v is None else str(v)
+
+
+@profile_app.command("export")
+def profile_export(
+    ref: Annotated[str, typer.Argument(metavar="PROFILE", help="name[@version] or a file.")],
+    export_fmt: Annotated[str, typer.Option("--format", help="yaml or json.")] = "yaml",
+    dest: Annotated[Path | None, typer.Option("--out", help="Write here instead of standard output (never replaced without --force).")] = None,
+    force: Annotated[bool, typer.Option(help="Replace --out if it exists.")] = False,
+) -> None:
+    """Export a profile as YAML or JSON."""
+    from profiles.atomic import atomic_output
+    from profiles.store import dump_profile, resolve
+
+    text = dump_profile(resolve(ref), export_fmt)
+    if dest is None:
+        sys.stdout.write(text)
+        return
+    with atomic_output(dest, overwrite=force) as tmp:
+        tmp.write_text(text)
+    out.print(f"wrote {dest}")
+
+
+@profile_app.command("schema")
+def profile_schema() -> None:
+    """Print the JSON Schema of a detector profile."""
+    import json
+
+    from profiles.profile import DetectorProfile
+
+    sys.stdout.write(json.dumps(DetectorProfile.model_json_schema(), indent=2) + "\n")
 
 
 def main(argv: list[str] | None = None) -> int:

