@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 DEMO   := runs/demo
 
-.PHONY: demo test bench clean
+.PHONY: demo test bench clean builtin-profile
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -15,10 +15,10 @@ $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e ".[test]"
 	touch $(STAMP)
 
-# The main job on the embedded default: simulate the default park log (seed 1) and summarise it.
+# The main job on the embedded default: calibrate the default simulated park log,
+# writing the profile (user profile folder) and the report (runs/demo).
 demo: $(STAMP)
-	$(BIN)/detcal simulate park --seed 1 --out $(DEMO) --force
-	$(BIN)/detcal log info $(DEMO)/log.dlog
+	$(BIN)/detcal calibrate --out $(DEMO) --force
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -n 2 -q
@@ -26,6 +26,10 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_readers.py
 	$(BIN)/python benchmarks/bench_detectors.py
+
+# Regenerate the bundled profile with detcal's own calibration (reproducible bytes).
+builtin-profile: $(STAMP)
+	SOURCE_DATE_EPOCH=1763683200 $(BIN)/detcal calibrate --out runs/builtin --profiles-dir profiles/builtin --force
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache

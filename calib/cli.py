@@ -8,6 +8,7 @@ a traceback for bad input.
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 from typing import Annotated
@@ -276,20 +277,30 @@ def calibrate_cmd(
         cfg = cfg.model_copy(update={"poses": poses})
     if not SEMVER_RE.match(version):
         raise UsageError(f"--version: {version!r} is not MAJOR.MINOR.PATCH")
+    from calib.io.common import file_digest
+    from profiles.profile import InputRef
+
     if logs:
         loaded = [_read(p, fmt, max_backstep, laser, range_max, 1, scan_topic, None, truth_topic) for p in logs]
         prof_name = name or loaded[0].name.lower().replace("_", "-")
+        paths = list(logs)
     else:
         log, path = default_log()
         loaded = [log]
         prof_name = name or DEFAULT_PROFILE_NAME
+        paths = [path]
+    refs = [InputRef(name=p.name, sha256=file_digest(p)) for p in paths]
     if not NAME_RE.match(prof_name):
         raise UsageError(f"--name: {prof_name!r} must match [a-z0-9][a-z0-9._-]*")
     target = out_dir or Path("runs") / f"calibrate_{prof_name}@{version}"
     if target.exists() and not force:
         raise UsageError(f"{target}: already exists (use --force to replace it)")
-    command = "detcal calibrate " + " ".join(shlex.quote(a) for a in sys.argv[2:]) if len(sys.argv) > 1 else "detcal calibrate"
-    cal = calibrate(loaded, cfg, name=prof_name, version=version, description=description, landmarks_csv=landmarks, command=command)
+    # the command as typed; absolute paths lose their folders (a profile names inputs by file name and hash)
+    words = [Path(a).name if os.path.isabs(a) else a for a in sys.argv[2:]]
+    command = " ".join(["detcal calibrate", *(shlex.quote(w) for w in words)])
+    cal = calibrate(
+        loaded, cfg, name=prof_name, version=version, description=description, landmarks_csv=landmarks, input_refs=refs, command=command
+    )
     figures = write_calibration_run(cal, target, overwrite=force)
     saved, status = save_profile(cal.profile, profiles_dir, force=force)
     p = cal.profile

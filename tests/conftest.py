@@ -39,3 +39,20 @@ def small_park_config(**path) -> ParkConfig:
 @pytest.fixture(scope="session")
 def small_sim():
     return simulate_park(small_park_config(), seed=11)
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _private_folders(tmp_path_factory):
+    """Tests never touch the user's profile folder or cache; creation times are fixed."""
+    import os
+
+    saved = {k: os.environ.get(k) for k in ("DETCAL_PROFILES", "DETCAL_CACHE", "SOURCE_DATE_EPOCH")}
+    os.environ["DETCAL_PROFILES"] = str(tmp_path_factory.mktemp("profiles"))
+    os.environ["DETCAL_CACHE"] = str(tmp_path_factory.mktemp("cache"))
+    os.environ["SOURCE_DATE_EPOCH"] = "1700000000"
+    yield
+    for k, v in saved.items():
+        if v is None:
+            os.environ.pop(k, None)
+        else:
+            os.environ[k] = v

@@ -1,0 +1,139 @@
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+
+import pytest
+import yaml
+
+from profiles.errors import DataError, UsageError
+from profiles.profile import DetectorProfile
+from profiles.store import diff_profiles, dump_profile, load_profile_file, registry, resolve, save_profile
+
+
+def make_profile(version="1.0.0", rate=5.5, **kw) -> DetectorProfile:
+    return DetectorProfile.model_validate(
+        {
+            "name": "test-laser",
+            "version": version,
+            "detector": {"kind": "circle2d"},
+            "sensor": {"kind": "laser2d", "n_beams": 361, "angle_min": -1.5707963267948966, "angle_increment": 0.008726646259971648, "range_max": 80.0, "range_sigma": 0.02},
+            "hotelling": {"names": ["log_radius", "rel_convexity"], "mean": [-1.3, 0.75], "covariance": [[0.2, 0.01], [0.01, 0.03]], "gamma": 13.815510557964274},
+            "pd": {"edges": [0, 1, 2, 3, 4], "pd": [0.0, 0.0, 0.3, 0.1 / 3], "counts": [10, 20, 30, 40]},
+            "clutter": {"rate": rate, "volume": 251.32741228718345, "p_value": 1e-240},
+            "provenance": {"detcal_version": "0.1.0", "created": "2026-11-21T00:00:00Z", "inputs": [{"name": "a", "sha256": "0" * 64}]},
+            **kw,
+        }
+    )
+
+
+def test_yaml_and_json_round_trips_are_lossless(tmp_path):
+    p = make_profile()
+    path, status = save_profile(p, tmp_path)
+    assert status == "written" and path.name == "test-laser@1.0.0.yaml"
+    back = load_profile_file(path)
+    assert back == p and back.pd.pd[3] == 0.1 / 3 and back.clutter.p_value == 1e-240
+    (tmp_path / "p.json").write_text(dump_profile(p, "json"))
+    assert load_profile_file(tmp_path / "p.json") == p
+    assert dump_profile(back) == dump_profile(p)
+
+
+@pytest.mark.parametrize(
+    ("edit", "match"),
+    [
+        (lambda d: d["clutter"].update(lamda=3), r"clutter.lamda: unknown key"),
+        (lambda d: d["sensor"]["mount"].update(z=1.0), r"sensor.mount.z: unknown key"),
+        (lambda d: d.update(colour="red"), r"colour: unknown key"),
+        (lambda d: d["pd"]["pd"].__setitem__(1, 1.5), r"pd: Value error, pd values must lie in \[0, 1\]"),
+        (lambda d: d["clutter"].update(rate=-1), r"clutter.rate: Input should be greater than or equal to 0"),
+        (lambda d: d.update(version="1.0"), r"version: Value error, '1.0' is not a semantic version"),
+        (lambda d: d["hotelling"].update(covariance=[[1, 2], [2, 1]]), r"hotelling: Value error, covariance is not positive definite"),
+        (lambda d: d["detector"]["circle"].update(jump=0), r"detector.circle.jump: Input should be greater than 0"),
+    ],
+)
+def test_bad_profiles_are_rejected_with_the_field_path(tmp_path, edit, match):
+    d = make_profile().model_dump(mode="json")
+    edit(d)
+    f = tmp_path / "bad.yaml"
+    f.write_text(yaml.safe_dump(d))
+    with pytest.raises(DataError, match="bad.yaml: " + match):
+        load_profile_file(f)
+
+
+def test_other_schema_versions_are_refused_by_name(tmp_path):
+    d = make_profile().model_dump(mode="json")
+    for v, match in ((2, "schema_version 2 is newer than this detcal reads"), (0, "schema_version 0 is not supported")):
+        d["schema_version"] = v
+        (tmp_path / "v.yaml").write_text(yaml.safe_dump(d))
+        with pytest.raises(DataError, match=match):
+            load_profile_file(tmp_path / "v.yaml")
+
+
+def test_existing_versions_are_never_silently_replaced(tmp_path):
+    save_profile(make_profile(), tmp_path)
+    assert save_profile(make_profile(), tmp_path)[1] == "unchanged"  # same content: nothing written
+    before = (tmp_path / "test-laser@1.0.0.yaml").read_bytes()
+    with pytest.raises(UsageError, match="exists with other content; bump the version"):
+        save_profile(make_profile(rate=6.0), tmp_path)
+    assert (tmp_path / "test-laser@1.0.0.yaml").read_bytes() == before
+    assert save_profile(make_profile(rate=6.0), tmp_path, force=True)[1] == "replaced"
+    assert save_profile(make_profile("1.1.0", rate=7.0), tmp_path)[1] == "written"
+
+
+def test_registry_resolves_newest_and_exact_versions(tmp_path, monkeypatch):
+    monkeypatch.setenv("DETCAL_PROFILES", str(tmp_path))
+    for v, r in (("1.0.0", 1.0), ("1.10.0", 2.0), ("1.9.3", 3.0)):
+        save_profile(make_profile(v, rate=r), tmp_path)
+    assert resolve("test-laser").version == "1.10.0"  # semantic, not lexical, order
+    assert resolve("test-laser@1.9.3").clutter.rate == 3.0
+    assert {e.version for e in registry() if e.name == "test-laser"} == {"1.0.0", "1.10.0", "1.9.3"}
+    with pytest.raises(UsageError, match="no profile 'test-laser@2.0.0'; known: .*test-laser@1.0.0"):
+        resolve("test-laser@2.0.0")
+    assert resolve(str(tmp_path / "test-laser@1.0.0.yaml")).clutter.rate == 1.0
+
+
+def test_diff_names_changed_fields():
+    rows = dict((k, (a, b)) for k, a, b in diff_profiles(make_profile(), make_profile("1.0.1", rate=6.0)))
+    assert rows["version"] == ("1.0.0", "1.0.1") and rows["clutter.rate"] == (5.5, 6.0)
+    assert len(rows) == 2
+
+
+def test_killed_writer_leaves_no_partial_profile(tmp_path):
+    """SIGKILL the writer in the middle of writing: the old profile stays whole, no new one appears."""
+    save_profile(make_profile(), tmp_path)
+    before = (tmp_path / "test-laser@1.0.0.yaml").read_bytes()
+    script = textwrap.dedent(
+        f"""
+        import builtins, sys, time
+        sys.path.insert(0, {os.getcwd()!r})
+        import profiles.store as st
+        from tests.profiles.test_store import make_profile
+        real_open = builtins.open
+        def open_slow(f, mode="r", *a, **k):
+            fh = real_open(f, mode, *a, **k)
+            if "w" in mode and str(f).endswith(".part"):
+                write = fh.write
+                def half_then_hang(s):
+                    write(s[: len(s) // 2])
+                    fh.flush()
+                    print("HALF", flush=True)
+                    time.sleep(60)
+                    return write(s[len(s) // 2 :])
+                fh.write = half_then_hang
+            return fh
+        builtins.open = open_slow
+        st.save_profile(make_profile(rate=9.0), {str(tmp_path)!r}, force=True)
+        """
+    )
+    with subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True) as proc:
+        assert proc.stdout.readline().strip() == "HALF"  # the writer is mid-file
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+    assert (tmp_path / "test-laser@1.0.0.yaml").read_bytes() == before
+    assert load_profile_file(tmp_path / "test-laser@1.0.0.yaml").clutter.rate == 5.5
+    # the half-written temporary is a dot-file the registry ignores
+    leftovers = [p.name for p in tmp_path.iterdir() if p.name != "test-laser@1.0.0.yaml"]
+    assert leftovers and all(n.startswith(".") and n.endswith(".part") for n in leftovers)
+    with_env = {e.path for e in registry()}
+    assert not any(p.name.startswith(".") for p in with_env)
