@@ -105,7 +105,13 @@ def scan_sensor_poses(log: SensorLog, source: str) -> tuple[np.ndarray, str]:
     else:
         from calib.icp import icp_ground_truth
 
-        veh = icp_ground_truth(log).poses
+        # ICP poses live in the frame of the first scan; a log with reference poses anchors
+        # that frame at its first one so the log's landmark truth applies
+        origin = None
+        if "ground_truth" in log.reference:
+            ref = log.reference["ground_truth"]
+            origin = interpolate_poses(ref.stamp, ref.poses, log.scans.stamp[:1])[0]
+        veh = icp_ground_truth(log, origin=origin).poses
         src = "icp"
     m = log.sensor.mount
     return compose(veh, np.array([m.x, m.y, m.theta])), src

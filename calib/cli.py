@@ -345,6 +345,30 @@ def validate_cmd(
     out.print(_summary_table(f"validation of {prof.ref} on {log.name} -> {target}", v.summary))
 
 
+@app.command("icp")
+def icp_cmd(
+    log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A log with laser scans and odometry.")],
+    out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/icp_<log name>).")] = None,
+    relations: Annotated[Path | None, typer.Option(help="Benchmark relations (t1 t2 x y z roll pitch yaw) to score the poses against.")] = None,
+    force: Annotated[bool, typer.Option(help="Replace the run folder if it exists.")] = False,
+    fmt: FormatOpt = None,
+    max_backstep: BackstepOpt = 1.0,
+    laser: LaserOpt = "front",
+    range_max: RangeMaxOpt = None,
+    scan_topic: ScanTopicOpt = None,
+) -> None:
+    """Ground truth from the scans: sequential point-to-line ICP, loop closures, pose graph."""
+    from calib.groundtruth import write_icp_run
+    from profiles.errors import UsageError
+
+    log = _read(log_path, fmt, max_backstep, laser, range_max, 1, scan_topic, None, None)
+    target = out_dir or Path("runs") / f"icp_{log.name}"
+    if target.exists() and not force:
+        raise UsageError(f"{target}: already exists (use --force to replace it)")
+    summary = write_icp_run(log, target, relations=relations, overwrite=force)
+    out.print(_summary_table(f"ICP ground truth of {log.name} -> {target}", summary))
+
+
 @profile_app.command("list")
 def profile_list() -> None:
     """List the bundled and user profiles (name@version, origin, file)."""
