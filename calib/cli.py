@@ -227,6 +227,35 @@ def detect_cmd(
     out.print(t)
 
 
+def _read_many(paths, robots, fmt, max_backstep, laser, range_max, scan_topic, truth_topic):
+    """Logs from paths; a UTIAS dataset folder gives one log per requested robot."""
+    from calib.io.registry import detect_format
+
+    loaded, used = [], []
+    for p in paths:
+        kind = fmt or detect_format(p)
+        for r in (robots or [1]) if kind == "utias" else [1]:
+            loaded.append(_read(p, fmt, max_backstep, laser, range_max, r, scan_topic, None, truth_topic))
+            used.append(p)
+    return loaded, used
+
+
+def _source_refs(log):
+    from calib.detlevel import input_refs_for
+
+    return input_refs_for(log)
+
+
+def _is_detection_config(path: Path) -> bool:
+    import yaml
+
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except (OSError, yaml.YAMLError):
+        return False
+    return isinstance(data, dict) and bool({"frame_period", "fov", "quantile"} & set(data))
+
+
 def _summary_table(title: str, rows: dict) -> Table:
     t = Table(title=title)
     t.add_column("quantity")
@@ -252,6 +281,7 @@ def calibrate_cmd(
     out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/calibrate_<name>@<version>).")] = None,
     profiles_dir: Annotated[Path | None, typer.Option(help="Where to save the profile (default: the user profile folder).")] = None,
     force: Annotated[bool, typer.Option(help="Replace an existing run folder and profile version.")] = False,
+    robot: Annotated[list[int] | None, typer.Option(help="UTIAS: robots to read from a dataset folder (repeat the option).")] = None,
     fmt: FormatOpt = None,
     max_backstep: BackstepOpt = 1.0,
     laser: LaserOpt = "front",
@@ -259,7 +289,11 @@ def calibrate_cmd(
     scan_topic: ScanTopicOpt = None,
     truth_topic: TruthTopicOpt = None,
 ) -> None:
-    """Calibrate the circle detector on logs with truth: P_D(n_p), Hotelling ellipsoid, Poisson clutter -> a profile and a report."""
+    """Calibrate a detector on logs with truth -> a profile and a report.
+
+    Laser logs: the circle detector, P_D against n_p, Hotelling ellipsoid, Poisson clutter.
+    Detection-level logs (UTIAS): P_D against range, clutter from non-landmark detections.
+    """
     import shlex
 
     from calib.calibrate import CalibrateConfig, calibrate
@@ -270,7 +304,9 @@ def calibrate_cmd(
     from profiles.profile import NAME_RE, SEMVER_RE
     from profiles.store import save_profile
 
-    cfg = load_yaml_model(CalibrateConfig, config)
+    cfg = CalibrateConfig()
+    if config is not None and not _is_detection_config(config):
+        cfg = load_yaml_model(CalibrateConfig, config)
     if poses is not None:
         if poses not in ("auto", "reference", "icp"):
             raise UsageError(f"--poses: expected auto, reference or icp, got {poses!r}")
@@ -281,15 +317,14 @@ def calibrate_cmd(
     from profiles.profile import InputRef
 
     if logs:
-        loaded = [_read(p, fmt, max_backstep, laser, range_max, 1, scan_topic, None, truth_topic) for p in logs]
+        loaded, paths = _read_many(logs, robot, fmt, max_backstep, laser, range_max, scan_topic, truth_topic)
         prof_name = name or loaded[0].name.lower().replace("_", "-")
-        paths = list(logs)
     else:
         log, path = default_log()
         loaded = [log]
         prof_name = name or DEFAULT_PROFILE_NAME
         paths = [path]
-    refs = [InputRef(name=p.name, sha256=file_digest(p)) for p in paths]
+    refs = [InputRef(name=p.name, sha256=file_digest(p)) for p in dict.fromkeys(paths)]
     if not NAME_RE.match(prof_name):
         raise UsageError(f"--name: {prof_name!r} must match [a-z0-9][a-z0-9._-]*")
     target = out_dir or Path("runs") / f"calibrate_{prof_name}@{version}"
@@ -298,10 +333,18 @@ def calibrate_cmd(
     # the command as typed; absolute paths lose their folders (a profile names inputs by file name and hash)
     words = [Path(a).name if os.path.isabs(a) else a for a in sys.argv[2:]]
     command = " ".join(["detcal calibrate", *(shlex.quote(w) for w in words)])
-    cal = calibrate(
-        loaded, cfg, name=prof_name, version=version, description=description, landmarks_csv=landmarks, input_refs=refs, command=command
-    )
-    figures = write_calibration_run(cal, target, overwrite=force)
+    if all(lg.scans is None and lg.detections is not None for lg in loaded):
+        from calib.detlevel import DetectionCalibConfig, calibrate_detections, write_detection_run
+
+        dcfg = load_yaml_model(DetectionCalibConfig, config)
+        refs = [r for lg in loaded for r in _source_refs(lg)] or refs
+        cal = calibrate_detections(loaded, dcfg, name=prof_name, version=version, description=description, input_refs=refs, command=command)
+        figures = write_detection_run(cal, target, overwrite=force)
+    else:
+        cal = calibrate(
+            loaded, cfg, name=prof_name, version=version, description=description, landmarks_csv=landmarks, input_refs=refs, command=command
+        )
+        figures = write_calibration_run(cal, target, overwrite=force)
     saved, status = save_profile(cal.profile, profiles_dir, force=force)
     p = cal.profile
     rows = {
@@ -321,6 +364,7 @@ def validate_cmd(
     poses: Annotated[str, typer.Option(help="Scan poses from: auto, reference, icp.")] = "auto",
     out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/validate_<profile>_<log>).")] = None,
     force: Annotated[bool, typer.Option(help="Replace the run folder if it exists.")] = False,
+    robot: Annotated[list[int] | None, typer.Option(help="UTIAS: robots to read from a dataset folder (repeat the option).")] = None,
     fmt: FormatOpt = None,
     max_backstep: BackstepOpt = 1.0,
     laser: LaserOpt = "front",
@@ -336,11 +380,19 @@ def validate_cmd(
     if poses not in ("auto", "reference", "icp"):
         raise UsageError(f"--poses: expected auto, reference or icp, got {poses!r}")
     prof = resolve(profile_ref)
-    log = _read(log_path, fmt, max_backstep, laser, range_max, 1, scan_topic, None, truth_topic)
+    loaded, _ = _read_many([log_path], robot, fmt, max_backstep, laser, range_max, scan_topic, truth_topic)
+    log = loaded[0]
     target = out_dir or Path("runs") / f"validate_{prof.ref}_{log.name}"
     if target.exists() and not force:
         raise UsageError(f"{target}: already exists (use --force to replace it)")
-    v = validate(prof, log, landmarks_csv=landmarks, poses=poses)
+    if prof.detector.kind == "external":
+        from calib.detlevel import validate_detections
+
+        v = validate_detections(prof, loaded)
+    else:
+        if len(loaded) > 1:
+            raise UsageError("validate one laser log at a time")
+        v = validate(prof, log, landmarks_csv=landmarks, poses=poses)
     write_validation_run(v, target, overwrite=force)
     out.print(_summary_table(f"validation of {prof.ref} on {log.name} -> {target}", v.summary))
 
