@@ -26,6 +26,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_readers.py
 	$(BIN)/python benchmarks/bench_detectors.py
+	$(BIN)/python benchmarks/bench_calibration.py
 
 # Regenerate the bundled profile with detcal's own calibration (reproducible bytes).
 builtin-profile: $(STAMP)
