@@ -199,6 +199,7 @@ def simulate_park_cmd(
 def detect_cmd(
     log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A log with laser scans.")],
     out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/detect_<log name>).")] = None,
+    profile: Annotated[str | None, typer.Option(help="Use a profile's detector, Hotelling gate and P_D table (name[@version] or a file).")] = None,
     config: Annotated[Path | None, typer.Option(help="YAML with `detector:` parameters and an optional `hotelling:` gate.")] = None,
     plot: Annotated[int | None, typer.Option("--plot", metavar="SCAN", help="Also draw this scan: clusters, circles, P_D field.")] = None,
     force: Annotated[bool, typer.Option(help="Replace the run folder if it exists.")] = False,
@@ -213,12 +214,26 @@ def detect_cmd(
     from calib.detect import DetectConfig, write_detect_run
     from profiles.errors import UsageError
 
-    cfg = load_yaml_model(DetectConfig, config)
+    pd_table = None
+    if profile is not None:
+        if config is not None:
+            raise UsageError("--profile and --config both set the detector; give one")
+        from profiles.schema import HotellingParams
+        from profiles.store import resolve
+
+        prof = resolve(profile)
+        if prof.detector.kind != "circle2d":
+            raise UsageError(f"profile {prof.ref} is for an external detector, not the circle detector")
+        hot = None if prof.hotelling is None else HotellingParams.model_validate(prof.hotelling.model_dump(include=set(HotellingParams.model_fields)))
+        cfg = DetectConfig(detector=prof.detector.circle, hotelling=hot, k_sigma=prof.detector.k_sigma)
+        pd_table = prof.pd if prof.pd.covariate == "n_p" else None
+    else:
+        cfg = load_yaml_model(DetectConfig, config)
     log = _read(log_path, fmt, max_backstep, laser, range_max, 1, scan_topic, None, None)
     target = out_dir or Path("runs") / f"detect_{log.name}"
     if target.exists() and not force:
         raise UsageError(f"{target}: already exists (use --force to replace it)")
-    summary = write_detect_run(log, cfg, target, plot_scan=plot, overwrite=force)
+    summary = write_detect_run(log, cfg, target, plot_scan=plot, pd_table=pd_table, overwrite=force)
     t = Table(title=f"detections -> {target}")
     t.add_column("quantity")
     t.add_column("value", justify="right")

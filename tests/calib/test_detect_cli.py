@@ -42,3 +42,14 @@ def test_detect_errors(tmp_path, capsys, small_sim):
     assert code == 2
     assert_one_line_error(err, "bad.yaml: detector.jump: Input should be greater than 0")
     assert main(["detect", "--help"]) == 0
+
+
+def test_detect_with_the_bundled_profile(tmp_path, capsys, small_sim):
+    log = write_native(small_sim.log, tmp_path / "park.dlog")
+    code, _, err = run(capsys, "detect", str(log), "--out", str(tmp_path / "p"), "--profile", "sim-park-laser@1.0.0", "--plot", "5")
+    assert code == 0, err
+    table = pd.read_csv(tmp_path / "p/detections.csv")
+    assert len(table) > 50 and np.isfinite(table["maha2"]).all() and (table["maha2"] <= 16.27).all()
+    code, _, err = run(capsys, "detect", str(log), "--profile", "sim-park-laser", "--config", "x.yaml")
+    assert code == 2
+    assert_one_line_error(err, "--profile and --config both set the detector")
