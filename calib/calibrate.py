@@ -173,7 +173,7 @@ def calibrate(
         raise UsageError("no logs to calibrate")
     for lg in logs:
         if lg.scans is None or lg.sensor is None:
-            raise DataError(f"log {lg.name!r} has no laser scans; detection-level logs use `detcal calibrate --detections`")
+            raise UsageError(f"log {lg.name!r} has no laser scans; calibrate detection-level logs apart from laser logs")
     sensor = _check_same_sensor(logs)
     if sensor.range_sigma is None:
         raise DataError("the sensor model has no range_sigma; the occlusion test of the ray tracer needs it")

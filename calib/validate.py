@@ -55,7 +55,7 @@ def reliability(pred: np.ndarray, obs: np.ndarray, n_bins: int = N_BINS) -> tupl
 
 def validate(profile: DetectorProfile, log: SensorLog, *, landmarks_csv: Path | None = None, poses: str = "auto") -> Validation:
     if profile.detector.kind != "circle2d":
-        raise UsageError(f"profile {profile.ref} is for an external detector; validate detection-level logs with --detections")
+        raise UsageError(f"profile {profile.ref} is for an external detector, not the circle detector of laser logs")
     if log.scans is None or log.sensor is None:
         raise DataError(f"log {log.name!r} has no laser scans")
     s, ps = log.sensor, profile.sensor
