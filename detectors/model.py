@@ -51,6 +51,18 @@ class DetectionModel:
         if self.pd_table.covariate == "n_p" and self.sensor.range_sigma is None:
             raise DataError("an n_p P_D table needs the sensor's range_sigma (for the occlusion test)")
 
+    @classmethod
+    def from_profile(cls, profile) -> DetectionModel:
+        """The runtime model of a :class:`profiles.profile.DetectorProfile`."""
+        return cls(
+            pd_table=profile.pd,
+            clutter=profile.clutter,
+            sensor=profile.sensor,
+            hotelling=profile.hotelling,
+            k_sigma=profile.detector.k_sigma,
+            buffer_samples=profile.detector.buffer_samples,
+        )
+
     # ------------------------------------------------------------------ P_D
     def pd_of_np(self, n_p: np.ndarray) -> np.ndarray:
         return self.pd_table.lookup(n_p)

@@ -161,12 +161,17 @@ class ClutterParams(Strict):
     rate: float = Field(ge=0.0, description="lambda: mean false alarms per scan")
     space: Literal["range_bearing", "xy"] = "range_bearing"
     volume: float = Field(gt=0.0, description="size of the field of view in the measurement space")
+    kappa: float | None = Field(default=None, ge=0.0, description="clutter intensity rate / volume (filled in when omitted)")
     chi2: float | None = None
     dof: int | None = None
     p_value: float | None = Field(default=None, ge=0.0, le=1.0)
     dispersion: float | None = Field(default=None, ge=0.0, description="variance / mean of the per-scan counts")
 
-    @property
-    def kappa(self) -> float:
-        """Clutter intensity per unit of the measurement space."""
-        return self.rate / self.volume
+    @model_validator(mode="after")
+    def _kappa(self) -> ClutterParams:
+        k = self.rate / self.volume
+        if self.kappa is None:
+            self.kappa = k
+        elif not np.isclose(self.kappa, k, rtol=1e-9, atol=0.0):
+            raise ValueError(f"kappa {self.kappa} is not rate / volume = {k}")
+        return self

@@ -67,3 +67,13 @@ def test_model_needs_what_its_table_needs():
     m = DetectionModel(TABLE, ClutterParams(rate=1.0, volume=1.0), SENSOR)
     with pytest.raises(DataError, match="no Hotelling model"):
         m.g_true(np.zeros((1, 3)))
+
+
+def test_model_from_the_bundled_profile():
+    from profiles.store import resolve
+
+    m = DetectionModel.from_profile(resolve("sim-park-laser@1.0.0"))
+    assert m.clutter.kappa == pytest.approx(m.clutter.rate / fov_volume(m.sensor))
+    pd, _ = m.pd_landmarks(np.zeros(3), np.full(361, np.nan), np.array([[4.0, 0.0]]), 0.3)
+    assert pd[0] > 0.9
+    assert m.g_true(np.asarray([m.hotelling.mean]))[0] > m.g_false(np.asarray([m.hotelling.mean]))[0]

@@ -96,7 +96,7 @@ def test_registry_resolves_newest_and_exact_versions(tmp_path, monkeypatch):
 def test_diff_names_changed_fields():
     rows = dict((k, (a, b)) for k, a, b in diff_profiles(make_profile(), make_profile("1.0.1", rate=6.0)))
     assert rows["version"] == ("1.0.0", "1.0.1") and rows["clutter.rate"] == (5.5, 6.0)
-    assert len(rows) == 2
+    assert len(rows) == 3 and "clutter.kappa" in rows  # kappa follows the rate
 
 
 def test_killed_writer_leaves_no_partial_profile(tmp_path):
