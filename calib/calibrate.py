@@ -117,8 +117,17 @@ def scan_sensor_poses(log: SensorLog, source: str) -> tuple[np.ndarray, str]:
     return compose(veh, np.array([m.x, m.y, m.theta])), src
 
 
-def log_landmarks(log: SensorLog, landmarks_csv: Path | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(ids (L,), xy (L, 2), radius (L,)) from a CSV (columns id, x, y, radius) or the log."""
+def log_landmarks(
+    log: SensorLog, landmarks_csv: Path | str | None, sensor_poses: np.ndarray | None = None, params: CircleDetectorParams | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(ids (L,), xy (L, 2), radius (L,)) from a CSV (columns id, x, y, radius), the log, or
+    ``"cloud"``: circles that recur in the registered scans (:mod:`calib.landmarks`)."""
+    if landmarks_csv is not None and str(landmarks_csv) == "cloud":
+        from calib.landmarks import landmarks_from_cloud
+
+        if sensor_poses is None:
+            raise UsageError("landmarks from the cloud need the scan poses")
+        return landmarks_from_cloud(log, sensor_poses, params or CircleDetectorParams())
     if landmarks_csv is not None:
         try:
             t = pd.read_csv(landmarks_csv)
@@ -132,7 +141,7 @@ def log_landmarks(log: SensorLog, landmarks_csv: Path | None) -> tuple[np.ndarra
             raise DataError(f"{landmarks_csv}:{int(np.flatnonzero(bad)[0]) + 2}: x, y must be numbers and radius > 0")
         return t["id"].to_numpy(np.int64), t[["x", "y"]].to_numpy(np.float64), t["radius"].to_numpy(np.float64)
     if log.landmarks is None:
-        raise UsageError(f"log {log.name!r} has no landmark truth; pass --landmarks FILE.csv (id, x, y, radius)")
+        raise UsageError(f"log {log.name!r} has no landmark truth; pass --landmarks FILE.csv (id, x, y, radius) or --landmarks cloud")
     lm = log.landmarks
     if np.isnan(lm.radius).any():
         raise DataError(f"log {log.name!r}: landmark radii are unknown; the n_p ray tracer needs them (--landmarks)")
@@ -183,7 +192,7 @@ def calibrate(
     offset = 0
     for k, lg in enumerate(logs):
         sp, src = scan_sensor_poses(lg, cfg.poses)
-        ids, xy, r = log_landmarks(lg, landmarks_csv)
+        ids, xy, r = log_landmarks(lg, landmarks_csv, sp, cfg.detector)
         lab = label_log(lg, sp, ids, xy, r, cfg.detector, gate=cfg.gate, k_sigma=cfg.k_sigma)
         d = lab.detections.assign(log=k)
         p = lab.pairs.assign(log=k)

@@ -291,7 +291,9 @@ def calibrate_cmd(
     version: Annotated[str, typer.Option("--version", help="Profile version MAJOR.MINOR.PATCH; an existing one is never replaced silently.")] = "1.0.0",
     description: Annotated[str, typer.Option(help="Free text stored in the profile.")] = "",
     config: Annotated[Path | None, typer.Option(help="YAML calibration config (detector, descriptors, confidence, gate, pd, ...).")] = None,
-    landmarks: Annotated[Path | None, typer.Option(help="CSV of landmark truth: id, x, y, radius (world frame).")] = None,
+    landmarks: Annotated[
+        Path | None, typer.Option(help="Landmark truth: a CSV (id, x, y, radius; world frame) or `cloud` (recurring circles of the registered scans).")
+    ] = None,
     poses: Annotated[str | None, typer.Option(help="Scan poses from: auto (truth if the log has it, else ICP), reference, icp.")] = None,
     out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/calibrate_<name>@<version>).")] = None,
     profiles_dir: Annotated[Path | None, typer.Option(help="Where to save the profile (default: the user profile folder).")] = None,
@@ -375,7 +377,7 @@ def calibrate_cmd(
 def validate_cmd(
     profile_ref: Annotated[str, typer.Argument(metavar="PROFILE", help="name[@version] or a profile file.")],
     log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A held-out log with truth.")],
-    landmarks: Annotated[Path | None, typer.Option(help="CSV of landmark truth: id, x, y, radius.")] = None,
+    landmarks: Annotated[Path | None, typer.Option(help="Landmark truth: a CSV (id, x, y, radius) or `cloud`.")] = None,
     poses: Annotated[str, typer.Option(help="Scan poses from: auto, reference, icp.")] = "auto",
     out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/validate_<profile>_<log>).")] = None,
     force: Annotated[bool, typer.Option(help="Replace the run folder if it exists.")] = False,

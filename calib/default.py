@@ -36,6 +36,8 @@ def default_log(seed: int = DEFAULT_SEED) -> tuple[SensorLog, Path]:
     """The default park log, simulating and caching it on first use."""
     path = default_log_path(seed)
     if not path.is_file():
-        sim = simulate_park(ParkConfig(), seed)
+        from calib.progress import progress
+
+        sim = simulate_park(ParkConfig(), seed, progress=progress)
         write_native(sim.log, path, overwrite=True)
     return read_native(path), path

@@ -62,7 +62,7 @@ def validate(profile: DetectorProfile, log: SensorLog, *, landmarks_csv: Path | 
     if (s.n_beams, s.angle_min, s.angle_increment) != (ps.n_beams, ps.angle_min, ps.angle_increment):
         raise UsageError(f"log {log.name!r} has another beam geometry than profile {profile.ref}")
     sp, src = scan_sensor_poses(log, poses)
-    ids, xy, r = log_landmarks(log, landmarks_csv)
+    ids, xy, r = log_landmarks(log, landmarks_csv, sp, profile.detector.circle)
     lab = label_log(log, sp, ids, xy, r, profile.detector.circle, gate=profile.detector.association_gate, k_sigma=profile.detector.k_sigma)
     dets, pairs = lab.detections, lab.pairs
     h = profile.hotelling

@@ -374,8 +374,11 @@ def _noisy_increments(rng: np.random.Generator, poses: np.ndarray, cfg: Odometry
     return out
 
 
-def simulate_park(cfg: ParkConfig, seed: int) -> Simulation:
-    """Run the simulator; the returned log holds scans, odometry, true poses and the trees."""
+def simulate_park(cfg: ParkConfig, seed: int, progress=None) -> Simulation:
+    """Run the simulator; the returned log holds scans, odometry, true poses and the trees.
+
+    ``progress(iterable, total, label)`` may wrap the per-scan loop (a progress bar).
+    """
     rng = np.random.default_rng(seed)
     dense = _figure8(cfg) if cfg.path.kind == "figure8" else _lawnmower(cfg)
     poses, t = _trajectory(cfg, dense, closed=cfg.path.kind == "figure8")
@@ -388,7 +391,8 @@ def simulate_park(cfg: ParkConfig, seed: int) -> Simulation:
     spose = sensor_poses(poses[scan_idx], cfg.laser.mount)
     las = cfg.laser
     ranges = np.empty((scan_idx.size, las.n_beams), dtype=np.float32)
-    for k in range(scan_idx.size):  # one vectorised cast (beams x shapes) per scan
+    scans = range(scan_idx.size) if progress is None else progress(range(scan_idx.size), scan_idx.size, "simulating scans")
+    for k in scans:  # one vectorised cast (beams x shapes) per scan
         truth, _ = cast_world(world, spose[k], sensor)
         noisy = truth + las.range_sigma * rng.standard_normal(las.n_beams)
         miss = rng.uniform(size=las.n_beams) < las.p_miss

@@ -97,7 +97,9 @@ def plot_overview(sim: Simulation, path: Path) -> None:
 
 
 def simulate_to(out: Path, seed: int, cfg: ParkConfig | None = None, *, overwrite: bool = False) -> dict:
-    sim = simulate_park(cfg or ParkConfig(), seed)
+    from calib.progress import progress
+
+    sim = simulate_park(cfg or ParkConfig(), seed, progress=progress)
     return write_simulation(sim, out, overwrite=overwrite)
 
 
