@@ -47,6 +47,14 @@ OdomTopicOpt = Annotated[str | None, typer.Option(help="Bags: the nav_msgs/Odome
 TruthTopicOpt = Annotated[str | None, typer.Option(help="Bags: a ground-truth pose topic (Odometry or PoseStamped).")]
 
 
+def _fresh(target: Path, force: bool) -> None:
+    """Refuse to replace an existing output unless --force was given."""
+    from profiles.errors import UsageError
+
+    if target.exists() and not force:
+        raise UsageError(f"{target}: already exists (use --force to replace it)")
+
+
 def _read(path: Path, fmt, max_backstep, laser, range_max, robot, scan_topic, odom_topic, truth_topic):
     from calib.io.registry import ReadOptions, read_log
 
@@ -156,10 +164,7 @@ def log_convert(
     from calib.io.registry import output_format, write_log
 
     kind = output_format(dst, to)  # check before the (possibly long) read
-    if dst.exists() and not force:
-        from profiles.errors import UsageError
-
-        raise UsageError(f"{dst}: already exists (use --force to replace it)")
+    _fresh(dst, force)
     log = _read(src, fmt, max_backstep, laser, range_max, robot, scan_topic, odom_topic, truth_topic)
     write_log(log, dst, kind, overwrite=force)
     out.print(f"wrote {dst} ({kind}): {', '.join(log.streams())}")
@@ -182,10 +187,7 @@ def simulate_park_cmd(
 
         raise UsageError(f"--seed: expected a non-negative integer, got {seed}")
     cfg = load_yaml_model(ParkConfig, config)
-    if out_dir.exists() and not force:
-        from profiles.errors import UsageError
-
-        raise UsageError(f"{out_dir}: already exists (use --force to replace it)")
+    _fresh(out_dir, force)
     summary = simulate_to(out_dir, seed, cfg, overwrite=force)
     t = Table(title=f"simulated park -> {out_dir}")
     t.add_column("quantity")
@@ -231,8 +233,7 @@ def detect_cmd(
         cfg = load_yaml_model(DetectConfig, config)
     log = _read(log_path, fmt, max_backstep, laser, range_max, 1, scan_topic, None, None)
     target = out_dir or Path("runs") / f"detect_{log.name}"
-    if target.exists() and not force:
-        raise UsageError(f"{target}: already exists (use --force to replace it)")
+    _fresh(target, force)
     summary = write_detect_run(log, cfg, target, plot_scan=plot, pd_table=pd_table, overwrite=force)
     t = Table(title=f"detections -> {target}")
     t.add_column("quantity")
@@ -345,8 +346,7 @@ def calibrate_cmd(
     if not NAME_RE.match(prof_name):
         raise UsageError(f"--name: {prof_name!r} must match [a-z0-9][a-z0-9._-]*")
     target = out_dir or Path("runs") / f"calibrate_{prof_name}@{version}"
-    if target.exists() and not force:
-        raise UsageError(f"{target}: already exists (use --force to replace it)")
+    _fresh(target, force)
     # the command as typed; absolute paths lose their folders (a profile names inputs by file name and hash)
     words = [Path(a).name if os.path.isabs(a) else a for a in sys.argv[2:]]
     command = " ".join(["detcal calibrate", *(shlex.quote(w) for w in words)])
@@ -400,8 +400,7 @@ def validate_cmd(
     loaded, _ = _read_many([log_path], robot, fmt, max_backstep, laser, range_max, scan_topic, truth_topic)
     log = loaded[0]
     target = out_dir or Path("runs") / f"validate_{prof.ref}_{log.name}"
-    if target.exists() and not force:
-        raise UsageError(f"{target}: already exists (use --force to replace it)")
+    _fresh(target, force)
     if prof.detector.kind == "external":
         from calib.detlevel import validate_detections
 
@@ -428,12 +427,10 @@ def icp_cmd(
 ) -> None:
     """Ground truth from the scans: sequential point-to-line ICP, loop closures, pose graph."""
     from calib.groundtruth import write_icp_run
-    from profiles.errors import UsageError
 
     log = _read(log_path, fmt, max_backstep, laser, range_max, 1, scan_topic, None, None)
     target = out_dir or Path("runs") / f"icp_{log.name}"
-    if target.exists() and not force:
-        raise UsageError(f"{target}: already exists (use --force to replace it)")
+    _fresh(target, force)
     summary = write_icp_run(log, target, relations=relations, overwrite=force)
     out.print(_summary_table(f"ICP ground truth of {log.name} -> {target}", summary))
 

@@ -18,6 +18,7 @@ import pandas as pd
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
+from calib.detect import detections_table
 from detectors.circle import detect_circles
 from detectors.geometry import compose
 from detectors.logs import SensorLog
@@ -143,24 +144,13 @@ def label_log(
         return support(log.scans.ranges, ang, sensor_poses, det.scan[i], det.first[i], det.last[i], lm_xy[j], lm_r[j], tol) >= MIN_SUPPORT
 
     lm_of, dist = associate(det.scan, world[:, :2], lm_xy, gate, on_landmark)
-    dets = pd.DataFrame(
-        {
-            "scan": det.scan,
-            "time": log.scans.stamp[det.scan] / 1e9,
-            "x": det.x,
-            "y": det.y,
-            "world_x": world[:, 0],
-            "world_y": world[:, 1],
-            "range": det.range,
-            "bearing": det.bearing,
-            "radius": det.radius,
-            "fit_error": det.fit_error,
-            "convexity": det.convexity,
-            "points": det.n_points,
-            "landmark": np.where(lm_of >= 0, lm_ids[np.maximum(lm_of, 0)], -1),
-            "landmark_index": lm_of,
-            "distance": dist,
-        }
+    dets = detections_table(log, det).drop(columns=["frame", "maha2"])
+    dets = dets.assign(
+        world_x=world[:, 0],
+        world_y=world[:, 1],
+        landmark=np.where(lm_of >= 0, lm_ids[np.maximum(lm_of, 0)], -1),
+        landmark_index=lm_of,
+        distance=dist,
     )
     n_p, n_exp = count_unoccluded(
         sensor_poses, ang, log.scans.ranges, lm_xy, lm_r, range_sigma=log.sensor.range_sigma, k_sigma=k_sigma, range_max=log.sensor.range_max
