@@ -28,7 +28,7 @@ from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
 from scipy.spatial import cKDTree
 
-from detectors.geometry import compose, interpolate_poses, relative
+from detectors.geometry import compose, interpolate_poses, relative, rigid_align  # noqa: F401  (re-exported)
 from detectors.logs import SensorLog
 from profiles.errors import DataError
 
@@ -295,16 +295,6 @@ def _optimise(x0: np.ndarray, edges) -> np.ndarray:
     x = np.vstack([x0[:1], sol.x.reshape(-1, 3)])
     x[:, 2] = np.mod(x[:, 2] + np.pi, 2 * np.pi) - np.pi
     return x
-
-
-def rigid_align(est: np.ndarray, ref: np.ndarray) -> np.ndarray:
-    """Best-fit rotation + translation (Umeyama, no scale) of est (N, 2+) onto ref; returns est's poses moved."""
-    a, b = est[:, :2], ref[:, :2]
-    ma, mb = a.mean(axis=0), b.mean(axis=0)
-    u, _, vt = np.linalg.svd((b - mb).T @ (a - ma))
-    r = u @ np.diag([1.0, np.linalg.det(u @ vt)]) @ vt
-    ang = np.arctan2(r[1, 0], r[0, 0])
-    return compose(np.array([*(mb - r @ ma), ang]), est)
 
 
 def read_relations(path) -> np.ndarray:

@@ -116,3 +116,13 @@ def interpolate_poses(stamp_ref: np.ndarray, poses_ref: np.ndarray, stamps: np.n
     out = np.column_stack([np.interp(q, t, poses_ref[:, 0]), np.interp(q, t, poses_ref[:, 1]), np.interp(q, t, th)])
     out[:, 2] = np.mod(out[:, 2] + np.pi, 2 * np.pi) - np.pi
     return out
+
+
+def rigid_align(est: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """Best-fit rotation + translation (Umeyama, no scale) of est (N, 2+) onto ref; returns est's poses moved."""
+    a, b = est[:, :2], ref[:, :2]
+    ma, mb = a.mean(axis=0), b.mean(axis=0)
+    u, _, vt = np.linalg.svd((b - mb).T @ (a - ma))
+    r = u @ np.diag([1.0, np.linalg.det(u @ vt)]) @ vt
+    ang = np.arctan2(r[1, 0], r[0, 0])
+    return compose(np.array([*(mb - r @ ma), ang]), est)
