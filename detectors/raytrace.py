@@ -37,7 +37,8 @@ def count_unoccluded(
 
     sensor_poses (S, 3) world frame; angles (B,) sensor frame;
     ranges (S, B) measured, NaN = no return (a (B,) scan is shared by all poses);
-    centres (L, 2) world frame; radii (L,) or scalar.
+    centres (L, 2) world frame, shared by all poses, or (S, L, 2): one set per pose
+    (the maps of a particle filter); radii (L,) or scalar.
     returns (n_p (S, L) int32, n_expected (S, L) int32)
     """
     poses = np.atleast_2d(np.asarray(sensor_poses, dtype=np.float64))
@@ -45,9 +46,12 @@ def count_unoccluded(
     meas = np.asarray(ranges, dtype=np.float64)
     if meas.ndim == 1:
         meas = np.broadcast_to(meas, (poses.shape[0], meas.size))
-    centres = np.asarray(centres, dtype=np.float64).reshape(-1, 2)
-    radii = np.broadcast_to(np.asarray(radii, dtype=np.float64), (centres.shape[0],))
-    s, b, l_ = poses.shape[0], angles.size, centres.shape[0]
+    centres = np.asarray(centres, dtype=np.float64)
+    per_pose = centres.ndim == 3
+    centres = centres if per_pose else centres.reshape(-1, 2)
+    l_ = centres.shape[-2]
+    radii = np.broadcast_to(np.asarray(radii, dtype=np.float64), (l_,))
+    s, b = poses.shape[0], angles.size
     n_p = np.zeros((s, l_), dtype=np.int32)
     n_exp = np.zeros((s, l_), dtype=np.int32)
     if s == 0 or l_ == 0:
@@ -57,7 +61,7 @@ def count_unoccluded(
     step = max(1, _CHUNK // max(1, b * l_))
     for a in range(0, s, step):  # chunks of scans; inside, all beams x landmarks at once
         sl = slice(a, min(s, a + step))
-        exp = expected_ranges(poses[sl], angles, centres, radii)  # (s', B, L)
+        exp = expected_ranges(poses[sl], angles, centres[sl] if per_pose else centres, radii)  # (s', B, L)
         hit = np.isfinite(exp) & (exp <= rmax)
         occl = hit & (meas[sl, :, None] < exp - tol)  # NaN compares False: a missing return does not occlude
         n_exp[sl] = hit.sum(axis=1)
@@ -66,11 +70,14 @@ def count_unoccluded(
 
 
 def expected_ranges(sensor_poses: np.ndarray, angles: np.ndarray, centres: np.ndarray, radii: np.ndarray) -> np.ndarray:
-    """(S, B, L) range at which each beam would first cross each circle (inf where it misses)."""
+    """(S, B, L) range at which each beam would first cross each circle (inf where it misses).
+
+    centres (L, 2) shared by all poses or (S, L, 2) one set per pose.
+    """
     poses = np.atleast_2d(sensor_poses)
     a = poses[:, 2:3] + angles[None, :]  # (S, B) world beam angles
     dirs = np.stack([np.cos(a), np.sin(a)], axis=-1)  # (S, B, 2)
-    m = centres[None, :, :] - poses[:, None, :2]  # (S, L, 2)
+    m = (centres if centres.ndim == 3 else centres[None, :, :]) - poses[:, None, :2]  # (S, L, 2)
     proj = np.einsum("sbk,slk->sbl", dirs, m)  # along-beam distance of the closest approach
     d2 = np.einsum("slk,slk->sl", m, m)[:, None, :] - proj * proj
     r2 = (radii * radii)[None, None, :]

@@ -1,0 +1,112 @@
+"""Gaussian-mixture maps of many particles at once: padded struct-of-arrays.
+
+A batch of P maps with capacity J holds weights w (P, J) (0 = empty slot),
+means mu (P, J, 2) and covariances cov (P, J, 2, 2), all in the world frame.
+Pruning and merging follow Vo & Ma (2006): drop components under a weight
+threshold, then repeatedly take the heaviest remaining component and merge
+every remaining one within a Mahalanobis distance of it. The merge loop runs
+once per output component, each round vectorised over all particles and
+components.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class GMBatch:
+    w: np.ndarray  # (P, J)
+    mu: np.ndarray  # (P, J, 2)
+    cov: np.ndarray  # (P, J, 2, 2)
+
+    @classmethod
+    def empty(cls, p: int, j: int = 0) -> GMBatch:
+        return cls(np.zeros((p, j)), np.zeros((p, j, 2)), np.tile(np.eye(2), (p, j, 1, 1)))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.w.shape  # type: ignore[return-value]
+
+    def take(self, idx: np.ndarray) -> GMBatch:
+        """The maps of particles ``idx`` (resampling)."""
+        return GMBatch(self.w[idx].copy(), self.mu[idx].copy(), self.cov[idx].copy())
+
+    def concat(self, other: GMBatch) -> GMBatch:
+        return GMBatch(
+            np.concatenate([self.w, other.w], axis=1),
+            np.concatenate([self.mu, other.mu], axis=1),
+            np.concatenate([self.cov, other.cov], axis=1),
+        )
+
+    def total(self) -> np.ndarray:
+        """(P,) expected number of features of each map."""
+        return self.w.sum(axis=1)
+
+    def density(self, pts: np.ndarray) -> np.ndarray:
+        """Intensity of each map at its own points pts (P, K, 2) -> (P, K)."""
+        d = pts[:, :, None, :] - self.mu[:, None, :, :]  # (P, K, J, 2)
+        inv = _inv2(self.cov)  # (P, J, 2, 2)
+        m2 = np.einsum("pkji,pjil,pkjl->pkj", d, inv, d)
+        det = _det2(self.cov)
+        g = np.exp(-0.5 * m2) / (2 * np.pi * np.sqrt(np.maximum(det, 1e-300)))[:, None, :]
+        return (g * self.w[:, None, :]).sum(axis=2)
+
+
+def _det2(c: np.ndarray) -> np.ndarray:
+    return c[..., 0, 0] * c[..., 1, 1] - c[..., 0, 1] * c[..., 1, 0]
+
+
+def _inv2(c: np.ndarray) -> np.ndarray:
+    det = _det2(c)
+    inv = np.empty_like(c)
+    inv[..., 0, 0] = c[..., 1, 1]
+    inv[..., 1, 1] = c[..., 0, 0]
+    inv[..., 0, 1] = -c[..., 0, 1]
+    inv[..., 1, 0] = -c[..., 1, 0]
+    return inv / np.where(np.abs(det) > 1e-300, det, 1e-300)[..., None, None]
+
+
+def prune_merge(gm: GMBatch, *, prune: float = 1e-4, merge: float = 4.0, cap: int = 200) -> GMBatch:
+    """Vo & Ma pruning and merging for every particle; at most ``cap`` components each.
+
+    merge: squared Mahalanobis distance under which components merge.
+    """
+    p, j = gm.shape
+    if j == 0:
+        return GMBatch.empty(p, 0)
+    # keep the heaviest 4 x cap above the threshold: the merge loop then stays short
+    k = min(j, 4 * cap)
+    order = np.argsort(-gm.w, axis=1, kind="stable")[:, :k]
+    w = np.take_along_axis(gm.w, order, axis=1)
+    mu = np.take_along_axis(gm.mu, order[..., None], axis=1)
+    cov = np.take_along_axis(gm.cov, order[..., None, None], axis=1)
+    alive = w > prune
+    inv = _inv2(cov)
+    out_w = np.zeros((p, cap))
+    out_mu = np.zeros((p, cap, 2))
+    out_cov = np.tile(np.eye(2), (p, cap, 1, 1))
+    rows = np.arange(p)
+    for slot in range(cap):  # one output component per round, vectorised over particles
+        if not alive.any():
+            break
+        head = np.argmax(np.where(alive, w, -1.0), axis=1)  # heaviest remaining (order is by weight)
+        has = alive[rows, head]
+        d = mu - mu[rows, head][:, None, :]
+        m2 = np.einsum("pji,pjil,pjl->pj", d, inv[rows, head][:, None], d)
+        grp = alive & (m2 <= merge) & has[:, None]
+        gw = np.where(grp, w, 0.0)
+        tot = gw.sum(axis=1)
+        safe = np.where(tot > 0, tot, 1.0)
+        m = (gw[..., None] * mu).sum(axis=1) / safe[:, None]
+        dm = mu - m[:, None, :]
+        c = (gw[..., None, None] * (cov + dm[..., :, None] * dm[..., None, :])).sum(axis=1) / safe[:, None, None]
+        out_w[:, slot] = tot
+        out_mu[has, slot] = m[has]
+        out_cov[has, slot] = c[has]
+        alive &= ~grp
+    used = int((out_w > 0).any(axis=0).sum()) if out_w.size else 0
+    last = int(np.max(np.nonzero((out_w > 0).any(axis=0))[0]) + 1) if used else 0
+    return GMBatch(out_w[:, :last], out_mu[:, :last], out_cov[:, :last])

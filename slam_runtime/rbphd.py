@@ -1,0 +1,239 @@
+"""RB-PHD-SLAM (Mullane et al.; Inostroza 2015, ch. 3) with a detector profile's statistics.
+
+Particles carry the trajectory; each carries a Gaussian-mixture PHD of the map
+(:mod:`slam_runtime.gm`), all particles processed together:
+
+* map prediction (eqs. 3.8, 3.15-3.16): the previous map plus a birth mixture
+  made from the previous step's measurements through the inverse measurement
+  model (weight ``birth_weight``);
+* map update (eqs. 3.17-3.18): for every particle x component x measurement at
+  once, EKF-updated components weighted by
+  P_D w q / (kappa(z) + sum_l P_D w_l q_l), plus the missed-detection copies
+  (1 - P_D) w. P_D comes from the detection model: through n_p ray-traced
+  against the current scan for a laser profile, through the range for a
+  detection-level profile, or a constant inside the field of view
+  (``pd_mode="constant"``, for comparison). kappa(z) is the profile's clutter
+  intensity;
+* the buffer zone (eq. 3.21, sec. 6.1): a component whose P_D is uncertain
+  (samples across its position give zero and non-zero P_D, or 0 < P_D < 0.5)
+  may not lose weight in the update; its missed-detection copy makes up the
+  difference;
+* particle weights (sec. 3.1.4, eq. 3.13): the multi-feature strategy by
+  default, with the empty-set and single-feature strategies as options; the
+  measurement likelihood given the chosen features is approximated by a
+  Poisson process of intensity kappa(z) + sum_m P_D(m) g(z | m);
+* merging and pruning (Vo & Ma), low-variance resampling when the effective
+  sample size drops under ``resample_ess`` x particles.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from detectors.model import DetectionModel
+from detectors.raytrace import count_unoccluded
+from slam_runtime.gm import GMBatch, _det2, _inv2, prune_merge
+from slam_runtime.measurement import innovation, inverse, predict, sensor_pose
+
+
+class RBPHDConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    particles: int = Field(default=50, ge=1)
+    sigma_range: float = Field(default=0.1, gt=0.0, description="measurement noise of the landmark centre's range [m]")
+    sigma_bearing: float = Field(default=0.01, gt=0.0, description="... and of its bearing [rad]")
+    birth_weight: float = Field(default=0.1, gt=0.0, le=1.0)
+    prune: float = Field(default=1e-4, gt=0.0)
+    merge: float = Field(default=4.0, gt=0.0, description="squared Mahalanobis distance for merging")
+    cap: int = Field(default=250, ge=1, description="components per particle at most")
+    weighting: Literal["multi_feature", "empty_set", "single_feature"] = "multi_feature"
+    map_threshold: float = Field(default=0.5, gt=0.0, description="a component of this weight or more is a map feature")
+    resample_ess: float = Field(default=0.5, gt=0.0, le=1.0)
+    pd_mode: Literal["profile", "constant"] = "profile"
+    constant_pd: float = Field(default=0.9, gt=0.0, le=1.0, description="P_D inside the field of view in constant mode")
+    buffer_zone: bool = True
+    buffer_sigmas: float = Field(default=2.0, gt=0.0, description="lateral spread of the buffer-zone samples, in position std")
+    landmark_radius: float = Field(default=0.2, gt=0.0, description="radius the n_p ray tracer gives map features [m]")
+
+
+@dataclass
+class StepInfo:
+    n_measurements: int
+    ess: float
+    resampled: bool
+    components: float
+
+
+class RBPHDSlam:
+    """The filter. ``predict`` with a motion function, ``update`` with a frame's measurements."""
+
+    def __init__(self, model: DetectionModel, mount: np.ndarray, cfg: RBPHDConfig, rng: np.random.Generator, start: np.ndarray):
+        self.model = model
+        self.mount = np.asarray(mount, dtype=np.float64)
+        self.cfg = cfg
+        self.rng = rng
+        p = cfg.particles
+        self.poses = np.tile(np.asarray(start, dtype=np.float64), (p, 1))
+        self.logw = np.full(p, -np.log(p))
+        self.map = GMBatch.empty(p, 0)
+        self.birth = GMBatch.empty(p, 0)
+        self.r = np.diag([cfg.sigma_range**2, cfg.sigma_bearing**2])
+        self.history: list[np.ndarray] = [self.poses.copy()]
+
+    # ------------------------------------------------------------------ motion
+    def predict(self, move) -> None:
+        """``move(poses (P, 3), rng) -> poses (P, 3)``: one motion-model step for every particle."""
+        self.poses = move(self.poses, self.rng)
+
+    # ------------------------------------------------------------------ P_D
+    def _pd(self, sp: np.ndarray, mu: np.ndarray, cov: np.ndarray, scan: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """P_D (P, J) of every component and whether it is in the buffer zone (P, J)."""
+        p, j = mu.shape[:2]
+        sensor = self.model.sensor
+        z, _ = predict(sp[:, None, :], mu)
+        rng_, brg = z[..., 0], z[..., 1]
+        inside = np.ones((p, j), dtype=bool)
+        if sensor.range_max is not None:
+            inside &= rng_ <= sensor.range_max
+        if sensor.field_of_view is not None:
+            inside &= np.abs(brg) <= sensor.field_of_view / 2
+        if self.cfg.pd_mode == "constant":
+            return np.where(inside, self.cfg.constant_pd, 0.0), np.zeros((p, j), dtype=bool)
+        table = self.model.pd_table
+        if table.covariate == "range":
+            pd = np.where(inside, table.lookup(rng_), 0.0)
+            return pd, (pd > 0) & (pd < 0.5)
+        if scan is None:
+            raise ValueError("an n_p profile needs the current scan")
+        ang, sig = sensor.angles(), float(sensor.range_sigma)
+        if not self.cfg.buffer_zone or j == 0:
+            n_p, _ = count_unoccluded(sp, ang, scan, mu, self.cfg.landmark_radius, range_sigma=sig, k_sigma=self.model.k_sigma, range_max=sensor.range_max)
+            pd = table.lookup(n_p)
+            return pd, np.zeros((p, j), dtype=bool)
+        # buffer zone (sec. 6.1): P_D at samples across the line of sight, spread by the position std
+        ns = self.model.buffer_samples
+        los = mu - sp[:, None, :2]
+        perp = np.stack([-los[..., 1], los[..., 0]], axis=-1) / np.maximum(np.hypot(los[..., 0], los[..., 1]), 1e-9)[..., None]
+        lat = self.cfg.buffer_sigmas * np.sqrt(np.maximum(np.einsum("pji,pjik,pjk->pj", perp, cov, perp), 0.0))
+        t = np.linspace(-1.0, 1.0, ns)
+        pts = mu[:, :, None, :] + (t[None, None, :, None] * lat[..., None, None]) * perp[:, :, None, :]
+        n_p, _ = count_unoccluded(
+            sp, ang, scan, pts.reshape(p, j * ns, 2), self.cfg.landmark_radius, range_sigma=sig, k_sigma=self.model.k_sigma, range_max=sensor.range_max
+        )
+        pd_s = table.lookup(n_p).reshape(p, j, ns)
+        pd_c = pd_s[:, :, ns // 2]
+        mixed = (pd_s == 0).any(axis=2) & (pd_s > 0).any(axis=2)
+        pd = np.where(mixed, pd_s.max(axis=2), pd_c)
+        return pd, mixed | ((pd_c > 0) & (pd_c < 0.5))
+
+    # ------------------------------------------------------------------ update
+    def update(self, z: np.ndarray, scan: np.ndarray | None = None) -> StepInfo:
+        """One map update + reweighting with measurements z (M, 2) (range, bearing; sensor frame)."""
+        cfg = self.cfg
+        z = np.asarray(z, dtype=np.float64).reshape(-1, 2)
+        sp = sensor_pose(self.poses, self.mount)
+        prior = self.map.concat(self.birth)  # eq. 3.16: previous map + birth from the previous measurements
+        w, mu, cov = prior.w, prior.mu, prior.cov
+        p, j = w.shape
+        m = z.shape[0]
+        pd, buf = self._pd(sp, mu, cov, scan)
+        kappa = self.model.clutter_intensity(z) if m else np.zeros(0)
+        zhat, h = predict(sp[:, None, :], mu)  # (P, J, 2), (P, J, 2, 2)
+        s = h @ cov @ np.swapaxes(h, -1, -2) + self.r
+        sinv = _inv2(s)
+        gain = cov @ np.swapaxes(h, -1, -2) @ sinv  # (P, J, 2, 2)
+        nu = innovation(z[None, None, :, :], zhat[:, :, None, :]) if m else np.zeros((p, j, 0, 2))
+        m2 = np.einsum("pjmi,pjik,pjmk->pjm", nu, sinv, nu)
+        q = np.exp(-0.5 * m2) / (2 * np.pi * np.sqrt(np.maximum(_det2(s), 1e-300)))[..., None]
+        num = (pd * w)[..., None] * q  # (P, J, M)
+        den = kappa[None, :] + num.sum(axis=1)  # (P, M)
+        w_det = num / np.where(den > 0, den, 1.0)[:, None, :]
+        missed = (1.0 - pd) * w
+        if cfg.buffer_zone:
+            gained = w_det.sum(axis=2)
+            short = buf & (gained + missed < w)  # eq. 3.21: no weight lost in the buffer zone
+            missed = np.where(short, w - gained, missed)
+        mu_det = mu[:, :, None, :] + np.einsum("pjik,pjmk->pjmi", gain, nu)
+        cov_det = cov - gain @ h @ cov
+        upd = GMBatch(missed, mu, cov).concat(
+            GMBatch(w_det.reshape(p, j * m), mu_det.reshape(p, j * m, 2), np.repeat(cov_det, m, axis=1).reshape(p, j * m, 2, 2))
+        )
+        pd_upd = np.concatenate([pd, np.repeat(pd, m, axis=1)], axis=1) if m else pd
+        self.logw += self._log_weight(prior, upd, pd_upd, sp, z, kappa)
+        self.map = prune_merge(upd, prune=cfg.prune, merge=cfg.merge, cap=cfg.cap)
+        self.birth = self._birth(sp, z)
+        return self._resample(m)
+
+    def _birth(self, sp: np.ndarray, z: np.ndarray) -> GMBatch:
+        p, m = sp.shape[0], z.shape[0]
+        if m == 0:
+            return GMBatch.empty(p, 0)
+        pos, g = inverse(sp[:, None, :], z[None, :, :])  # (P, M, 2), (P, M, 2, 2)
+        cov = g @ self.r @ np.swapaxes(g, -1, -2) + np.eye(2) * 1e-4
+        return GMBatch(np.full((p, m), self.cfg.birth_weight), pos, cov)
+
+    def _log_weight(self, prior: GMBatch, upd: GMBatch, pd_upd: np.ndarray, sp, z, kappa) -> np.ndarray:
+        """log of eq. 3.13 under the chosen strategy (particle-independent factors dropped)."""
+        cfg = self.cfg
+        base = upd.total() - prior.total()
+        if cfg.weighting == "empty_set" or upd.shape[1] == 0:
+            return base
+        if cfg.weighting == "single_feature":
+            pick = np.argmax(upd.w, axis=1)[:, None]
+        else:
+            k = max(1, int((upd.w >= cfg.map_threshold).sum(axis=1).max()))
+            pick = np.argsort(-upd.w, axis=1, kind="stable")[:, :k]
+        rows = np.arange(upd.shape[0])[:, None]
+        chosen = np.take_along_axis(upd.w, pick, axis=1) >= (cfg.map_threshold if cfg.weighting == "multi_feature" else 0.0)
+        pts = upd.mu[rows, pick]  # (P, K, 2)
+        pd_m = np.where(chosen, pd_upd[rows, pick], 0.0)
+        v_minus = prior.density(pts) if prior.shape[1] else np.zeros(pts.shape[:2])
+        v_plus = upd.density(pts)
+        ratio = np.where(chosen, np.log(np.maximum(v_minus, 1e-300)) - np.log(np.maximum(v_plus, 1e-300)), 0.0).sum(axis=1)
+        # log p(Z | M, x) ~ Poisson process of intensity kappa + sum_m P_D g(z | m), relative to clutter alone
+        lik = -pd_m.sum(axis=1)
+        if z.shape[0]:
+            zh, _ = predict(sp[:, None, :], pts)
+            nu = innovation(z[None, None, :, :], zh[:, :, None, :])
+            rinv = np.linalg.inv(self.r)
+            g = np.exp(-0.5 * np.einsum("pkmi,ij,pkmj->pkm", nu, rinv, nu)) / (2 * np.pi * np.sqrt(np.linalg.det(self.r)))
+            lam = (pd_m[..., None] * g).sum(axis=1)  # (P, M)
+            lik += np.log1p(lam / np.maximum(kappa[None, :], 1e-300)).sum(axis=1)
+        return base + ratio + lik
+
+    def _resample(self, m: int) -> StepInfo:
+        lw = self.logw - self.logw.max()
+        w = np.exp(lw)
+        w /= w.sum()
+        self.logw = np.log(np.maximum(w, 1e-300))
+        ess = 1.0 / float(np.sum(w * w))
+        p = w.size
+        resampled = ess < self.cfg.resample_ess * p
+        self.history.append(self.poses.copy())
+        if resampled:  # low-variance (systematic) resampling
+            u = (self.rng.uniform() + np.arange(p)) / p
+            idx = np.minimum(np.searchsorted(np.cumsum(w), u), p - 1)
+            self.poses = self.poses[idx]
+            self.map = self.map.take(idx)
+            self.birth = self.birth.take(idx)
+            self.history = [hh[idx] for hh in self.history]
+            self.logw = np.full(p, -np.log(p))
+        return StepInfo(m, ess, bool(resampled), float((self.map.w > 0).sum(axis=1).mean()) if self.map.shape[1] else 0.0)
+
+    # ------------------------------------------------------------------ estimates
+    def best(self) -> int:
+        return int(np.argmax(self.logw))
+
+    def trajectory(self) -> np.ndarray:
+        """(T, 3) trajectory of the currently best particle."""
+        b = self.best()
+        return np.stack([hh[b] for hh in self.history])
+
+    def map_estimate(self) -> tuple[np.ndarray, np.ndarray]:
+        """Means (K, 2) and weights (K,) of the best particle's components of weight >= map_threshold."""
+        b = self.best()
+        keep = self.map.w[b] >= self.cfg.map_threshold
+        return self.map.mu[b][keep], self.map.w[b][keep]

@@ -1,0 +1,51 @@
+"""The Gaussian-mixture PHD map update, checked on scenarios whose answer is known."""
+
+import numpy as np
+import pytest
+
+from detectors.model import DetectionModel
+from profiles.schema import ClutterParams, PdTable, SensorModel
+from slam_runtime.gm import GMBatch, prune_merge
+from slam_runtime.measurement import predict
+from slam_runtime.rbphd import RBPHDConfig, RBPHDSlam
+
+SENSOR = SensorModel(kind="camera", fov=np.pi, range_max=20.0)
+
+
+def model(rate=0.5):
+    return DetectionModel(PdTable(covariate="range", edges=[0.0, 20.0], pd=[0.9]), ClutterParams(rate=rate, volume=np.pi * 20.0), SENSOR)
+
+
+def test_prune_merge_follows_vo_and_ma():
+    w = np.array([[0.6, 0.3, 0.05, 1e-6]])
+    mu = np.array([[[0.0, 0.0], [0.1, 0.0], [5.0, 5.0], [9.0, 9.0]]])
+    cov = np.tile(np.eye(2) * 0.04, (1, 4, 1, 1))
+    out = prune_merge(GMBatch(w, mu, cov), prune=1e-4, merge=4.0, cap=10)
+    assert out.w.shape == (1, 2)
+    np.testing.assert_allclose(out.w[0], [0.9, 0.05])
+    np.testing.assert_allclose(out.mu[0, 0], [0.1 * 0.3 / 0.9, 0.0])  # weighted mean
+    # the merged covariance adds the spread of the means
+    spread = 0.6 * (0.1 * 0.3 / 0.9) ** 2 + 0.3 * (0.1 - 0.1 * 0.3 / 0.9) ** 2
+    assert out.cov[0, 0, 0, 0] == pytest.approx(0.04 + spread / 0.9)
+
+
+def test_static_sensor_maps_its_landmarks():
+    """A sensor that does not move, P_D 0.9, Poisson clutter: the PHD finds every landmark with weight ~1."""
+    rng = np.random.default_rng(5)
+    lms = np.array([[5.0, 2.0], [8.0, -3.0], [12.0, 1.0]])
+    cfg = RBPHDConfig(particles=3, sigma_range=0.05, sigma_bearing=0.005, weighting="empty_set", buffer_zone=False)
+    slam = RBPHDSlam(model(), np.zeros(3), cfg, rng, np.zeros(3))
+    for _ in range(40):
+        z, _ = predict(np.zeros(3), lms)
+        z = z[rng.uniform(size=3) < 0.9]  # each landmark detected with P_D = 0.9
+        z = z + rng.normal(0, 1, z.shape) * [0.05, 0.005]
+        nc = rng.poisson(0.5)
+        clutter = np.column_stack([rng.uniform(0, 20, nc), rng.uniform(-np.pi / 2, np.pi / 2, nc)])
+        slam.update(np.vstack([z, clutter]))
+    xy, w = slam.map_estimate()
+    assert xy.shape[0] == 3
+    d = np.linalg.norm(xy[:, None, :] - lms[None], axis=2).min(axis=1)
+    assert np.all(d < 0.1)
+    assert np.all(np.abs(w - 1.0) < 0.3)
+    # total expected number of features ~ 3 (+ a little clutter mass)
+    assert slam.map.total()[0] == pytest.approx(3.0, abs=0.6)
