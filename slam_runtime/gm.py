@@ -48,11 +48,16 @@ class GMBatch:
     def density(self, pts: np.ndarray) -> np.ndarray:
         """Intensity of each map at its own points pts (P, K, 2) -> (P, K)."""
         d = pts[:, :, None, :] - self.mu[:, None, :, :]  # (P, K, J, 2)
-        inv = _inv2(self.cov)  # (P, J, 2, 2)
-        m2 = np.einsum("pkji,pjil,pkjl->pkj", d, inv, d)
+        inv = _inv2(self.cov)[:, None]  # (P, 1, J, 2, 2)
+        m2 = _quad(inv, d[..., 0], d[..., 1])
         det = _det2(self.cov)
         g = np.exp(-0.5 * m2) / (2 * np.pi * np.sqrt(np.maximum(det, 1e-300)))[:, None, :]
         return (g * self.w[:, None, :]).sum(axis=2)
+
+
+def _quad(inv: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
+    """d^T A d for symmetric 2x2 A (..., 2, 2) and d = (dx, dy), written out (einsum is slow here)."""
+    return inv[..., 0, 0] * dx * dx + 2.0 * inv[..., 0, 1] * dx * dy + inv[..., 1, 1] * dy * dy
 
 
 def _det2(c: np.ndarray) -> np.ndarray:
@@ -95,7 +100,7 @@ def prune_merge(gm: GMBatch, *, prune: float = 1e-4, merge: float = 4.0, cap: in
         head = np.argmax(np.where(alive, w, -1.0), axis=1)  # heaviest remaining (order is by weight)
         has = alive[rows, head]
         d = mu - mu[rows, head][:, None, :]
-        m2 = np.einsum("pji,pjil,pjl->pj", d, inv[rows, head][:, None], d)
+        m2 = _quad(inv[rows, head][:, None], d[..., 0], d[..., 1])
         grp = alive & (m2 <= merge) & has[:, None]
         gw = np.where(grp, w, 0.0)
         tot = gw.sum(axis=1)

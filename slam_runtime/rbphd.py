@@ -109,6 +109,25 @@ class RBPHDSlam:
         if scan is None:
             raise ValueError("an n_p profile needs the current scan")
         ang, sig = sensor.angles(), float(sensor.range_sigma)
+        # ray-trace only what can be seen: move each particle's in-view components to the front
+        order = np.argsort(~inside, axis=1, kind="stable")
+        jf = int(inside.sum(axis=1).max()) if j else 0
+        pd_full = np.zeros((p, j))
+        buf_full = np.zeros((p, j), dtype=bool)
+        if jf == 0:
+            return pd_full, buf_full
+        sel = order[:, :jf]
+        rows = np.arange(p)[:, None]
+        pd_v, buf_v = self._pd_np(sp, mu[rows, sel], cov[rows, sel], scan, ang, sig)
+        pd_v = np.where(inside[rows, sel], pd_v, 0.0)
+        pd_full[rows, sel] = pd_v
+        buf_full[rows, sel] = buf_v & inside[rows, sel]
+        return pd_full, buf_full
+
+    def _pd_np(self, sp, mu, cov, scan, ang, sig) -> tuple[np.ndarray, np.ndarray]:
+        """P_D through n_p (and the buffer zone) of components (P, J) all in view."""
+        p, j = mu.shape[:2]
+        sensor, table = self.model.sensor, self.model.pd_table
         if not self.cfg.buffer_zone or j == 0:
             n_p, _ = count_unoccluded(sp, ang, scan, mu, self.cfg.landmark_radius, range_sigma=sig, k_sigma=self.model.k_sigma, range_max=sensor.range_max)
             pd = table.lookup(n_p)
