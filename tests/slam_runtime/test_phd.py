@@ -49,3 +49,40 @@ def test_static_sensor_maps_its_landmarks():
     assert np.all(np.abs(w - 1.0) < 0.3)
     # total expected number of features ~ 3 (+ a little clutter mass)
     assert slam.map.total()[0] == pytest.approx(3.0, abs=0.6)
+
+
+def test_rbphd_on_a_clutter_free_park_beats_odometry_and_keeps_more_map_with_the_profile():
+    """No bushes, walls, posts or dust: the filter's trajectory beats dead reckoning, and the
+    calibrated P_D keeps the trees it cannot see in the map where a constant P_D forgets them."""
+    from calib.icp import odometry_poses
+    from calib.sim.park import simulate_park
+    from detectors.geometry import compose, interpolate_poses
+    from detectors.logs import ScanBatch, SensorLog
+    from profiles.store import resolve
+    from slam_runtime.metrics import trajectory_rmse
+    from slam_runtime.run import run_rbphd
+    from tests.conftest import small_park_config
+
+    cfg = small_park_config()
+    cfg.bushes.count = cfg.walls.count = cfg.posts.count = 0
+    cfg.laser.p_spurious = 0.0
+    log = simulate_park(cfg, 71).log
+    n = 150
+    short = SensorLog(
+        log.name,
+        sensor=log.sensor,
+        scans=ScanBatch(log.scans.stamp[:n], log.scans.ranges[:n]),
+        odometry=log.odometry,
+        reference=log.reference,
+        landmarks=log.landmarks,
+    )
+    ref = log.reference["ground_truth"]
+    truth = interpolate_poses(ref.stamp, ref.poses, short.scans.stamp)
+    odo = trajectory_rmse(compose(truth[0], odometry_poses(short)), truth)
+    prof = resolve("sim-park-laser@1.0.0")
+    runs = {m: run_rbphd(short, prof, RBPHDConfig(particles=20, pd_mode=m, cap=150, prune=1e-3), seed=1) for m in ("profile", "constant")}
+    for r in runs.values():
+        assert np.isfinite(r.trajectory).all()
+    assert runs["profile"].metrics["trajectory_rmse_vs_ground_truth_m"] < odo
+    assert runs["profile"].metrics["map_features"] > runs["constant"].metrics["map_features"]
+    assert runs["profile"].metrics["map_ospa"] < runs["constant"].metrics["map_ospa"]
