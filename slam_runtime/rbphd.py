@@ -36,7 +36,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from detectors.model import DetectionModel
 from detectors.raytrace import count_unoccluded
-from slam_runtime.gm import GMBatch, _det2, _inv2, prune_merge
+from slam_runtime.gm import GMBatch, _det2, _inv2, _quad, prune_merge
 from slam_runtime.measurement import innovation, inverse, predict, sensor_pose
 
 
@@ -149,10 +149,15 @@ class RBPHDSlam:
         return pd, mixed | ((pd_c > 0) & (pd_c < 0.5))
 
     # ------------------------------------------------------------------ update
-    def update(self, z: np.ndarray, scan: np.ndarray | None = None) -> StepInfo:
-        """One map update + reweighting with measurements z (M, 2) (range, bearing; sensor frame)."""
+    def update(self, z: np.ndarray, scan: np.ndarray | None = None, zcov: np.ndarray | None = None) -> StepInfo:
+        """One map update + reweighting with measurements z (M, 2) (range, bearing; sensor frame).
+
+        zcov (M, 2, 2): each measurement's own covariance (the circle fit's), added to
+        the floor diag(sigma_range^2, sigma_bearing^2).
+        """
         cfg = self.cfg
         z = np.asarray(z, dtype=np.float64).reshape(-1, 2)
+        rz = np.broadcast_to(self.r, (z.shape[0], 2, 2)) if zcov is None else np.asarray(zcov).reshape(-1, 2, 2) + self.r
         sp = sensor_pose(self.poses, self.mount)
         prior = self.map.concat(self.birth)  # eq. 3.16: previous map + birth from the previous measurements
         w, mu, cov = prior.w, prior.mu, prior.cov
@@ -161,12 +166,14 @@ class RBPHDSlam:
         pd, buf = self._pd(sp, mu, cov, scan)
         kappa = self.model.clutter_intensity(z) if m else np.zeros(0)
         zhat, h = predict(sp[:, None, :], mu)  # (P, J, 2), (P, J, 2, 2)
-        s = h @ cov @ np.swapaxes(h, -1, -2) + self.r
+        hph = h @ cov @ np.swapaxes(h, -1, -2)  # (P, J, 2, 2)
+        s = hph[:, :, None] + rz[None, None]  # (P, J, M, 2, 2): each measurement its own noise
         sinv = _inv2(s)
-        gain = cov @ np.swapaxes(h, -1, -2) @ sinv  # (P, J, 2, 2)
+        pht = cov @ np.swapaxes(h, -1, -2)  # (P, J, 2, 2)
+        gain = pht[:, :, None] @ sinv  # (P, J, M, 2, 2)
         nu = innovation(z[None, None, :, :], zhat[:, :, None, :]) if m else np.zeros((p, j, 0, 2))
-        m2 = np.einsum("pjmi,pjik,pjmk->pjm", nu, sinv, nu)
-        q = np.exp(-0.5 * m2) / (2 * np.pi * np.sqrt(np.maximum(_det2(s), 1e-300)))[..., None]
+        m2 = _quad(sinv, nu[..., 0], nu[..., 1])
+        q = np.exp(-0.5 * m2) / (2 * np.pi * np.sqrt(np.maximum(_det2(s), 1e-300)))
         num = (pd * w)[..., None] * q  # (P, J, M)
         den = kappa[None, :] + num.sum(axis=1)  # (P, M)
         w_det = num / np.where(den > 0, den, 1.0)[:, None, :]
@@ -175,26 +182,26 @@ class RBPHDSlam:
             gained = w_det.sum(axis=2)
             short = buf & (gained + missed < w)  # eq. 3.21: no weight lost in the buffer zone
             missed = np.where(short, w - gained, missed)
-        mu_det = mu[:, :, None, :] + np.einsum("pjik,pjmk->pjmi", gain, nu)
-        cov_det = cov - gain @ h @ cov
+        mu_det = mu[:, :, None, :] + (gain @ nu[..., None])[..., 0]
+        cov_det = cov[:, :, None] - gain @ (h @ cov)[:, :, None]  # (P, J, M, 2, 2)
         upd = GMBatch(missed, mu, cov).concat(
-            GMBatch(w_det.reshape(p, j * m), mu_det.reshape(p, j * m, 2), np.repeat(cov_det, m, axis=1).reshape(p, j * m, 2, 2))
+            GMBatch(w_det.reshape(p, j * m), mu_det.reshape(p, j * m, 2), cov_det.reshape(p, j * m, 2, 2))
         )
         pd_upd = np.concatenate([pd, np.repeat(pd, m, axis=1)], axis=1) if m else pd
-        self.logw += self._log_weight(prior, upd, pd_upd, sp, z, kappa)
+        self.logw += self._log_weight(prior, upd, pd_upd, sp, z, kappa, rz)
         self.map = prune_merge(upd, prune=cfg.prune, merge=cfg.merge, cap=cfg.cap)
-        self.birth = self._birth(sp, z)
+        self.birth = self._birth(sp, z, rz)
         return self._resample(m)
 
-    def _birth(self, sp: np.ndarray, z: np.ndarray) -> GMBatch:
+    def _birth(self, sp: np.ndarray, z: np.ndarray, rz: np.ndarray) -> GMBatch:
         p, m = sp.shape[0], z.shape[0]
         if m == 0:
             return GMBatch.empty(p, 0)
         pos, g = inverse(sp[:, None, :], z[None, :, :])  # (P, M, 2), (P, M, 2, 2)
-        cov = g @ self.r @ np.swapaxes(g, -1, -2) + np.eye(2) * 1e-4
+        cov = g @ rz[None] @ np.swapaxes(g, -1, -2) + np.eye(2) * 1e-4
         return GMBatch(np.full((p, m), self.cfg.birth_weight), pos, cov)
 
-    def _log_weight(self, prior: GMBatch, upd: GMBatch, pd_upd: np.ndarray, sp, z, kappa) -> np.ndarray:
+    def _log_weight(self, prior: GMBatch, upd: GMBatch, pd_upd: np.ndarray, sp, z, kappa, rz) -> np.ndarray:
         """log of eq. 3.13 under the chosen strategy (particle-independent factors dropped)."""
         cfg = self.cfg
         base = upd.total() - prior.total()
@@ -217,8 +224,8 @@ class RBPHDSlam:
         if z.shape[0]:
             zh, _ = predict(sp[:, None, :], pts)
             nu = innovation(z[None, None, :, :], zh[:, :, None, :])
-            rinv = np.linalg.inv(self.r)
-            g = np.exp(-0.5 * np.einsum("pkmi,ij,pkmj->pkm", nu, rinv, nu)) / (2 * np.pi * np.sqrt(np.linalg.det(self.r)))
+            rinv = _inv2(rz)  # (M, 2, 2)
+            g = np.exp(-0.5 * _quad(rinv[None, None], nu[..., 0], nu[..., 1])) / (2 * np.pi * np.sqrt(_det2(rz)))[None, None]
             lam = (pd_m[..., None] * g).sum(axis=1)  # (P, M)
             lik += np.log1p(lam / np.maximum(kappa[None, :], 1e-300)).sum(axis=1)
         return base + ratio + lik

@@ -85,7 +85,7 @@ def run_rbphd(log: SensorLog, profile, cfg: RBPHDConfig, seed: int, *, motion: d
             scan = log.scans.ranges[fr.rows]
             det = detect_circles(scan, ang, profile.detector.circle, hot, sensor.range_sigma)
             z = np.column_stack([det.range, det.bearing])
-            info = slam.update(z, scan)
+            info = slam.update(z, scan, det.cov)
         else:
             d = log.detections
             z = np.column_stack([d.range[fr.rows], d.bearing[fr.rows]])
