@@ -210,8 +210,7 @@ def calibrate(
     true = dets["landmark"].to_numpy() >= 0
     finite = np.isfinite(desc).all(axis=1)
     hot = fit_hotelling(desc[true & finite], names, cfg.confidence)
-    m2 = np.full(len(dets), np.inf)
-    m2[finite] = maha2(desc[finite], hot.mean, hot.cov)
+    m2 = maha2(desc, hot.mean, hot.cov)  # inf where a descriptor is not finite
     dets["maha2"] = m2
     gated = m2 <= hot.gamma
     dets["gated"] = gated

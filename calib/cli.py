@@ -19,7 +19,7 @@ from rich.console import Console
 from rich.table import Table
 
 from calib import __version__
-from profiles.errors import DetcalError
+from profiles.errors import DetcalError, UsageError
 
 app = typer.Typer(
     help="detcal: measure a feature detector's P_D and clutter statistics for RFS SLAM.",
@@ -47,10 +47,16 @@ OdomTopicOpt = Annotated[str | None, typer.Option(help="Bags: the nav_msgs/Odome
 TruthTopicOpt = Annotated[str | None, typer.Option(help="Bags: a ground-truth pose topic (Odometry or PoseStamped).")]
 
 
+POSE_SOURCES = ("auto", "reference", "icp")
+
+
+def _check_poses(poses: str | None) -> None:
+    if poses is not None and poses not in POSE_SOURCES:
+        raise UsageError(f"--poses: expected {', '.join(POSE_SOURCES)}, got {poses!r}")
+
+
 def _fresh(target: Path, force: bool) -> None:
     """Refuse to replace an existing output unless --force was given."""
-    from profiles.errors import UsageError
-
     if target.exists() and not force:
         raise UsageError(f"{target}: already exists (use --force to replace it)")
 
@@ -183,8 +189,6 @@ def simulate_park_cmd(
     from calib.sim.run import simulate_to
 
     if seed < 0:
-        from profiles.errors import UsageError
-
         raise UsageError(f"--seed: expected a non-negative integer, got {seed}")
     cfg = load_yaml_model(ParkConfig, config)
     _fresh(out_dir, force)
@@ -214,8 +218,6 @@ def detect_cmd(
     """Run the circle (tree) detector over every scan and write a detections table."""
     from calib.config import load_yaml_model
     from calib.detect import DetectConfig, write_detect_run
-    from profiles.errors import UsageError
-
     pd_table = None
     if profile is not None:
         if config is not None:
@@ -260,16 +262,6 @@ def _source_refs(log):
     from calib.detlevel import input_refs_for
 
     return input_refs_for(log)
-
-
-def _is_detection_config(path: Path) -> bool:
-    import yaml
-
-    try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except (OSError, yaml.YAMLError):
-        return False
-    return isinstance(data, dict) and bool({"frame_period", "fov", "quantile"} & set(data))
 
 
 def _summary_table(title: str, rows: dict) -> Table:
@@ -318,17 +310,10 @@ def calibrate_cmd(
     from calib.config import load_yaml_model
     from calib.default import DEFAULT_PROFILE_NAME, default_log
     from calib.runs import write_calibration_run
-    from profiles.errors import UsageError
     from profiles.profile import NAME_RE, SEMVER_RE
     from profiles.store import save_profile
 
-    cfg = CalibrateConfig()
-    if config is not None and not _is_detection_config(config):
-        cfg = load_yaml_model(CalibrateConfig, config)
-    if poses is not None:
-        if poses not in ("auto", "reference", "icp"):
-            raise UsageError(f"--poses: expected auto, reference or icp, got {poses!r}")
-        cfg = cfg.model_copy(update={"poses": poses})
+    _check_poses(poses)
     if not SEMVER_RE.match(version):
         raise UsageError(f"--version: {version!r} is not MAJOR.MINOR.PATCH")
     from calib.io.common import file_digest
@@ -350,6 +335,7 @@ def calibrate_cmd(
     # the command as typed; absolute paths lose their folders (a profile names inputs by file name and hash)
     words = [Path(a).name if os.path.isabs(a) else a for a in sys.argv[2:]]
     command = " ".join(["detcal calibrate", *(shlex.quote(w) for w in words)])
+    # the logs decide which calibration (and so which config schema) applies
     if all(lg.scans is None and lg.detections is not None for lg in loaded):
         from calib.detlevel import DetectionCalibConfig, calibrate_detections, write_detection_run
 
@@ -358,6 +344,9 @@ def calibrate_cmd(
         cal = calibrate_detections(loaded, dcfg, name=prof_name, version=version, description=description, input_refs=refs, command=command)
         figures = write_detection_run(cal, target, overwrite=force)
     else:
+        cfg = load_yaml_model(CalibrateConfig, config)
+        if poses is not None:
+            cfg = cfg.model_copy(update={"poses": poses})
         cal = calibrate(
             loaded, cfg, name=prof_name, version=version, description=description, landmarks_csv=landmarks, input_refs=refs, command=command
         )
@@ -391,11 +380,9 @@ def validate_cmd(
 ) -> None:
     """Check a profile on a held-out log: P_D reliability (ECE), false alarms per scan, Hotelling coverage."""
     from calib.validate import validate, write_validation_run
-    from profiles.errors import UsageError
     from profiles.store import resolve
 
-    if poses not in ("auto", "reference", "icp"):
-        raise UsageError(f"--poses: expected auto, reference or icp, got {poses!r}")
+    _check_poses(poses)
     prof = resolve(profile_ref)
     loaded, _ = _read_many([log_path], robot, fmt, max_backstep, laser, range_max, scan_topic, truth_topic)
     log = loaded[0]

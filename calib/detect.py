@@ -11,7 +11,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -56,16 +55,8 @@ def run_detector(log: SensorLog, cfg: DetectConfig, *, show_progress: bool = Tru
     it = progress(chunks, len(chunks), "detecting") if show_progress else chunks
     for a in it:
         d = detect_circles(log.scans.ranges[a : a + CHUNK], ang, cfg.detector, cfg.hotelling, log.sensor.range_sigma)
-        parts.append(d.select(np.arange(len(d))) if a == 0 else _shift(d, a))
-    return _concat(parts)
-
-
-def _shift(d: CircleDetections, offset: int) -> CircleDetections:
-    return CircleDetections(**{**{f: getattr(d, f) for f in d.__dataclass_fields__}, "scan": d.scan + offset})
-
-
-def _concat(parts: list[CircleDetections]) -> CircleDetections:
-    return CircleDetections(**{f: np.concatenate([getattr(p, f) for p in parts]) for f in CircleDetections.__dataclass_fields__})
+        parts.append(d.offset(a))
+    return CircleDetections.concat(parts)
 
 
 def detections_table(log: SensorLog, det: CircleDetections) -> pd.DataFrame:

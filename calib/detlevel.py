@@ -31,6 +31,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from calib import __version__
 from calib.calibrate import created_now
+from calib.io.common import index_of
 from calib.fits import ClutterFit, PdFitConfig, clutter_params, fit_clutter, fit_pd_table
 from calib.validate import Validation, reliability
 from detectors.geometry import compose, interpolate_poses
@@ -80,10 +81,7 @@ def true_detections(log: SensorLog, gate: float) -> pd.DataFrame:
     m = log.sensor.mount if log.sensor is not None else None
     sp = pose if m is None else compose(pose, np.array([m.x, m.y, m.theta]))
     world = compose(sp, np.column_stack([d.range * np.cos(d.bearing), d.range * np.sin(d.bearing), np.zeros(len(d))]))
-    ids = log.landmarks.ids
-    subj = np.asarray(d.descriptors["subject"], dtype=np.int64)
-    lut = {int(v): i for i, v in enumerate(ids)}
-    lm = np.array([lut.get(int(s), -1) for s in subj.tolist()], dtype=np.int64)
+    lm = index_of(np.asarray(d.descriptors["subject"], dtype=np.int64), log.landmarks.ids)
     dist = np.where(lm >= 0, np.hypot(*(world[:, :2] - log.landmarks.xy[np.maximum(lm, 0)]).T), np.inf)
     return pd.DataFrame({"stamp": stamp, "range": d.range, "bearing": d.bearing, "landmark_index": lm, "true": dist <= gate})
 

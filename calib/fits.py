@@ -19,6 +19,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.stats import chi2, poisson, rankdata
 
+from detectors.circle import mahalanobis2 as maha2
 from profiles.errors import DataError
 from profiles.schema import ClutterParams, PdTable
 
@@ -124,11 +125,6 @@ def fit_hotelling(desc: np.ndarray, names: tuple[str, ...], confidence: float) -
     if np.linalg.eigvalsh(cov).min() <= 1e-18 * max(1.0, np.abs(cov).max()):
         raise DataError("the true detections' descriptors are degenerate (a descriptor does not vary)")
     return HotellingFit(tuple(names), mean, cov, float(chi2.ppf(confidence, d)), confidence, int(desc.shape[0]))
-
-
-def maha2(desc: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    diff = np.asarray(desc, dtype=np.float64) - mean
-    return np.einsum("ij,ij->i", diff, np.linalg.solve(cov, diff.T).T)
 
 
 def auc(score_true: np.ndarray, score_false: np.ndarray) -> float:

@@ -74,9 +74,14 @@ def odometry_poses(log: SensorLog) -> np.ndarray:
     if o.kind == "pose":
         path, stamp = o.values, o.stamp
     elif o.kind == "increment":
-        path = np.zeros((len(o) + 1, 3))
-        for k in range(len(o)):  # composing increments is sequential by nature
-            path[k + 1] = compose(path[k], o.values[k])
+        # compose all increments at once: heading is their running sum, and each
+        # translation is rotated by the heading before it
+        inc = o.values
+        th = np.concatenate([[0.0], np.cumsum(inc[:, 2])])
+        c, s = np.cos(th[:-1]), np.sin(th[:-1])
+        x = np.concatenate([[0.0], np.cumsum(c * inc[:, 0] - s * inc[:, 1])])
+        y = np.concatenate([[0.0], np.cumsum(s * inc[:, 0] + c * inc[:, 1])])
+        path = np.column_stack([x, y, np.mod(th + np.pi, 2 * np.pi) - np.pi])
         stamp = np.concatenate([[o.stamp[0] - 1], o.stamp])
     elif o.kind == "velocity":
         dt = np.diff(o.stamp, prepend=o.stamp[0]) / 1e9

@@ -160,7 +160,5 @@ def write_report(cal: Calibration, folder: Path) -> list[str]:
     k = len(lg.scans) // 3
     prof = cal.profile
     det = detect_circles(lg.scans.ranges[k : k + 1], lg.sensor.angles(), prof.detector.circle, prof.hotelling, lg.sensor.range_sigma)
-    det = det.select(np.arange(len(det)))
-    shifted = type(det)(**{**{f: getattr(det, f) for f in det.__dataclass_fields__}, "scan": det.scan + k})
-    plot_scan_detections(lg, shifted, k, prof.pd, prof.detector.k_sigma, folder / "pd_field.png")
+    plot_scan_detections(lg, det.offset(k), k, prof.pd, prof.detector.k_sigma, folder / "pd_field.png")
     return ["pd_vs_np.png", "roc.png", "clutter.png", "descriptors.png", "map.png", "pd_field.png"]

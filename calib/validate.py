@@ -23,7 +23,7 @@ from calib.calibrate import log_landmarks, scan_sensor_poses
 from calib.config import dump_yaml
 from calib.io.atomic import atomic_output
 from calib.label import label_log
-from detectors.circle import descriptor_matrix
+from detectors.circle import descriptor_matrix, hotelling_maha2
 from detectors.logs import SensorLog
 from profiles.errors import DataError, UsageError
 from profiles.profile import DetectorProfile
@@ -68,14 +68,9 @@ def validate(profile: DetectorProfile, log: SensorLog, *, landmarks_csv: Path | 
     h = profile.hotelling
     if h is None:
         gated = np.ones(len(dets), dtype=bool)
-        m2 = np.zeros(len(dets))
     else:
         desc = descriptor_matrix(dets["fit_error"], dets["radius"], dets["convexity"], dets["points"], h.names)
-        m2 = np.full(len(dets), np.inf)
-        fin = np.isfinite(desc).all(axis=1)
-        diff = desc[fin] - np.asarray(h.mean)
-        m2[fin] = np.einsum("ij,ij->i", diff, np.linalg.solve(np.asarray(h.covariance), diff.T).T)
-        gated = m2 <= h.gamma
+        gated = hotelling_maha2(desc, h) <= h.gamma
     true = dets["landmark"].to_numpy() >= 0
     det_idx = pairs["det"].to_numpy()
     observed = (det_idx >= 0) & gated[np.maximum(det_idx, 0)]

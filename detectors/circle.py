@@ -121,6 +121,17 @@ class CircleDetections:
     def select(self, keep: np.ndarray) -> CircleDetections:
         return CircleDetections(**{f: getattr(self, f)[keep] for f in self.__dataclass_fields__})
 
+    def replace(self, **fields) -> CircleDetections:
+        return CircleDetections(**{**{f: getattr(self, f) for f in self.__dataclass_fields__}, **fields})
+
+    def offset(self, k: int) -> CircleDetections:
+        """The same detections with scan indices moved by k (a batch that starts at scan k)."""
+        return self.replace(scan=self.scan + k)
+
+    @staticmethod
+    def concat(parts: list[CircleDetections]) -> CircleDetections:
+        return CircleDetections(**{f: np.concatenate([getattr(p, f) for p in parts]) for f in CircleDetections.__dataclass_fields__})
+
 
 def segment(ranges: np.ndarray, angles: np.ndarray, jump: float, min_points: int, max_points: int | None = None):
     """Cluster consecutive returns of each scan.
@@ -293,11 +304,19 @@ def _fit_covariance(label, x, y, p, fe, cnt, jtj, range_sigma):
     return s2[:, None, None] * (ainv @ b @ ainv)
 
 
+def mahalanobis2(desc: np.ndarray, mean, cov) -> np.ndarray:
+    """Squared Mahalanobis distance (eq. 5.4) of (D, d) descriptors; inf where a descriptor is not finite."""
+    desc = np.asarray(desc, dtype=np.float64)
+    out = np.full(desc.shape[0], np.inf)
+    fin = np.isfinite(desc).all(axis=1)
+    diff = desc[fin] - np.asarray(mean, dtype=np.float64)
+    out[fin] = np.einsum("ij,ij->i", diff, np.linalg.solve(np.asarray(cov, dtype=np.float64), diff.T).T)
+    return out
+
+
 def hotelling_maha2(desc: np.ndarray, model: HotellingParams) -> np.ndarray:
-    """Squared Mahalanobis distance (eq. 5.4) of (D, d) descriptors to the model."""
-    diff = desc - np.asarray(model.mean)
-    sol = np.linalg.solve(np.asarray(model.covariance), diff.T).T
-    return np.einsum("ij,ij->i", diff, sol)
+    """Squared Mahalanobis distance of (D, d) descriptors to a Hotelling model (inf where not finite)."""
+    return mahalanobis2(desc, model.mean, model.covariance)
 
 
 def detect_circles(
@@ -369,11 +388,8 @@ def detect_circles(
     if params.max_radius is not None:
         det = det.select(det.radius <= params.max_radius)
     if hotelling is not None:
-        desc = det.descriptors(tuple(hotelling.names))
-        m2 = np.full(len(det), np.inf)
-        fin = np.isfinite(desc).all(axis=1)
-        m2[fin] = hotelling_maha2(desc[fin], hotelling)
-        det = CircleDetections(**{**{f: getattr(det, f) for f in det.__dataclass_fields__}, "maha2": m2})
+        m2 = hotelling_maha2(det.descriptors(tuple(hotelling.names)), hotelling)
+        det = det.replace(maha2=m2)
         det = det.select(m2 <= hotelling.gamma)
     return det
 

@@ -101,19 +101,19 @@ class DetectionModel:
 
     # ------------------------------------------------------------------ clutter
     def in_fov(self, z: np.ndarray) -> np.ndarray:
-        """(M,) whether range-bearing measurements z (M, 2) lie in the field of view."""
-        z = np.atleast_2d(z)
+        """(...) whether range-bearing points z (..., 2) lie in the field of view."""
+        z = np.asarray(z)
         s = self.sensor
-        ok = z[:, 0] >= s.range_min
+        ok = z[..., 0] >= s.range_min
         if s.range_max is not None:
-            ok &= z[:, 0] <= s.range_max
+            ok &= z[..., 0] <= s.range_max
         fov = s.field_of_view
         if fov is not None:
             if s.angle_min is not None and s.angle_increment is not None and s.n_beams is not None:
                 lo = min(s.angle_min, s.angle_min + s.angle_increment * (s.n_beams - 1))
-                ok &= (z[:, 1] >= lo) & (z[:, 1] <= lo + fov)
+                ok &= (z[..., 1] >= lo) & (z[..., 1] <= lo + fov)
             else:
-                ok &= np.abs(z[:, 1]) <= fov / 2
+                ok &= np.abs(z[..., 1]) <= fov / 2
         return ok
 
     def clutter_intensity(self, z: np.ndarray) -> np.ndarray:

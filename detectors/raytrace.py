@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from detectors.geometry import ray_circles
 
 #: Scans x beams x landmarks handled per numpy call (bounds memory at ~100 MB).
 _CHUNK = 4_000_000
@@ -85,13 +84,6 @@ def expected_ranges(sensor_poses: np.ndarray, angles: np.ndarray, centres: np.nd
     return np.where((d2 <= r2) & (t > 0.0), t, np.inf)
 
 
-def landmark_beams(sensor_pose: np.ndarray, angles: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
-    """(B,) expected range of one landmark on every beam (inf where missed); a thin wrapper for plots."""
-    p = np.asarray(sensor_pose, dtype=np.float64)
-    a = p[2] + np.asarray(angles)
-    return ray_circles(p[:2], np.column_stack([np.cos(a), np.sin(a)]), np.asarray(centre).reshape(1, 2), np.array([radius]))[:, 0]
-
-
 def pd_grid(
     sensor_pose: np.ndarray,
     angles: np.ndarray,
@@ -120,7 +112,7 @@ def pd_grid(
 
 
 def buffer_zone(
-    sensor_pose: np.ndarray,
+    sensor_poses: np.ndarray,
     angles: np.ndarray,
     ranges: np.ndarray,
     centres: np.ndarray,
@@ -133,32 +125,39 @@ def buffer_zone(
     k_sigma: float = 3.0,
     range_max: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """P_D with the buffer-zone rules of thesis sec. 6.1, for L landmarks seen from one pose.
+    """P_D with the buffer-zone rules of thesis sec. 6.1.
 
-    P_D is evaluated at ``samples`` (odd) positions spread over +-``lateral`` (L,) [m]
+    One pose: sensor_poses (3,), centres (L, 2), lateral (L,) -> (L,) outputs.
+    Many poses: sensor_poses (S, 3), centres (S, L, 2) (one set per pose, e.g. the
+    maps of a particle filter), lateral (S, L), ranges (B,) or (S, B) -> (S, L).
+
+    P_D is evaluated at ``samples`` (odd) positions spread over +-``lateral`` [m]
     perpendicular to the sensor-landmark line. A landmark is in the buffer zone
     when those values contain both zeros and non-zeros (then the largest is
     used) or when 0 < P_D < 0.5 at the landmark itself.
-    returns (pd (L,), in_buffer (L,) bool)
+    returns (pd, in_buffer bool)
     """
     if samples < 1 or samples % 2 == 0:
         raise ValueError(f"samples: expected an odd number >= 1, got {samples}")
-    centres = np.asarray(centres, dtype=np.float64).reshape(-1, 2)
-    n = centres.shape[0]
+    single = np.asarray(sensor_poses).ndim == 1
+    poses = np.atleast_2d(np.asarray(sensor_poses, dtype=np.float64))
+    centres = np.asarray(centres, dtype=np.float64).reshape(poses.shape[0] if not single else 1, -1, 2)
+    s_, n = centres.shape[:2]
     radii = np.broadcast_to(np.asarray(radii, dtype=np.float64), (n,))
-    lateral = np.broadcast_to(np.asarray(lateral, dtype=np.float64), (n,))
-    pose = np.asarray(sensor_pose, dtype=np.float64)
-    los = centres - pose[:2]
-    perp = np.column_stack([-los[:, 1], los[:, 0]]) / np.maximum(np.hypot(*los.T), 1e-12)[:, None]
+    lateral = np.broadcast_to(np.asarray(lateral, dtype=np.float64), (s_, n))
+    los = centres - poses[:, None, :2]
+    perp = np.stack([-los[..., 1], los[..., 0]], axis=-1) / np.maximum(np.hypot(los[..., 0], los[..., 1]), 1e-12)[..., None]
     t = np.linspace(-1.0, 1.0, samples)
-    pts = centres[:, None, :] + (t[None, :, None] * lateral[:, None, None]) * perp[:, None, :]  # (L, n, 2)
+    pts = centres[:, :, None, :] + (t[None, None, :, None] * lateral[..., None, None]) * perp[:, :, None, :]  # (S, L, n, 2)
+    meas = np.asarray(ranges)
     n_p, _ = count_unoccluded(
-        pose[None], angles, np.asarray(ranges)[None], pts.reshape(-1, 2), np.repeat(radii, t.size),
+        poses, angles, meas if meas.ndim == 2 else meas[None], pts.reshape(s_, n * samples, 2), np.repeat(radii, samples),
         range_sigma=range_sigma, k_sigma=k_sigma, range_max=range_max,
     )
-    pd_s = np.asarray(pd_of_np(n_p[0]), dtype=np.float64).reshape(n, t.size)
-    pd_c = pd_s[:, t.size // 2]  # samples is odd: the middle one is the landmark itself
-    mixed = (pd_s == 0).any(axis=1) & (pd_s > 0).any(axis=1)
+    pd_s = np.asarray(pd_of_np(n_p), dtype=np.float64).reshape(s_, n, samples)
+    pd_c = pd_s[..., samples // 2]  # samples is odd: the middle one is the landmark itself
+    mixed = (pd_s == 0).any(axis=-1) & (pd_s > 0).any(axis=-1)
     low = (pd_c > 0) & (pd_c < 0.5)
-    pd = np.where(mixed, pd_s.max(axis=1), pd_c)
-    return pd, mixed | low
+    pd = np.where(mixed, pd_s.max(axis=-1), pd_c)
+    buf = mixed | low
+    return (pd[0], buf[0]) if single else (pd, buf)

@@ -94,9 +94,11 @@ def prune_merge(gm: GMBatch, *, prune: float = 1e-4, merge: float = 4.0, cap: in
     out_mu = np.zeros((p, cap, 2))
     out_cov = np.tile(np.eye(2), (p, cap, 1, 1))
     rows = np.arange(p)
+    filled = 0  # every round that runs gives at least one particle a component
     for slot in range(cap):  # one output component per round, vectorised over particles
         if not alive.any():
             break
+        filled = slot + 1
         head = np.argmax(np.where(alive, w, -1.0), axis=1)  # heaviest remaining (order is by weight)
         has = alive[rows, head]
         d = mu - mu[rows, head][:, None, :]
@@ -112,6 +114,4 @@ def prune_merge(gm: GMBatch, *, prune: float = 1e-4, merge: float = 4.0, cap: in
         out_mu[has, slot] = m[has]
         out_cov[has, slot] = c[has]
         alive &= ~grp
-    used = int((out_w > 0).any(axis=0).sum()) if out_w.size else 0
-    last = int(np.max(np.nonzero((out_w > 0).any(axis=0))[0]) + 1) if used else 0
-    return GMBatch(out_w[:, :last], out_mu[:, :last], out_cov[:, :last])
+    return GMBatch(out_w[:, :filled], out_mu[:, :filled], out_cov[:, :filled])

@@ -14,14 +14,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from detectors.geometry import compose
+
 
 def sensor_pose(vehicle: np.ndarray, mount: np.ndarray) -> np.ndarray:
     """(..., 3) sensor poses from vehicle poses (..., 3) and the mount (3,) in the vehicle frame."""
-    c, s = np.cos(vehicle[..., 2]), np.sin(vehicle[..., 2])
-    x = vehicle[..., 0] + c * mount[0] - s * mount[1]
-    y = vehicle[..., 1] + s * mount[0] + c * mount[1]
-    th = np.mod(vehicle[..., 2] + mount[2] + np.pi, 2 * np.pi) - np.pi
-    return np.stack([x, y, th], axis=-1)
+    return compose(vehicle, mount)
 
 
 def predict(sensor: np.ndarray, landmarks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

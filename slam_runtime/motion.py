@@ -18,17 +18,18 @@ from __future__ import annotations
 
 import numpy as np
 
+from detectors.geometry import compose
+from detectors.logs import wrap_angle
 
-def _wrap(a: np.ndarray) -> np.ndarray:
-    return np.mod(a + np.pi, 2 * np.pi) - np.pi
 
-
-def compose_increments(poses: np.ndarray, inc: np.ndarray) -> np.ndarray:
-    """poses (P, 3) (+) increments (P, 3) expressed in each pose's frame."""
-    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-    return np.column_stack(
-        [poses[:, 0] + c * inc[:, 0] - s * inc[:, 1], poses[:, 1] + s * inc[:, 0] + c * inc[:, 1], _wrap(poses[:, 2] + inc[:, 2])]
-    )
+def _noisy(n: int, values: tuple[float, ...], sigmas: tuple[float, ...], rng: np.random.Generator | None, noise: bool) -> np.ndarray:
+    """(n, k) copies of a control with independent Gaussian noise of the given std per column."""
+    out = np.tile(np.asarray(values, dtype=np.float64), (n, 1))
+    if noise:
+        if rng is None:
+            raise ValueError("noise=True needs a numpy.random.Generator")
+        out += rng.standard_normal((n, len(values))) * np.asarray(sigmas, dtype=np.float64)
+    return out
 
 
 def odometry_increment(
@@ -44,17 +45,9 @@ def odometry_increment(
 ) -> np.ndarray:
     """Propagate (P, 3) poses by the increment (3,) with motion-proportional noise."""
     p = np.atleast_2d(np.asarray(poses, dtype=np.float64))
-    n = p.shape[0]
     d = float(np.hypot(inc[0], inc[1]))
-    u = np.broadcast_to(np.asarray(inc, dtype=np.float64), (n, 3)).copy()
-    if noise:
-        if rng is None:
-            raise ValueError("noise=True needs a numpy.random.Generator")
-        z = rng.standard_normal((n, 3))
-        u[:, 0] += a_trans * d * z[:, 0]
-        u[:, 1] += lateral * d * z[:, 1]
-        u[:, 2] += (a_rot * abs(inc[2]) + a_rot_trans * d) * z[:, 2]
-    return compose_increments(p, u)
+    u = _noisy(p.shape[0], tuple(inc), (a_trans * d, lateral * d, a_rot * abs(inc[2]) + a_rot_trans * d), rng, noise)
+    return compose(p, u)
 
 
 def unicycle(
@@ -70,21 +63,13 @@ def unicycle(
 ) -> np.ndarray:
     """Propagate (P, 3) poses along the arc of (v, omega) held for dt seconds."""
     p = np.atleast_2d(np.asarray(poses, dtype=np.float64))
-    n = p.shape[0]
-    vv = np.full(n, float(v))
-    ww = np.full(n, float(omega))
-    if noise:
-        if rng is None:
-            raise ValueError("noise=True needs a numpy.random.Generator")
-        z = rng.standard_normal((n, 2))
-        vv += sigma_v * z[:, 0]
-        ww += sigma_omega * z[:, 1]
+    vv, ww = _noisy(p.shape[0], (v, omega), (sigma_v, sigma_omega), rng, noise).T
     th = p[:, 2]
     small = np.abs(ww) < 1e-9
     w_safe = np.where(small, 1.0, ww)
     dx = np.where(small, vv * dt * np.cos(th), vv / w_safe * (np.sin(th + ww * dt) - np.sin(th)))
     dy = np.where(small, vv * dt * np.sin(th), -vv / w_safe * (np.cos(th + ww * dt) - np.cos(th)))
-    return np.column_stack([p[:, 0] + dx, p[:, 1] + dy, _wrap(th + ww * dt)])
+    return np.column_stack([p[:, 0] + dx, p[:, 1] + dy, wrap_angle(th + ww * dt)])
 
 
 def ackermann(
@@ -102,17 +87,9 @@ def ackermann(
 ) -> np.ndarray:
     """Propagate (P, 3) rear-axle poses with encoder speed and front-wheel steering (Victoria Park)."""
     p = np.atleast_2d(np.asarray(poses, dtype=np.float64))
-    n = p.shape[0]
-    v = np.full(n, float(speed))
-    g = np.full(n, float(steer))
-    if noise:
-        if rng is None:
-            raise ValueError("noise=True needs a numpy.random.Generator")
-        z = rng.standard_normal((n, 2))
-        v += sigma_speed * z[:, 0]
-        g += sigma_steer * z[:, 1]
+    v, g = _noisy(p.shape[0], (speed, steer), (sigma_speed, sigma_steer), rng, noise).T
     vc = v / (1.0 - np.tan(g) * encoder_offset / wheelbase)  # encoder speed -> rear-axle centre
     th = p[:, 2]
     return np.column_stack(
-        [p[:, 0] + dt * vc * np.cos(th), p[:, 1] + dt * vc * np.sin(th), _wrap(th + dt * vc / wheelbase * np.tan(g))]
+        [p[:, 0] + dt * vc * np.cos(th), p[:, 1] + dt * vc * np.sin(th), wrap_angle(th + dt * vc / wheelbase * np.tan(g))]
     )

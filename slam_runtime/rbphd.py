@@ -35,7 +35,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from detectors.model import DetectionModel
-from detectors.raytrace import count_unoccluded
+from detectors.raytrace import buffer_zone, count_unoccluded
 from slam_runtime.gm import GMBatch, _det2, _inv2, _quad, prune_merge
 from slam_runtime.measurement import innovation, inverse, predict, sensor_pose
 
@@ -92,61 +92,41 @@ class RBPHDSlam:
     def _pd(self, sp: np.ndarray, mu: np.ndarray, cov: np.ndarray, scan: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """P_D (P, J) of every component and whether it is in the buffer zone (P, J)."""
         p, j = mu.shape[:2]
-        sensor = self.model.sensor
         z, _ = predict(sp[:, None, :], mu)
-        rng_, brg = z[..., 0], z[..., 1]
-        inside = np.ones((p, j), dtype=bool)
-        if sensor.range_max is not None:
-            inside &= rng_ <= sensor.range_max
-        if sensor.field_of_view is not None:
-            inside &= np.abs(brg) <= sensor.field_of_view / 2
+        inside = self.model.in_fov(z)
         if self.cfg.pd_mode == "constant":
             return np.where(inside, self.cfg.constant_pd, 0.0), np.zeros((p, j), dtype=bool)
         table = self.model.pd_table
         if table.covariate == "range":
-            pd = np.where(inside, table.lookup(rng_), 0.0)
+            pd = np.where(inside, table.lookup(z[..., 0]), 0.0)
             return pd, (pd > 0) & (pd < 0.5)
         if scan is None:
             raise ValueError("an n_p profile needs the current scan")
-        ang, sig = sensor.angles(), float(sensor.range_sigma)
-        # ray-trace only what can be seen: move each particle's in-view components to the front
-        order = np.argsort(~inside, axis=1, kind="stable")
-        jf = int(inside.sum(axis=1).max()) if j else 0
         pd_full = np.zeros((p, j))
         buf_full = np.zeros((p, j), dtype=bool)
+        jf = int(inside.sum(axis=1).max()) if j else 0
         if jf == 0:
             return pd_full, buf_full
-        sel = order[:, :jf]
+        # ray-trace only what can be seen: each particle's in-view components, moved to the front
+        sel = np.argsort(~inside, axis=1, kind="stable")[:, :jf]
         rows = np.arange(p)[:, None]
-        pd_v, buf_v = self._pd_np(sp, mu[rows, sel], cov[rows, sel], scan, ang, sig)
-        pd_v = np.where(inside[rows, sel], pd_v, 0.0)
-        pd_full[rows, sel] = pd_v
-        buf_full[rows, sel] = buf_v & inside[rows, sel]
+        mu_v, cov_v, in_v = mu[rows, sel], cov[rows, sel], inside[rows, sel]
+        sensor = self.model.sensor
+        common = {"range_sigma": float(sensor.range_sigma), "k_sigma": self.model.k_sigma, "range_max": sensor.range_max}
+        if self.cfg.buffer_zone:
+            # sec. 6.1: samples across the line of sight, spread by the position std
+            los = mu_v - sp[:, None, :2]
+            perp = np.stack([-los[..., 1], los[..., 0]], axis=-1) / np.maximum(np.hypot(los[..., 0], los[..., 1]), 1e-9)[..., None]
+            lat = self.cfg.buffer_sigmas * np.sqrt(np.maximum(np.einsum("pji,pjik,pjk->pj", perp, cov_v, perp), 0.0))
+            pd_v, buf_v = buffer_zone(
+                sp, sensor.angles(), scan, mu_v, self.cfg.landmark_radius, lat, table.lookup, samples=self.model.buffer_samples, **common
+            )
+        else:
+            n_p, _ = count_unoccluded(sp, sensor.angles(), scan, mu_v, self.cfg.landmark_radius, **common)
+            pd_v, buf_v = table.lookup(n_p), np.zeros((p, jf), dtype=bool)
+        pd_full[rows, sel] = np.where(in_v, pd_v, 0.0)
+        buf_full[rows, sel] = buf_v & in_v
         return pd_full, buf_full
-
-    def _pd_np(self, sp, mu, cov, scan, ang, sig) -> tuple[np.ndarray, np.ndarray]:
-        """P_D through n_p (and the buffer zone) of components (P, J) all in view."""
-        p, j = mu.shape[:2]
-        sensor, table = self.model.sensor, self.model.pd_table
-        if not self.cfg.buffer_zone or j == 0:
-            n_p, _ = count_unoccluded(sp, ang, scan, mu, self.cfg.landmark_radius, range_sigma=sig, k_sigma=self.model.k_sigma, range_max=sensor.range_max)
-            pd = table.lookup(n_p)
-            return pd, np.zeros((p, j), dtype=bool)
-        # buffer zone (sec. 6.1): P_D at samples across the line of sight, spread by the position std
-        ns = self.model.buffer_samples
-        los = mu - sp[:, None, :2]
-        perp = np.stack([-los[..., 1], los[..., 0]], axis=-1) / np.maximum(np.hypot(los[..., 0], los[..., 1]), 1e-9)[..., None]
-        lat = self.cfg.buffer_sigmas * np.sqrt(np.maximum(np.einsum("pji,pjik,pjk->pj", perp, cov, perp), 0.0))
-        t = np.linspace(-1.0, 1.0, ns)
-        pts = mu[:, :, None, :] + (t[None, None, :, None] * lat[..., None, None]) * perp[:, :, None, :]
-        n_p, _ = count_unoccluded(
-            sp, ang, scan, pts.reshape(p, j * ns, 2), self.cfg.landmark_radius, range_sigma=sig, k_sigma=self.model.k_sigma, range_max=sensor.range_max
-        )
-        pd_s = table.lookup(n_p).reshape(p, j, ns)
-        pd_c = pd_s[:, :, ns // 2]
-        mixed = (pd_s == 0).any(axis=2) & (pd_s > 0).any(axis=2)
-        pd = np.where(mixed, pd_s.max(axis=2), pd_c)
-        return pd, mixed | ((pd_c > 0) & (pd_c < 0.5))
 
     # ------------------------------------------------------------------ update
     def update(self, z: np.ndarray, scan: np.ndarray | None = None, zcov: np.ndarray | None = None) -> StepInfo:

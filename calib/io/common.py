@@ -166,3 +166,15 @@ def table_time_order(stamps: np.ndarray, path: Path, what: str, max_backstep: fl
             f"{path}:{_data_line(path, row)}: {what} time goes backwards by {back[row] / 1e9:.6f} s "
             f"(more than the tolerated {max_backstep:g} s)"
         ) from None
+
+
+def index_of(values: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """Position of each value (N,) in ``keys`` (K,), -1 where absent; vectorised with a sorted search."""
+    values = np.asarray(values)
+    keys = np.asarray(keys)
+    if keys.size == 0:
+        return np.full(values.shape, -1, dtype=np.int64)
+    order = np.argsort(keys, kind="stable")
+    pos = np.clip(np.searchsorted(keys[order], values), 0, keys.size - 1)
+    hit = keys[order][pos] == values
+    return np.where(hit, order[pos], -1).astype(np.int64)

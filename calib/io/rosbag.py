@@ -277,7 +277,6 @@ def write_ros2(log: SensorLog, path: str | Path, *, overwrite: bool = False) -> 
                 writer.write(conn[topic], stamp, ts.serialize_cdr(msg, msg.__msgtype__))
 
             det_off = det.frame_slices() if det is not None else None
-            odom_pose = _odom_poses_for_ros(log)
             sensor = log.sensor
             for ev in log.events():
                 i = ev.index
@@ -309,8 +308,8 @@ def write_ros2(log: SensorLog, path: str | Path, *, overwrite: bool = False) -> 
                 elif ev.stream == "odometry":
                     o = log.odometry
                     put("/detcal/odometry", ev.stamp, array(o.values[i], ("row", "_".join(o.columns))))
-                    if odom_pose is not None:
-                        put("/odom", ev.stamp, _odom_msg(T, header(ev.stamp, "odom"), odom_pose, o, i))
+                    if "/odom" in conn:  # standard odometry for ROS tools (pose or velocity kinds, see _topics)
+                        put("/odom", ev.stamp, _odom_msg(T, header(ev.stamp, "odom"), o.values, o, i))
                 elif ev.stream.startswith("reference:"):
                     k = ev.stream.split(":", 1)[1]
                     put(f"/detcal/reference/{k}", ev.stamp, array(log.reference[k].poses[i], ("row", "x_y_theta")))
@@ -319,13 +318,6 @@ def write_ros2(log: SensorLog, path: str | Path, *, overwrite: bool = False) -> 
                     cols = [det.range[a:b], det.bearing[a:b]] + [det.descriptors[k][a:b].astype(np.float64) for k in sorted(det.descriptors)]
                     put("/detcal/detections", ev.stamp, array(np.column_stack(cols).reshape(b - a, len(cols)), ("detection", "field")))
     return path
-
-
-def _odom_poses_for_ros(log: SensorLog) -> np.ndarray | None:
-    o = log.odometry
-    if o is None or o.kind not in ("pose", "velocity"):
-        return None
-    return o.values
 
 
 def _odom_msg(T, hdr, values: np.ndarray, o: Odometry, i: int):

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.io.common import DEFAULT_MAX_BACKSTEP, file_digest, read_table, table_time_order
+from calib.io.common import DEFAULT_MAX_BACKSTEP, file_digest, index_of, read_table, table_time_order
 from detectors.logs import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, seconds_to_stamp
 from profiles.errors import DataError, UsageError
 
@@ -42,7 +42,6 @@ def read_utias(path: str | Path, *, robot: int = 1, max_backstep: float = DEFAUL
             raise UsageError(f"{f}: missing")
     barcodes = read_table(path / "Barcodes.dat", 2, "subject barcode").astype(np.int64)
     lm = read_table(path / "Landmark_Groundtruth.dat", 5, "subject x y sx sy")
-    subject_of = {int(b): int(s) for s, b in barcodes}
     landmark_ids = set(lm[:, 0].astype(np.int64).tolist())
 
     odo = read_table(files["Odometry"], 3, "t v omega")
@@ -58,7 +57,8 @@ def read_utias(path: str | Path, *, robot: int = 1, max_backstep: float = DEFAUL
     if not np.array_equal(code, np.round(code)):
         raise DataError(f"{files['Measurement']}: barcode column holds non-integers")
     code = code.astype(np.int64)
-    subject = np.array([subject_of.get(c, -1) for c in code.tolist()], dtype=np.int64)
+    row = index_of(code, barcodes[:, 1])
+    subject = np.where(row >= 0, barcodes[np.maximum(row, 0), 0], -1).astype(np.int64)
     target = np.where(
         np.isin(subject, list(landmark_ids)), TARGET_LANDMARK, np.where((subject >= 1) & (subject <= N_ROBOTS), TARGET_ROBOT, TARGET_UNKNOWN)
     ).astype(np.int64)

@@ -21,6 +21,7 @@ Same config and seed, same bytes: all draws come from one
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Literal
 
 import numpy as np
@@ -152,18 +153,24 @@ class World:
     wall_p0: np.ndarray
     wall_p1: np.ndarray
 
-    def circles(self) -> tuple[np.ndarray, np.ndarray]:
-        """All circles: trees first, then posts."""
+    @cached_property
+    def _circles(self) -> tuple[np.ndarray, np.ndarray]:
         return np.vstack([self.tree_xy, self.post_xy]), np.concatenate([self.tree_r, self.post_r])
 
+    @cached_property
+    def _segments(self) -> tuple[np.ndarray, np.ndarray]:
+        v, off = self.bush_vertices, self.bush_offsets
+        nxt = np.arange(1, v.shape[0] + 1)
+        nxt[off[1:] - 1] = off[:-1]  # each polygon's last vertex closes on its first
+        return np.vstack([v, self.wall_p0.reshape(-1, 2)]), np.vstack([v[nxt], self.wall_p1.reshape(-1, 2)])
+
+    def circles(self) -> tuple[np.ndarray, np.ndarray]:
+        """All circles: trees first, then posts (built once; every scan casts against them)."""
+        return self._circles
+
     def segments(self) -> tuple[np.ndarray, np.ndarray]:
-        """All segments: bush edges, then walls."""
-        p0, p1 = [self.wall_p0.reshape(-1, 2)], [self.wall_p1.reshape(-1, 2)]
-        for a, b in zip(self.bush_offsets[:-1], self.bush_offsets[1:], strict=True):
-            poly = self.bush_vertices[a:b]
-            p0.insert(-1, poly)
-            p1.insert(-1, np.roll(poly, -1, axis=0))
-        return np.vstack(p0), np.vstack(p1)
+        """All segments: bush edges, then walls (built once)."""
+        return self._segments
 
     def to_dict(self) -> dict:
         return {
