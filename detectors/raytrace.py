@@ -43,8 +43,8 @@ def count_unoccluded(
     poses = np.atleast_2d(np.asarray(sensor_poses, dtype=np.float64))
     angles = np.asarray(angles, dtype=np.float64)
     meas = np.asarray(ranges, dtype=np.float64)
-    if meas.ndim == 1:
-        meas = np.broadcast_to(meas, (poses.shape[0], meas.size))
+    if meas.ndim == 1 or meas.shape[0] == 1:  # one scan shared by all poses
+        meas = np.broadcast_to(meas.reshape(-1), (poses.shape[0], meas.shape[-1]))
     centres = np.asarray(centres, dtype=np.float64)
     per_pose = centres.ndim == 3
     centres = centres if per_pose else centres.reshape(-1, 2)
@@ -151,7 +151,7 @@ def buffer_zone(
     pts = centres[:, :, None, :] + (t[None, None, :, None] * lateral[..., None, None]) * perp[:, :, None, :]  # (S, L, n, 2)
     meas = np.asarray(ranges)
     n_p, _ = count_unoccluded(
-        poses, angles, meas if meas.ndim == 2 else meas[None], pts.reshape(s_, n * samples, 2), np.repeat(radii, samples),
+        poses, angles, meas, pts.reshape(s_, n * samples, 2), np.repeat(radii, samples),
         range_sigma=range_sigma, k_sigma=k_sigma, range_max=range_max,
     )
     pd_s = np.asarray(pd_of_np(n_p), dtype=np.float64).reshape(s_, n, samples)

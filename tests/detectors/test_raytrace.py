@@ -104,3 +104,22 @@ def test_buffer_zone_rules():
     assert 0 < TABLE.lookup(n_p)[0, 0] < 0.5 and buf[2]
     with pytest.raises(ValueError, match="odd"):
         buffer_zone(np.zeros(3), ang, meas, centres, 0.1, 0.3, TABLE.lookup, samples=4, range_sigma=0.02)
+
+
+def test_one_scan_shared_by_many_poses_in_several_chunks(small_sim):
+    """Particles share the current scan: the (B,) or (1, B) scan must serve every chunk of poses."""
+    log = small_sim.log
+    ang, scan = log.sensor.angles(), log.scans.ranges[5].astype(np.float64)
+    gt = log.reference["ground_truth"]
+    base = sensor_poses(gt.poses[np.searchsorted(gt.stamp, log.scans.stamp[5])][None], log.sensor.mount)[0]
+    rng = np.random.default_rng(3)
+    poses = base + rng.normal(0, [0.2, 0.2, 0.02], (3, 3))
+    centres = base[:2] + rng.uniform(-30, 30, (3, 12_000, 2))  # 361 beams x 12,000 landmarks: one pose per chunk
+    for shared in (scan, scan[None]):
+        n_p, _ = count_unoccluded(poses, ang, shared, centres, 0.2, range_sigma=0.02)
+        for s in range(3):
+            alone, _ = count_unoccluded(poses[s], ang, scan[None], centres[s], 0.2, range_sigma=0.02)
+            np.testing.assert_array_equal(n_p[s], alone[0])
+    assert n_p.sum() > 0
+    pd, _ = buffer_zone(poses, ang, scan, centres[:, :4000], 0.2, 0.3, TABLE.lookup, range_sigma=0.02)
+    assert pd.shape == (3, 4000)
