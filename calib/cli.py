@@ -30,9 +30,11 @@ app = typer.Typer(
 log_app = typer.Typer(help="Inspect and convert sensor logs.", no_args_is_help=True)
 sim_app = typer.Typer(help="Simulate sensor logs with exported truth.", no_args_is_help=True)
 profile_app = typer.Typer(help="List, show, validate, compare and export detector profiles.", no_args_is_help=True)
+slam_app = typer.Typer(help="Run SLAM filters with a detector profile.", no_args_is_help=True)
 app.add_typer(log_app, name="log")
 app.add_typer(sim_app, name="simulate")
 app.add_typer(profile_app, name="profile")
+app.add_typer(slam_app, name="slam")
 
 out = Console(highlight=False)
 err = Console(stderr=True, highlight=False)
@@ -420,6 +422,190 @@ def icp_cmd(
     _fresh(target, force)
     summary = write_icp_run(log, target, relations=relations, overwrite=force)
     out.print(_summary_table(f"ICP ground truth of {log.name} -> {target}", summary))
+
+
+FILTERS = ("rbphd",)
+PD_MODES = ("profile", "constant")
+
+
+def _slam_config(config: Path | None, filter_: str, particles: int | None, pd_mode: str | None):
+    from calib.config import load_yaml_model
+    from slam_runtime.config import SlamConfig
+
+    if filter_ not in FILTERS:
+        raise UsageError(f"--filter: expected one of {', '.join(FILTERS)}, got {filter_!r} (delta-GLMB-SLAM is not available yet)")
+    if particles is not None and particles < 1:
+        raise UsageError(f"--particles: expected a positive integer, got {particles}")
+    if pd_mode is not None and pd_mode not in PD_MODES:
+        raise UsageError(f"--pd-mode: expected one of {', '.join(PD_MODES)}, got {pd_mode!r}")
+    cfg = load_yaml_model(SlamConfig, config)
+    upd = {k: v for k, v in (("particles", particles), ("pd_mode", pd_mode)) if v is not None}
+    return cfg.model_copy(update={"rbphd": cfg.rbphd.model_copy(update=upd)}) if upd else cfg
+
+
+def _check_slam_inputs(log, prof) -> None:
+    if prof.detector.kind == "circle2d" and log.scans is None:
+        raise UsageError(f"{log.name}: profile {prof.ref} detects circles in laser scans, and this log has none")
+    if prof.detector.kind != "circle2d" and log.detections is None:
+        raise UsageError(f"{log.name}: profile {prof.ref} takes the log's detections, and this log has none")
+    if log.odometry is None:
+        raise UsageError(f"{log.name}: no odometry to drive the filter")
+
+
+@slam_app.command("run")
+def slam_run_cmd(
+    log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A log with odometry and scans (or detections).")],
+    profile_ref: Annotated[str, typer.Option("--profile", help="Detector profile: name[@version] or a file.")],
+    filter_: Annotated[str, typer.Option("--filter", help="Filter: rbphd.")] = "rbphd",
+    particles: Annotated[int | None, typer.Option(help="Particles (default: the config's, 20).")] = None,
+    seed: Annotated[int, typer.Option(help="Random seed; same log, profile, settings and seed give the same run.")] = 0,
+    pd_mode: Annotated[str | None, typer.Option(help="P_D from the profile, or `constant` inside the sensor range (for comparison).")] = None,
+    config: Annotated[Path | None, typer.Option(help="YAML settings (filter, motion noise, metric); unknown keys are refused.")] = None,
+    frames: Annotated[int | None, typer.Option(help="Only the first N frames.")] = None,
+    out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/slam_<log>_<profile>_<seed>).")] = None,
+    force: Annotated[bool, typer.Option(help="Replace the run folder if it exists.")] = False,
+    robot: RobotOpt = 1,
+    fmt: FormatOpt = None,
+    max_backstep: BackstepOpt = 1.0,
+    laser: LaserOpt = "front",
+    range_max: RangeMaxOpt = None,
+    scan_topic: ScanTopicOpt = None,
+    odom_topic: OdomTopicOpt = None,
+    truth_topic: TruthTopicOpt = None,
+) -> None:
+    """RB-PHD-SLAM over a log with a detector profile's P_D and clutter: trajectory, map, metrics, figures."""
+    from calib.progress import progress
+    from profiles.store import resolve
+    from slam_runtime.report import write_slam_run
+    from slam_runtime.run import odometry_trajectory, run_slam
+
+    cfg = _slam_config(config, filter_, particles, pd_mode)
+    if frames is not None and frames < 1:
+        raise UsageError(f"--frames: expected a positive integer, got {frames}")
+    prof = resolve(profile_ref)
+    log = _read(log_path, fmt, max_backstep, laser, range_max, robot, scan_topic, odom_topic, truth_topic)
+    _check_slam_inputs(log, prof)
+    target = out_dir or Path("runs") / f"slam_{log.name}_{prof.ref}_{seed}"
+    _fresh(target, force)
+    res = run_slam(log, prof, cfg, seed, progress=progress, max_frames=frames)
+    odo = odometry_trajectory(log, res.stamps, np.zeros(3))
+    from detectors.geometry import compose, relative
+
+    odo = compose(res.trajectory[0], relative(odo[0], odo))
+    settings = {
+        "log": log_path.name,
+        "log_sha256": _digest(log_path),
+        "profile": prof.ref,
+        "seed": seed,
+        "frames": frames,
+        "settings": cfg.model_dump(mode="json"),
+    }
+    write_slam_run(log, res, target, settings, overwrite=force, odometry=odo)
+    out.print(_summary_table(f"RB-PHD-SLAM on {log.name} with {prof.ref} -> {target}", res.metrics))
+
+
+def _digest(path: Path) -> str:
+    from calib.io.common import file_digest
+
+    return file_digest(path) if path.is_file() else "folder"
+
+
+def _seed_list(text: str) -> list[int]:
+    """`5` -> 0..4; `1,3,7` or `1-5` -> those seeds."""
+    try:
+        if "," in text:
+            seeds = [int(x) for x in text.split(",")]
+        elif "-" in text:
+            a, b = (int(x) for x in text.split("-", 1))
+            seeds = list(range(a, b + 1))
+        else:
+            seeds = list(range(int(text)))
+    except ValueError:
+        raise UsageError(f"--seeds: expected a count (5), a list (1,3,7) or a range (1-5), got {text!r}") from None
+    if not seeds or min(seeds) < 0:
+        raise UsageError(f"--seeds: expected non-negative seeds, got {text!r}")
+    return seeds
+
+
+@slam_app.command("sweep")
+def slam_sweep_cmd(
+    logs: Annotated[list[Path], typer.Argument(metavar="LOG...", help="Logs to run on (e.g. simulated parks of different seeds).")],
+    profile_refs: Annotated[list[str], typer.Option("--profile", help="Detector profile(s): name[@version] or a file (repeat the option).")],
+    pd_modes: Annotated[list[str] | None, typer.Option("--pd-mode", help="profile and/or constant (repeat; default: both).")] = None,
+    particles: Annotated[list[int] | None, typer.Option("--particles", help="Particle counts (repeat; default: the config's).")] = None,
+    seeds: Annotated[str, typer.Option(help="Filter seeds: a count (3), a list (1,3,7) or a range (1-5).")] = "1",
+    config: Annotated[Path | None, typer.Option(help="YAML settings shared by every run.")] = None,
+    frames: Annotated[int | None, typer.Option(help="Only the first N frames of each log.")] = None,
+    jobs: Annotated[int | None, typer.Option(help="Parallel processes (default: the CPU count).")] = None,
+    out_dir: Annotated[Path, typer.Option("--out", help="Sweep folder: one run folder per run, runs.csv and summary.csv.")] = Path("runs/sweep"),
+    force: Annotated[bool, typer.Option(help="Replace the sweep folder if it exists.")] = False,
+    robot: RobotOpt = 1,
+    fmt: FormatOpt = None,
+    max_backstep: BackstepOpt = 1.0,
+) -> None:
+    """Monte Carlo sweep: every log x profile x P_D mode x particle count x seed, in parallel processes."""
+    import pandas as pd
+
+    from calib.io.atomic import atomic_output
+    from profiles.store import resolve
+    from slam_runtime.sweep import SweepJob, run_sweep, summarise
+
+    modes = list(dict.fromkeys(pd_modes or list(PD_MODES)))
+    for m in modes:
+        if m not in PD_MODES:
+            raise UsageError(f"--pd-mode: expected one of {', '.join(PD_MODES)}, got {m!r}")
+    base = _slam_config(config, "rbphd", None, None)
+    counts = list(dict.fromkeys(particles or [base.rbphd.particles]))
+    if min(counts) < 1:
+        raise UsageError(f"--particles: expected positive integers, got {counts}")
+    if frames is not None and frames < 1:
+        raise UsageError(f"--frames: expected a positive integer, got {frames}")
+    if jobs is not None and jobs < 1:
+        raise UsageError(f"--jobs: expected a positive integer, got {jobs}")
+    seed_list = _seed_list(seeds)
+    profs = [resolve(r) for r in dict.fromkeys(profile_refs)]
+    loaded = []
+    for p in logs:
+        log = _read(p, fmt, max_backstep, "front", None, robot, None, None, None)
+        for prof in profs:
+            _check_slam_inputs(log, prof)
+        loaded.append((p, log))
+    _fresh(out_dir, force)
+    job_list = []
+    for i, (p, log) in enumerate(loaded):
+        for prof in profs:
+            for m in modes:
+                for n in counts:
+                    cfg = base.model_copy(update={"rbphd": base.rbphd.model_copy(update={"particles": n, "pd_mode": m})})
+                    for sd in seed_list:
+                        name = f"{i:02d}_{log.name}_{prof.ref}_{m}_p{n}_s{sd}"
+                        labels = {"log": p.name, "profile": prof.ref, "pd_mode": m, "particles": n, "seed": sd}
+                        job_list.append(SweepJob(name, log, prof, cfg, sd, labels, frames))
+    by = ("profile", "pd_mode", "particles")
+    with atomic_output(out_dir, overwrite=force, directory=True) as tmp:
+        tmp.mkdir()
+        rows = run_sweep(job_list, tmp, jobs)
+        label_keys = ("log", "profile", "pd_mode", "particles", "seed")
+        pd.DataFrame(rows).to_csv(tmp / "runs.csv", index=False, float_format="%.6g")
+        summary = summarise(rows, by, label_keys)
+        pd.DataFrame(summary).to_csv(tmp / "summary.csv", index=False, float_format="%.6g")
+        (tmp / "config.yaml").write_text(_yaml_dump({"settings": base.model_dump(mode="json"), "logs": [p.name for p, _ in loaded], "seeds": seed_list}))
+    t = Table(title=f"sweep of {len(job_list)} runs -> {out_dir}")
+    cols = [c for c in ("trajectory_rmse_vs_ground_truth_m", "odometry_rmse_vs_ground_truth_m", "trajectory_rmse_vs_gps_m", "map_ospa", "map_features", "ms_per_step_mean")]
+    for c in (*by, "runs"):
+        t.add_column(c)
+    shown = [c for c in cols if f"{c}_mean" in summary[0]]
+    for c in shown:
+        t.add_column(c.replace("_vs_ground_truth", "").replace("trajectory_", ""), justify="right")
+    for e in summary:
+        t.add_row(*(str(e[c]) for c in (*by, "runs")), *(f"{e[c + '_mean']:.3f} ± {e[c + '_std']:.3f}" for c in shown))
+    out.print(t)
+
+
+def _yaml_dump(data) -> str:
+    from calib.config import dump_yaml
+
+    return dump_yaml(data)
 
 
 @profile_app.command("list")

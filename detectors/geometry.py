@@ -118,11 +118,19 @@ def interpolate_poses(stamp_ref: np.ndarray, poses_ref: np.ndarray, stamps: np.n
     return out
 
 
-def rigid_align(est: np.ndarray, ref: np.ndarray) -> np.ndarray:
-    """Best-fit rotation + translation (Umeyama, no scale) of est (N, 2+) onto ref; returns est's poses moved."""
+def rigid_transform(est: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """(3,) pose T of the best-fit rotation + translation (Umeyama, no scale): compose(T, est) ~ ref.
+
+    est, ref (N, 2+): only the positions are used.
+    """
     a, b = est[:, :2], ref[:, :2]
     ma, mb = a.mean(axis=0), b.mean(axis=0)
     u, _, vt = np.linalg.svd((b - mb).T @ (a - ma))
     r = u @ np.diag([1.0, np.linalg.det(u @ vt)]) @ vt
     ang = np.arctan2(r[1, 0], r[0, 0])
-    return compose(np.array([*(mb - r @ ma), ang]), est)
+    return np.array([*(mb - r @ ma), ang])
+
+
+def rigid_align(est: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """est's poses (N, 3) moved by the best rigid fit onto ref (:func:`rigid_transform`)."""
+    return compose(rigid_transform(est, ref), est)

@@ -64,6 +64,26 @@ class DetectionModel:
         )
 
     # ------------------------------------------------------------------ P_D
+    def typical_radius(self, default: float = 0.2) -> float:
+        """The radius of a typical true detection (the Hotelling mean), for ray tracing map features."""
+        h = self.hotelling
+        if h is not None and "log_radius" in h.names:
+            return float(np.exp(h.mean[h.names.index("log_radius")]))
+        if h is not None and "radius" in h.names:
+            return float(h.mean[h.names.index("radius")])
+        return default
+
+    def large_radius(self, default: float = 0.5, z: float = 2.326) -> float:
+        """A generous radius: the Hotelling model's 99th percentile of true radii (occlusion tests)."""
+        h = self.hotelling
+        if h is not None and "log_radius" in h.names:
+            i = h.names.index("log_radius")
+            return float(np.exp(h.mean[i] + z * np.sqrt(h.covariance[i][i])))
+        if h is not None and "radius" in h.names:
+            i = h.names.index("radius")
+            return float(h.mean[i] + z * np.sqrt(h.covariance[i][i]))
+        return max(default, self.typical_radius())
+
     def pd_of_np(self, n_p: np.ndarray) -> np.ndarray:
         return self.pd_table.lookup(n_p)
 

@@ -124,6 +124,8 @@ def buffer_zone(
     range_sigma: float,
     k_sigma: float = 3.0,
     range_max: float | None = None,
+    phase_average: bool = False,
+    occlusion_radius: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """P_D with the buffer-zone rules of thesis sec. 6.1.
 
@@ -135,6 +137,9 @@ def buffer_zone(
     perpendicular to the sensor-landmark line. A landmark is in the buffer zone
     when those values contain both zeros and non-zeros (then the largest is
     used) or when 0 < P_D < 0.5 at the landmark itself.
+    phase_average: P_D from :func:`expected_unoccluded` / :func:`expected_pd`
+    (a filter's choice) instead of the integer n_p; ``radii`` is then one number
+    and ``occlusion_radius`` is passed on.
     returns (pd, in_buffer bool)
     """
     if samples < 1 or samples % 2 == 0:
@@ -150,14 +155,101 @@ def buffer_zone(
     t = np.linspace(-1.0, 1.0, samples)
     pts = centres[:, :, None, :] + (t[None, None, :, None] * lateral[..., None, None]) * perp[:, :, None, :]  # (S, L, n, 2)
     meas = np.asarray(ranges)
-    n_p, _ = count_unoccluded(
-        poses, angles, meas, pts.reshape(s_, n * samples, 2), np.repeat(radii, samples),
-        range_sigma=range_sigma, k_sigma=k_sigma, range_max=range_max,
-    )
-    pd_s = np.asarray(pd_of_np(n_p), dtype=np.float64).reshape(s_, n, samples)
+    common = {"range_sigma": range_sigma, "k_sigma": k_sigma, "range_max": range_max}
+    if phase_average:
+        ang = np.asarray(angles, dtype=np.float64)
+        n_bar = expected_unoccluded(
+            poses, float(ang[0]), float(ang[1] - ang[0]) if ang.size > 1 else 1.0, ang.size, meas,
+            pts.reshape(s_, n * samples, 2), float(radii[0]) if n else 0.0, occlusion_radius=occlusion_radius, **common,
+        )
+        pd_s = expected_pd(n_bar, pd_of_np).reshape(s_, n, samples)
+    else:
+        n_p, _ = count_unoccluded(poses, angles, meas, pts.reshape(s_, n * samples, 2), np.repeat(radii, samples), **common)
+        pd_s = np.asarray(pd_of_np(n_p), dtype=np.float64).reshape(s_, n, samples)
     pd_c = pd_s[..., samples // 2]  # samples is odd: the middle one is the landmark itself
     mixed = (pd_s == 0).any(axis=-1) & (pd_s > 0).any(axis=-1)
     low = (pd_c > 0) & (pd_c < 0.5)
     pd = np.where(mixed, pd_s.max(axis=-1), pd_c)
     buf = mixed | low
     return (pd[0], buf[0]) if single else (pd, buf)
+
+
+def expected_unoccluded(
+    sensor_poses: np.ndarray,
+    angle_min: float,
+    angle_increment: float,
+    n_beams: int,
+    ranges: np.ndarray,
+    centres: np.ndarray,
+    radius: float,
+    *,
+    range_sigma: float,
+    k_sigma: float = 3.0,
+    range_max: float | None = None,
+    window: int = 8,
+    occlusion_radius: float | None = None,
+) -> np.ndarray:
+    """n_p averaged over where the beams fall on the landmark (a real number), for a filter.
+
+    The integer n_p of :func:`count_unoccluded` jumps by one as the sensor turns by
+    a fraction of a beam: a landmark of angular width w / delta_theta = 2.4 beams is
+    hit by 2 or 3 beams depending on the phase. A particle filter that evaluates
+    P_D(n_p) at each particle's pose would then weight particles by that phase,
+    which carries no information about the pose. This function returns instead
+    the expected count over a uniform phase, f * w / delta_theta (clipped to the
+    field of view and the range), where f is the unoccluded fraction of the beams
+    within +-(w/2 + delta_theta/2) of the landmark's bearing (at most ``window``
+    beams either side of the central one). With a table P_D(n), interpolating
+    linearly between floor and ceil of this value gives E[P_D] over the phase
+    exactly when nothing occludes (:func:`expected_pd`).
+
+    occlusion_radius: a return occludes only when it is shorter than the surface
+    of a landmark of this radius at the centre (default ``radius``). A map
+    feature's radius is not known; a generous one keeps a large trunk's own
+    surface from counting as its occluder.
+
+    sensor_poses (S, 3); ranges (B,) shared or (S, B); centres (S, L, 2) -> (S, L) float.
+    """
+    poses = np.atleast_2d(np.asarray(sensor_poses, dtype=np.float64))
+    centres = np.asarray(centres, dtype=np.float64).reshape(poses.shape[0], -1, 2)
+    meas = np.asarray(ranges, dtype=np.float64).reshape(-1, n_beams)
+    s, l_ = centres.shape[:2]
+    if s == 0 or l_ == 0:
+        return np.zeros((s, l_))
+    step = float(angle_increment)
+    if step < 0:  # beams in decreasing angle: mirror to increasing
+        angle_min, step, meas = angle_min + step * (n_beams - 1), -step, meas[:, ::-1]
+    rel = centres - poses[:, None, :2]
+    d = np.hypot(rel[..., 0], rel[..., 1])
+    bearing = np.mod(np.arctan2(rel[..., 1], rel[..., 0]) - poses[:, None, 2] + np.pi, 2 * np.pi) - np.pi
+    half = np.arcsin(np.clip(radius / np.maximum(d, 1e-9), 0.0, 1.0))
+    lo_fov, hi_fov = angle_min - step / 2, angle_min + step * (n_beams - 0.5)
+    width = np.clip(np.minimum(bearing + half, hi_fov) - np.maximum(bearing - half, lo_fov), 0.0, None) / step
+    inside = d > radius
+    if range_max is not None:
+        inside &= d - radius <= range_max
+    # the beams around the bearing: which of them the scan shows occluded
+    centre_i = np.rint((bearing - angle_min) / step).astype(np.int64)
+    k = np.arange(-window, window + 1)
+    idx = centre_i[..., None] + k  # (S, L, K)
+    valid = (idx >= 0) & (idx < n_beams)
+    idx_c = np.clip(idx, 0, n_beams - 1)
+    off = angle_min + step * idx_c - bearing[..., None]
+    valid &= np.abs(off) <= half[..., None] + step / 2
+    proj = d[..., None] * np.cos(off)
+    perp = d[..., None] * np.sin(off)
+    ro = max(radius, occlusion_radius) if occlusion_radius is not None else radius
+    exp = proj - np.sqrt(np.maximum(ro * ro - perp * perp, 0.0))
+    rows = np.arange(s)[:, None, None] if meas.shape[0] == s else np.zeros((1, 1, 1), dtype=np.int64)
+    got = meas[rows, idx_c]
+    occl = got < exp - k_sigma * range_sigma  # NaN compares False: a missing return does not occlude
+    n_valid = valid.sum(axis=-1)
+    frac = np.where(n_valid > 0, (valid & ~occl).sum(axis=-1) / np.maximum(n_valid, 1), 0.0)
+    return np.where(inside, frac * width, 0.0)
+
+
+def expected_pd(n_bar: np.ndarray, pd_of_np) -> np.ndarray:
+    """E[P_D] for a real-valued expected count: linear between the table at floor and ceil."""
+    lo = np.floor(n_bar)
+    t = n_bar - lo
+    return (1.0 - t) * np.asarray(pd_of_np(lo), dtype=np.float64) + t * np.asarray(pd_of_np(lo + 1.0), dtype=np.float64)

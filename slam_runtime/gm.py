@@ -78,40 +78,57 @@ def prune_merge(gm: GMBatch, *, prune: float = 1e-4, merge: float = 4.0, cap: in
     """Vo & Ma pruning and merging for every particle; at most ``cap`` components each.
 
     merge: squared Mahalanobis distance under which components merge.
+
+    The greedy grouping (heaviest remaining component takes every remaining one
+    inside its gate) runs on a precomputed adjacency, one cheap boolean round per
+    output component for all particles at once; the merged moments are then
+    summed in one pass with ``bincount``.
     """
     p, j = gm.shape
     if j == 0:
         return GMBatch.empty(p, 0)
-    # keep the heaviest 4 x cap above the threshold: the merge loop then stays short
-    k = min(j, 4 * cap)
-    order = np.argsort(-gm.w, axis=1, kind="stable")[:, :k]
+    alive = gm.w > prune
+    # keep the heaviest min(j, 4 cap) live components, heaviest first
+    k = int(min(j, 4 * cap, max(1, alive.sum(axis=1).max())))
+    order = np.argsort(-np.where(alive, gm.w, -1.0), axis=1, kind="stable")[:, :k]
     w = np.take_along_axis(gm.w, order, axis=1)
     mu = np.take_along_axis(gm.mu, order[..., None], axis=1)
     cov = np.take_along_axis(gm.cov, order[..., None, None], axis=1)
     alive = w > prune
     inv = _inv2(cov)
-    out_w = np.zeros((p, cap))
-    out_mu = np.zeros((p, cap, 2))
-    out_cov = np.tile(np.eye(2), (p, cap, 1, 1))
+    # adj[p, i, l]: component l lies inside the gate of component i (Vo & Ma use the head's covariance)
+    adj = np.empty((p, k, k), dtype=bool)
+    step = max(1, 2_000_000 // (k * k))
+    for a in range(0, p, step):
+        sl = slice(a, a + step)
+        d = mu[sl, None, :, :] - mu[sl, :, None, :]  # (p', K, K, 2): l - i
+        adj[sl] = _quad(inv[sl, :, None], d[..., 0], d[..., 1]) <= merge
+    label = np.full((p, k), -1, dtype=np.int64)
     rows = np.arange(p)
-    filled = 0  # every round that runs gives at least one particle a component
-    for slot in range(cap):  # one output component per round, vectorised over particles
+    filled = 0
+    for slot in range(cap):  # one output component per round; components are sorted, so the head is the first alive
         if not alive.any():
             break
         filled = slot + 1
-        head = np.argmax(np.where(alive, w, -1.0), axis=1)  # heaviest remaining (order is by weight)
-        has = alive[rows, head]
-        d = mu - mu[rows, head][:, None, :]
-        m2 = _quad(inv[rows, head][:, None], d[..., 0], d[..., 1])
-        grp = alive & (m2 <= merge) & has[:, None]
-        gw = np.where(grp, w, 0.0)
-        tot = gw.sum(axis=1)
-        safe = np.where(tot > 0, tot, 1.0)
-        m = (gw[..., None] * mu).sum(axis=1) / safe[:, None]
-        dm = mu - m[:, None, :]
-        c = (gw[..., None, None] * (cov + dm[..., :, None] * dm[..., None, :])).sum(axis=1) / safe[:, None, None]
-        out_w[:, slot] = tot
-        out_mu[has, slot] = m[has]
-        out_cov[has, slot] = c[has]
+        has = alive.any(axis=1)
+        head = np.argmax(alive, axis=1)
+        grp = adj[rows, head] & alive & has[:, None]
+        label[grp] = slot
         alive &= ~grp
-    return GMBatch(out_w[:, :filled], out_mu[:, :filled], out_cov[:, :filled])
+    if filled == 0:
+        return GMBatch.empty(p, 0)
+    # moments of each group (weights, means, covariances with the spread of the means)
+    ok = label >= 0
+    idx = (rows[:, None] * filled + label)[ok]
+    wt = w[ok]
+    n = p * filled
+    tot = np.bincount(idx, weights=wt, minlength=n)
+    safe = np.where(tot > 0, tot, 1.0)
+    m = np.stack([np.bincount(idx, weights=wt * mu[ok][:, c], minlength=n) for c in range(2)], axis=-1) / safe[:, None]
+    dm = mu[ok] - m[idx]
+    second = cov[ok] + dm[:, :, None] * dm[:, None, :]
+    c = np.stack([np.bincount(idx, weights=wt * second[:, a, b], minlength=n) for a in range(2) for b in range(2)], axis=-1)
+    c = c.reshape(n, 2, 2) / safe[:, None, None]
+    empty = tot == 0
+    c[empty] = np.eye(2)
+    return GMBatch(tot.reshape(p, filled), m.reshape(p, filled, 2), c.reshape(p, filled, 2, 2))

@@ -35,7 +35,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from detectors.model import DetectionModel
-from detectors.raytrace import buffer_zone, count_unoccluded
+from detectors.raytrace import buffer_zone, count_unoccluded, expected_pd, expected_unoccluded
 from slam_runtime.gm import GMBatch, _det2, _inv2, _quad, prune_merge
 from slam_runtime.measurement import innovation, inverse, predict, sensor_pose
 
@@ -46,17 +46,26 @@ class RBPHDConfig(BaseModel):
     sigma_range: float = Field(default=0.1, gt=0.0, description="measurement noise of the landmark centre's range [m]")
     sigma_bearing: float = Field(default=0.01, gt=0.0, description="... and of its bearing [rad]")
     birth_weight: float = Field(default=0.1, gt=0.0, le=1.0)
+    adaptive_birth: bool = Field(default=True, description="scale each birth by the share of its measurement the map left unexplained")
     prune: float = Field(default=1e-4, gt=0.0)
     merge: float = Field(default=4.0, gt=0.0, description="squared Mahalanobis distance for merging")
     cap: int = Field(default=250, ge=1, description="components per particle at most")
-    weighting: Literal["multi_feature", "empty_set", "single_feature"] = "multi_feature"
+    weighting: Literal["multi_feature", "empty_set", "single_feature", "marginal"] = "multi_feature"
     map_threshold: float = Field(default=0.5, gt=0.0, description="a component of this weight or more is a map feature")
     resample_ess: float = Field(default=0.5, gt=0.0, le=1.0)
     pd_mode: Literal["profile", "constant"] = "profile"
     constant_pd: float = Field(default=0.9, gt=0.0, le=1.0, description="P_D inside the field of view in constant mode")
     buffer_zone: bool = True
+    descriptor_likelihood: bool = Field(
+        default=False, description="weigh each detection by g_x(d) / g_FA(d) of its descriptors (eqs. 2.26, 5.6); needs a Hotelling model"
+    )
     buffer_sigmas: float = Field(default=2.0, gt=0.0, description="lateral spread of the buffer-zone samples, in position std")
-    landmark_radius: float = Field(default=0.2, gt=0.0, description="radius the n_p ray tracer gives map features [m]")
+    landmark_radius: float | None = Field(
+        default=None, gt=0.0, description="radius the n_p ray tracer gives map features [m]; default: the profile's typical true radius, else 0.2"
+    )
+    phase_average: bool = Field(
+        default=True, description="P_D from n_p averaged over where the beams fall (detectors.raytrace.expected_unoccluded), not the integer count"
+    )
 
 
 @dataclass
@@ -81,6 +90,8 @@ class RBPHDSlam:
         self.map = GMBatch.empty(p, 0)
         self.birth = GMBatch.empty(p, 0)
         self.r = np.diag([cfg.sigma_range**2, cfg.sigma_bearing**2])
+        self.radius = cfg.landmark_radius if cfg.landmark_radius is not None else model.typical_radius()
+        self.occlusion_radius = max(self.radius, model.large_radius()) if cfg.phase_average else None
         self.history: list[np.ndarray] = [self.poses.copy()]
 
     # ------------------------------------------------------------------ motion
@@ -113,27 +124,38 @@ class RBPHDSlam:
         mu_v, cov_v, in_v = mu[rows, sel], cov[rows, sel], inside[rows, sel]
         sensor = self.model.sensor
         common = {"range_sigma": float(sensor.range_sigma), "k_sigma": self.model.k_sigma, "range_max": sensor.range_max}
+        ang = sensor.angles()
         if self.cfg.buffer_zone:
             # sec. 6.1: samples across the line of sight, spread by the position std
             los = mu_v - sp[:, None, :2]
             perp = np.stack([-los[..., 1], los[..., 0]], axis=-1) / np.maximum(np.hypot(los[..., 0], los[..., 1]), 1e-9)[..., None]
             lat = self.cfg.buffer_sigmas * np.sqrt(np.maximum(np.einsum("pji,pjik,pjk->pj", perp, cov_v, perp), 0.0))
             pd_v, buf_v = buffer_zone(
-                sp, sensor.angles(), scan, mu_v, self.cfg.landmark_radius, lat, table.lookup, samples=self.model.buffer_samples, **common
+                sp, ang, scan, mu_v, self.radius, lat, table.lookup, samples=self.model.buffer_samples,
+                phase_average=self.cfg.phase_average, occlusion_radius=self.occlusion_radius, **common,
             )
+        elif self.cfg.phase_average:
+            n_bar = expected_unoccluded(
+                sp, float(ang[0]), float(ang[1] - ang[0]), ang.size, scan, mu_v, self.radius, occlusion_radius=self.occlusion_radius, **common
+            )
+            pd_v, buf_v = expected_pd(n_bar, table.lookup), np.zeros((p, jf), dtype=bool)
         else:
-            n_p, _ = count_unoccluded(sp, sensor.angles(), scan, mu_v, self.cfg.landmark_radius, **common)
+            n_p, _ = count_unoccluded(sp, ang, scan, mu_v, self.radius, **common)
             pd_v, buf_v = table.lookup(n_p), np.zeros((p, jf), dtype=bool)
         pd_full[rows, sel] = np.where(in_v, pd_v, 0.0)
         buf_full[rows, sel] = buf_v & in_v
         return pd_full, buf_full
 
     # ------------------------------------------------------------------ update
-    def update(self, z: np.ndarray, scan: np.ndarray | None = None, zcov: np.ndarray | None = None) -> StepInfo:
+    def update(
+        self, z: np.ndarray, scan: np.ndarray | None = None, zcov: np.ndarray | None = None, ratio: np.ndarray | None = None
+    ) -> StepInfo:
         """One map update + reweighting with measurements z (M, 2) (range, bearing; sensor frame).
 
         zcov (M, 2, 2): each measurement's own covariance (the circle fit's), added to
         the floor diag(sigma_range^2, sigma_bearing^2).
+        ratio (M,): descriptor likelihood ratio g_x(d) / g_FA(d) of each measurement
+        (eq. 5.6); eq. 2.26 then reads as the plain update with clutter kappa(z) / ratio.
         """
         cfg = self.cfg
         z = np.asarray(z, dtype=np.float64).reshape(-1, 2)
@@ -145,12 +167,13 @@ class RBPHDSlam:
         m = z.shape[0]
         pd, buf = self._pd(sp, mu, cov, scan)
         kappa = self.model.clutter_intensity(z) if m else np.zeros(0)
+        if ratio is not None and m:
+            kappa = kappa / np.maximum(np.asarray(ratio, dtype=np.float64), 1e-300)
         zhat, h = predict(sp[:, None, :], mu)  # (P, J, 2), (P, J, 2, 2)
         hph = h @ cov @ np.swapaxes(h, -1, -2)  # (P, J, 2, 2)
         s = hph[:, :, None] + rz[None, None]  # (P, J, M, 2, 2): each measurement its own noise
         sinv = _inv2(s)
         pht = cov @ np.swapaxes(h, -1, -2)  # (P, J, 2, 2)
-        gain = pht[:, :, None] @ sinv  # (P, J, M, 2, 2)
         nu = innovation(z[None, None, :, :], zhat[:, :, None, :]) if m else np.zeros((p, j, 0, 2))
         m2 = _quad(sinv, nu[..., 0], nu[..., 1])
         q = np.exp(-0.5 * m2) / (2 * np.pi * np.sqrt(np.maximum(_det2(s), 1e-300)))
@@ -159,27 +182,55 @@ class RBPHDSlam:
         w_det = num / np.where(den > 0, den, 1.0)[:, None, :]
         missed = (1.0 - pd) * w
         if cfg.buffer_zone:
+            buf[:, self.map.shape[1]:] = False  # the rule protects map features, not this step's birth hypotheses
             gained = w_det.sum(axis=2)
-            short = buf & (gained + missed < w)  # eq. 3.21: no weight lost in the buffer zone
-            missed = np.where(short, w - gained, missed)
-        mu_det = mu[:, :, None, :] + (gain @ nu[..., None])[..., 0]
-        cov_det = cov[:, :, None] - gain @ (h @ cov)[:, :, None]  # (P, J, M, 2, 2)
-        upd = GMBatch(missed, mu, cov).concat(
-            GMBatch(w_det.reshape(p, j * m), mu_det.reshape(p, j * m, 2), cov_det.reshape(p, j * m, 2, 2))
-        )
-        pd_upd = np.concatenate([pd, np.repeat(pd, m, axis=1)], axis=1) if m else pd
-        self.logw += self._log_weight(prior, upd, pd_upd, sp, z, kappa, rz)
+            # eq. 3.21: no weight lost in the buffer zone -- up to one feature's worth: a component
+            # whose P_D is underestimated gathers weight 1 / P_D, which the rule would otherwise lock in
+            keep = np.minimum(w, 1.0)
+            short = buf & (gained + missed < keep)
+            missed = np.where(short, keep - gained, missed)
+        # EKF-updated components (eqs. 3.17-3.18) only for the (component, measurement) pairs whose
+        # weight survives pruning: the rest would be dropped by prune_merge anyway
+        keep = (w_det > cfg.prune).reshape(p, j * m)
+        k = int(keep.sum(axis=1).max()) if j * m else 0
+        pick = np.argsort(~keep, axis=1, kind="stable")[:, :k]  # (P, K) flat (j, m) indices, kept ones first
+        jj, mm = np.divmod(pick, max(m, 1))
+        rows = np.arange(p)[:, None]
+        gain = pht[rows, jj] @ sinv[rows, jj, mm]  # (P, K, 2, 2)
+        mu_det = mu[rows, jj] + (gain @ nu[rows, jj, mm][..., None])[..., 0]
+        cov_det = cov[rows, jj] - gain @ (h @ cov)[rows, jj]
+        w_kept = np.where(np.take_along_axis(keep, pick, axis=1), w_det[rows, jj, mm], 0.0)
+        upd = GMBatch(missed, mu, cov).concat(GMBatch(w_kept, mu_det, cov_det))
+        pd_upd = np.concatenate([pd, pd[rows, jj]], axis=1)
+        if cfg.weighting == "marginal":
+            # p(Z | x, Z_1:k-1) when the predicted map is Poisson with intensity v^- (the
+            # single-cluster PHD weight): prod_z (kappa + sum_j P_D w_j q_j(z)) / kappa(z) * exp(-sum_j P_D w_j)
+            lw = np.log(np.where(kappa > 0, den / np.maximum(kappa, 1e-300), 1.0)).sum(axis=1) if m else np.zeros(p)
+            self.logw += lw - (pd * w).sum(axis=1)
+        else:
+            self.logw += self._log_weight(prior, upd, pd_upd, sp, z, kappa, rz)
         self.map = prune_merge(upd, prune=cfg.prune, merge=cfg.merge, cap=cfg.cap)
-        self.birth = self._birth(sp, z, rz)
+        # adaptive birth: a measurement the map already explains gives birth to little
+        self.birth = self._birth(sp, z, rz, 1.0 - np.clip(w_det.sum(axis=1), 0.0, 1.0) if cfg.adaptive_birth else None)
         return self._resample(m)
 
-    def _birth(self, sp: np.ndarray, z: np.ndarray, rz: np.ndarray) -> GMBatch:
+    def _birth(self, sp: np.ndarray, z: np.ndarray, rz: np.ndarray, unexplained: np.ndarray | None = None) -> GMBatch:
+        """Birth mixture for the next step from this step's measurements (eq. 3.15).
+
+        unexplained (P, M): the share of each measurement the updated map did not
+        take, 1 - sum_j w_det; it scales the birth weight (adaptive birth, as in
+        Reuter et al.'s LMB filter), so features seen every step are not re-born
+        and merged into themselves.
+        """
         p, m = sp.shape[0], z.shape[0]
         if m == 0:
             return GMBatch.empty(p, 0)
         pos, g = inverse(sp[:, None, :], z[None, :, :])  # (P, M, 2), (P, M, 2, 2)
         cov = g @ rz[None] @ np.swapaxes(g, -1, -2) + np.eye(2) * 1e-4
-        return GMBatch(np.full((p, m), self.cfg.birth_weight), pos, cov)
+        w = np.full((p, m), self.cfg.birth_weight)
+        if unexplained is not None:
+            w = w * unexplained
+        return GMBatch(w, pos, cov)
 
     def _log_weight(self, prior: GMBatch, upd: GMBatch, pd_upd: np.ndarray, sp, z, kappa, rz) -> np.ndarray:
         """log of eq. 3.13 under the chosen strategy (particle-independent factors dropped)."""
@@ -232,6 +283,14 @@ class RBPHDSlam:
     # ------------------------------------------------------------------ estimates
     def best(self) -> int:
         return int(np.argmax(self.logw))
+
+    def mean_pose(self) -> np.ndarray:
+        """(3,) the particles' weighted mean pose (circular mean of the heading)."""
+        w = np.exp(self.logw - self.logw.max())
+        w /= w.sum()
+        xy = w @ self.poses[:, :2]
+        th = np.arctan2(w @ np.sin(self.poses[:, 2]), w @ np.cos(self.poses[:, 2]))
+        return np.array([xy[0], xy[1], th])
 
     def trajectory(self) -> np.ndarray:
         """(T, 3) trajectory of the currently best particle."""

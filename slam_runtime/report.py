@@ -1,0 +1,137 @@
+"""The run folder of ``detcal slam run``: tables, metrics, the config used, and figures.
+
+Layout::
+
+    config.yaml       filter settings, profile reference, seed, log and its sha256
+    metrics.yaml      trajectory RMSE (filter, weighted mean, dead reckoning), map OSPA/GOSPA, timings
+    trajectory.csv    stamp_ns, best particle x/y/theta, weighted mean x/y/theta, dead reckoning x/y/theta
+    map.csv           x, y, weight of the map estimate (components of weight >= map_threshold)
+    steps.csv         stamp_ns, ms, measurements, ess, resampled, components, map_ospa
+    trajectory_map.png, ospa.png, timing.png
+
+Everything is written into a temporary folder that is renamed into place, so a
+failed run leaves nothing behind. Tables use fixed formats: the same inputs
+and seed give the same bytes (the timings and the ``ms`` column aside).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from detectors.geometry import compose, interpolate_poses, rigid_transform
+from detectors.logs import SensorLog
+from profiles.atomic import atomic_output
+from slam_runtime.run import SlamResult
+
+
+def _table(path: Path, header: list[str], cols: list[np.ndarray], fmts: list[str]) -> None:
+    rows = [",".join(header)]
+    for vals in zip(*cols, strict=True):
+        rows.append(",".join(f % v for f, v in zip(fmts, vals, strict=True)))
+    path.write_text("\n".join(rows) + "\n")
+
+
+def _yaml(data: dict) -> str:
+    return yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=120)
+
+
+def write_slam_run(log: SensorLog, res: SlamResult, out: Path, config: dict, *, overwrite: bool = False, odometry: np.ndarray | None = None) -> list[str]:
+    """Write the run folder; returns the figure names."""
+    with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
+        tmp.mkdir()
+        (tmp / "config.yaml").write_text(_yaml(config))
+        (tmp / "metrics.yaml").write_text(_yaml({k: (float(v) if isinstance(v, np.floating) else v) for k, v in res.metrics.items()}))
+        odo = odometry if odometry is not None else np.full_like(res.trajectory, np.nan)
+        _table(
+            tmp / "trajectory.csv",
+            ["stamp_ns", "x", "y", "theta", "mean_x", "mean_y", "mean_theta", "odometry_x", "odometry_y", "odometry_theta"],
+            [res.stamps, *res.trajectory.T, *res.mean_trajectory.T, *odo.T],
+            ["%d"] + ["%.6f"] * 9,
+        )
+        _table(tmp / "map.csv", ["x", "y", "weight"], [*res.map_xy.T, res.map_w], ["%.6f", "%.6f", "%.6f"])
+        _table(
+            tmp / "steps.csv",
+            ["stamp_ns", "ms", "measurements", "ess", "resampled", "components", "map_ospa"],
+            [res.stamps, res.step_ms, res.n_measurements, res.ess, res.resampled.astype(int), res.components, res.map_ospa],
+            ["%d", "%.3f", "%d", "%.4f", "%d", "%.2f", "%.6f"],
+        )
+        figures = _figures(log, res, odo, tmp)
+    return figures
+
+
+def _figures(log: SensorLog, res: SlamResult, odo: np.ndarray, folder: Path) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = []
+    fig, ax = plt.subplots(figsize=(8, 7))
+    gt = log.reference.get("ground_truth")
+    gps = log.reference.get("gps")
+    if gt is not None:
+        t = interpolate_poses(gt.stamp, gt.poses, res.stamps[(res.stamps >= gt.stamp[0]) & (res.stamps <= gt.stamp[-1])])
+        ax.plot(t[:, 0], t[:, 1], "k-", lw=1.2, label="ground truth")
+    elif gps is not None and "trajectory_rmse_vs_gps_m" in res.metrics:
+        # the estimates are drawn in the GPS frame, moved by the rigid fit the metric used
+        sel = (gps.stamp >= res.stamps[0]) & (gps.stamp <= res.stamps[-1])
+        tf = rigid_transform(interpolate_poses(res.stamps, res.trajectory, gps.stamp[sel]), gps.poses[sel])
+        res = replace(
+            res,
+            trajectory=compose(tf, res.trajectory),
+            mean_trajectory=compose(tf, res.mean_trajectory),
+            map_xy=compose(tf, np.column_stack([res.map_xy, np.zeros(len(res.map_xy))]))[:, :2] if res.map_xy.size else res.map_xy,
+        )
+        odo = compose(tf, odo) if np.isfinite(odo).all() else odo
+        ax.plot(gps.poses[sel, 0], gps.poses[sel, 1], "k.", ms=2, label="GPS (estimates rigidly aligned to it)")
+    if np.isfinite(odo).all():
+        ax.plot(odo[:, 0], odo[:, 1], "r--", lw=0.8, label="dead reckoning")
+    ax.plot(res.mean_trajectory[:, 0], res.mean_trajectory[:, 1], "c-", lw=0.6, alpha=0.7, label="weighted mean")
+    ax.plot(res.trajectory[:, 0], res.trajectory[:, 1], "b-", lw=1.0, label="best particle")
+    if log.landmarks is not None:
+        ax.plot(log.landmarks.xy[:, 0], log.landmarks.xy[:, 1], "k*", ms=6, label="true landmarks")
+    if res.map_xy.size:
+        ax.scatter(res.map_xy[:, 0], res.map_xy[:, 1], s=18, facecolors="none", edgecolors="g", label="map (weight >= threshold)")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    title = f"{log.name}: RB-PHD-SLAM"
+    m = res.metrics
+    for key in ("ground_truth", "gps"):
+        if f"trajectory_rmse_vs_{key}_m" in m:
+            title += f"\nRMSE vs {key}: {m[f'trajectory_rmse_vs_{key}_m']:.2f} m (dead reckoning {m[f'odometry_rmse_vs_{key}_m']:.2f} m)"
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    fig.savefig(folder / "trajectory_map.png", dpi=110)
+    plt.close(fig)
+    names.append("trajectory_map.png")
+
+    t = (res.stamps - res.stamps[0]) / 1e9
+    if np.isfinite(res.map_ospa).any():
+        fig, ax = plt.subplots(figsize=(7, 3.5))
+        ax.plot(t, res.map_ospa, "b-")
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel(f"map OSPA (c = {m.get('ospa_c_m', 1.0)} m, p = {m.get('ospa_p', 1.0)})")
+        ax.set_ylim(0, m.get("ospa_c_m", 1.0) * 1.05)
+        ax.grid(alpha=0.3)
+        fig.tight_layout()
+        fig.savefig(folder / "ospa.png", dpi=110)
+        plt.close(fig)
+        names.append("ospa.png")
+
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    ax.plot(t, res.step_ms, "k-", lw=0.5)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("ms per step")
+    ax.set_title(f"mean {res.step_ms.mean():.1f} ms, median {np.median(res.step_ms):.1f} ms per step", fontsize=9)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(folder / "timing.png", dpi=110)
+    plt.close(fig)
+    names.append("timing.png")
+    return names
