@@ -477,7 +477,7 @@ def slam_run_cmd(
     from calib.progress import progress
     from profiles.store import resolve
     from slam_runtime.report import write_slam_run
-    from slam_runtime.run import odometry_trajectory, run_slam
+    from slam_runtime.run import dead_reckoning, run_slam
 
     cfg = _slam_config(config, filter_, particles, pd_mode)
     if frames is not None and frames < 1:
@@ -488,10 +488,7 @@ def slam_run_cmd(
     target = out_dir or Path("runs") / f"slam_{log.name}_{prof.ref}_{seed}"
     _fresh(target, force)
     res = run_slam(log, prof, cfg, seed, progress=progress, max_frames=frames)
-    odo = odometry_trajectory(log, res.stamps, np.zeros(3))
-    from detectors.geometry import compose, relative
-
-    odo = compose(res.trajectory[0], relative(odo[0], odo))
+    odo = dead_reckoning(log, res)
     settings = {
         "log": log_path.name,
         "log_sha256": _digest(log_path),

@@ -38,7 +38,7 @@ from detectors.geometry import compose, interpolate_poses
 from detectors.logs import SensorLog
 from profiles.errors import DataError, UsageError
 from profiles.profile import DetectorProfile, DetectorSpec, InputRef, Provenance
-from profiles.schema import SensorModel
+from profiles.schema import MeasurementNoise, SensorModel
 
 TARGET_LANDMARK = 1
 
@@ -83,7 +83,35 @@ def true_detections(log: SensorLog, gate: float) -> pd.DataFrame:
     world = compose(sp, np.column_stack([d.range * np.cos(d.bearing), d.range * np.sin(d.bearing), np.zeros(len(d))]))
     lm = index_of(np.asarray(d.descriptors["subject"], dtype=np.int64), log.landmarks.ids)
     dist = np.where(lm >= 0, np.hypot(*(world[:, :2] - log.landmarks.xy[np.maximum(lm, 0)]).T), np.inf)
-    return pd.DataFrame({"stamp": stamp, "range": d.range, "bearing": d.bearing, "landmark_index": lm, "true": dist <= gate})
+    rel = log.landmarks.xy[np.maximum(lm, 0)] - sp[:, :2]
+    r_hat = np.hypot(rel[:, 0], rel[:, 1])
+    b_hat = np.arctan2(rel[:, 1], rel[:, 0]) - sp[:, 2]
+    true = dist <= gate
+    return pd.DataFrame(
+        {
+            "stamp": stamp,
+            "range": d.range,
+            "bearing": d.bearing,
+            "landmark_index": lm,
+            "true": true,
+            "range_residual": np.where(true, d.range - r_hat, np.nan),
+            "bearing_residual": np.where(true, np.mod(d.bearing - b_hat + np.pi, 2 * np.pi) - np.pi, np.nan),
+        }
+    )
+
+
+def fit_noise(dets: pd.DataFrame) -> MeasurementNoise | None:
+    """Robust spread (1.4826 MAD) and median bias of the true detections' range and bearing residuals."""
+    t = dets[dets["true"]]
+    if len(t) < 10:
+        return None
+    out = {}
+    for col, key in (("range_residual", "range"), ("bearing_residual", "bearing")):
+        x = t[col].to_numpy()
+        med = float(np.median(x))
+        out[f"{key}_bias"] = med
+        out[f"{key}_sigma"] = max(float(1.4826 * np.median(np.abs(x - med))), 1e-6)
+    return MeasurementNoise(**out, samples=len(t))
 
 
 def _epochs(log: SensorLog, period: float) -> tuple[np.ndarray, np.ndarray]:
@@ -150,6 +178,7 @@ def calibrate_detections(
         sensor=sensor,
         pd=table,
         clutter=clutter_params(clut, "range_bearing", fov * rmax),
+        noise=fit_noise(truths),
         provenance=Provenance(
             inputs=input_refs or [],
             detcal_version=__version__,

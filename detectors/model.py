@@ -27,7 +27,7 @@ from detectors.circle import hotelling_maha2
 from detectors.logs import SensorModel
 from detectors.raytrace import buffer_zone, count_unoccluded
 from profiles.errors import DataError
-from profiles.schema import ClutterParams, HotellingParams, PdTable
+from profiles.schema import ClutterParams, HotellingParams, MeasurementNoise, PdTable
 
 
 @dataclass(frozen=True, eq=False)
@@ -42,6 +42,7 @@ class DetectionModel:
     clutter: ClutterParams
     sensor: SensorModel
     hotelling: HotellingParams | None = None
+    noise: MeasurementNoise | None = None
     k_sigma: float = 3.0
     buffer_samples: int = 5
 
@@ -59,6 +60,7 @@ class DetectionModel:
             clutter=profile.clutter,
             sensor=profile.sensor,
             hotelling=profile.hotelling,
+            noise=profile.noise,
             k_sigma=profile.detector.k_sigma,
             buffer_samples=profile.detector.buffer_samples,
         )

@@ -24,7 +24,7 @@ from typing import Any, Literal
 
 from pydantic import Field, field_validator, model_validator
 
-from profiles.schema import CircleDetectorParams, ClutterParams, HotellingParams, PdTable, SensorModel, Strict
+from profiles.schema import CircleDetectorParams, ClutterParams, HotellingParams, MeasurementNoise, PdTable, SensorModel, Strict
 
 SCHEMA_VERSION = 1
 NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]*$")
@@ -105,6 +105,7 @@ class DetectorProfile(Strict):
     pd: PdTable
     clutter: ClutterParams
     descriptor_likelihoods: DescriptorLikelihoods | None = None
+    noise: MeasurementNoise | None = Field(default=None, description="measurement noise of true detections (written only when measured)")
     provenance: Provenance
 
     @field_validator("name")

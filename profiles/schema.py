@@ -152,6 +152,21 @@ class PdTable(Strict):
         return np.where(np.asarray(v) < e[0], 0.0, pd[i])
 
 
+class MeasurementNoise(Strict):
+    """Spread of true detections' (range, bearing) about the truth, measured in calibration.
+
+    Robust standard deviations (1.4826 x median absolute deviation) and median
+    biases of the residuals measured - predicted; a filter takes the sigmas as
+    its measurement noise.
+    """
+
+    range_sigma: float = Field(gt=0.0, description="[m]")
+    bearing_sigma: float = Field(gt=0.0, description="[rad]")
+    range_bias: float = Field(default=0.0, description="[m]")
+    bearing_bias: float = Field(default=0.0, description="[rad]")
+    samples: int = Field(default=0, ge=0, description="true detections the figures come from")
+
+
 class ClutterParams(Strict):
     """Poisson clutter: ``rate`` false alarms per scan spread uniformly over ``volume``.
 

@@ -82,6 +82,8 @@ def load_profile_file(path: str | Path) -> DetectorProfile:
 def dump_profile(profile: DetectorProfile, fmt: str = "yaml") -> str:
     """Deterministic text: schema order, floats written exactly (round trip is lossless)."""
     data = profile.model_dump(mode="json")
+    if data.get("noise") is None:  # optional section: absent rather than null, so older profiles keep their bytes
+        data.pop("noise", None)
     if fmt == "json":
         return json.dumps(data, indent=2) + "\n"
     if fmt != "yaml":

@@ -42,14 +42,16 @@ from slam_runtime.measurement import innovation, inverse, predict, sensor_pose
 
 class RBPHDConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    particles: int = Field(default=50, ge=1)
-    sigma_range: float = Field(default=0.1, gt=0.0, description="measurement noise of the landmark centre's range [m]")
-    sigma_bearing: float = Field(default=0.01, gt=0.0, description="... and of its bearing [rad]")
-    birth_weight: float = Field(default=0.1, gt=0.0, le=1.0)
+    particles: int = Field(default=20, ge=1)
+    sigma_range: float | None = Field(
+        default=None, gt=0.0, description="measurement noise of a landmark's range [m]; default: the profile's measured noise, else 0.1"
+    )
+    sigma_bearing: float | None = Field(default=None, gt=0.0, description="... and of its bearing [rad]; default: the profile's, else 0.01")
+    birth_weight: float = Field(default=0.03, gt=0.0, le=1.0, description="weight of a birth component per unexplained measurement")
     adaptive_birth: bool = Field(default=True, description="scale each birth by the share of its measurement the map left unexplained")
-    prune: float = Field(default=1e-4, gt=0.0)
+    prune: float = Field(default=1e-3, gt=0.0)
     merge: float = Field(default=4.0, gt=0.0, description="squared Mahalanobis distance for merging")
-    cap: int = Field(default=250, ge=1, description="components per particle at most")
+    cap: int = Field(default=150, ge=1, description="components per particle at most")
     weighting: Literal["multi_feature", "empty_set", "single_feature", "marginal"] = "multi_feature"
     map_threshold: float = Field(default=0.5, gt=0.0, description="a component of this weight or more is a map feature")
     resample_ess: float = Field(default=0.5, gt=0.0, le=1.0)
@@ -57,7 +59,7 @@ class RBPHDConfig(BaseModel):
     constant_pd: float = Field(default=0.9, gt=0.0, le=1.0, description="P_D inside the field of view in constant mode")
     buffer_zone: bool = True
     descriptor_likelihood: bool = Field(
-        default=False, description="weigh each detection by g_x(d) / g_FA(d) of its descriptors (eqs. 2.26, 5.6); needs a Hotelling model"
+        default=True, description="weigh each detection by g_x(d) / g_FA(d) of its descriptors (eqs. 2.26, 5.6) when the profile has a Hotelling model"
     )
     buffer_sigmas: float = Field(default=2.0, gt=0.0, description="lateral spread of the buffer-zone samples, in position std")
     landmark_radius: float | None = Field(
@@ -89,7 +91,12 @@ class RBPHDSlam:
         self.logw = np.full(p, -np.log(p))
         self.map = GMBatch.empty(p, 0)
         self.birth = GMBatch.empty(p, 0)
-        self.r = np.diag([cfg.sigma_range**2, cfg.sigma_bearing**2])
+        # measurement noise: the settings, else what the calibration measured, else a floor for laser
+        # circle fits, whose own covariance is added per detection
+        noise = model.noise
+        sr = cfg.sigma_range if cfg.sigma_range is not None else (noise.range_sigma if noise is not None else 0.1)
+        sb = cfg.sigma_bearing if cfg.sigma_bearing is not None else (noise.bearing_sigma if noise is not None else 0.01)
+        self.r = np.diag([sr**2, sb**2])
         self.radius = cfg.landmark_radius if cfg.landmark_radius is not None else model.typical_radius()
         self.occlusion_radius = max(self.radius, model.large_radius()) if cfg.phase_average else None
         self.history: list[np.ndarray] = [self.poses.copy()]
@@ -110,7 +117,26 @@ class RBPHDSlam:
         table = self.model.pd_table
         if table.covariate == "range":
             pd = np.where(inside, table.lookup(z[..., 0]), 0.0)
-            return pd, (pd > 0) & (pd < 0.5)
+            if not self.cfg.buffer_zone:
+                return pd, np.zeros((p, j), dtype=bool)
+            # the buffer zone of a range-covariate detector is the edge of its field of view: the
+            # component's +-buffer_sigmas spread across and along the line of sight is partly in, partly out
+            # (a low P_D inside the field of view is real here, so the n_p rule "0 < P_D < 0.5" does not apply)
+            los = mu - sp[:, None, :2]
+            rr = np.maximum(np.hypot(los[..., 0], los[..., 1]), 1e-9)
+            u = los / rr[..., None]
+            perp = np.stack([-u[..., 1], u[..., 0]], axis=-1)
+            s_lat = np.sqrt(np.maximum(np.einsum("pji,pjik,pjk->pj", perp, cov, perp), 0.0))
+            s_rad = np.sqrt(np.maximum(np.einsum("pji,pjik,pjk->pj", u, cov, u), 0.0))
+            k = self.cfg.buffer_sigmas
+            offsets = [(-k, 0.0), (k, 0.0), (0.0, -k), (0.0, k)]
+            ins = [inside]
+            for dl, dr in offsets:
+                ins.append(self.model.in_fov(np.stack([z[..., 0] + dr * s_rad, z[..., 1] + dl * s_lat / rr], axis=-1)))
+            ins = np.stack(ins, axis=-1)
+            mixed = ins.any(axis=-1) & ~ins.all(axis=-1)
+            pd_best = np.where(inside, pd, table.lookup(z[..., 0]))
+            return np.where(mixed, pd_best, pd), mixed
         if scan is None:
             raise ValueError("an n_p profile needs the current scan")
         pd_full = np.zeros((p, j))

@@ -39,6 +39,7 @@ class SlamResult:
     resampled: np.ndarray  # (T,) bool
     components: np.ndarray  # (T,) mean components per particle
     map_ospa: np.ndarray  # (T,) OSPA of the map estimate at each step (NaN without landmark truth)
+    start: np.ndarray = field(default_factory=lambda: np.zeros(3))  # (3,) the pose the filter started from
     metrics: dict = field(default_factory=dict)
 
 
@@ -125,7 +126,7 @@ def run_rbphd(
     for k in it:
         fr = frames[k]
         t0 = time.perf_counter()
-        if fr.odometry.stop > fr.odometry.start:
+        if k > 0 and fr.odometry.stop > fr.odometry.start:  # the start pose is the first frame's
             slam.predict(_mover(log, fr.odometry, motion or {}))
         if fr.kind == "scan":
             scan = log.scans.ranges[fr.rows]
@@ -147,7 +148,7 @@ def run_rbphd(
             osp[k] = ospa(slam.map_estimate()[0], truth_xy, ospa_c, ospa_p)
     traj = slam.trajectory()[1:]
     map_xy, map_w = slam.map_estimate()
-    res = SlamResult(np.array([f.stamp for f in frames]), traj, mean_traj, map_xy, map_w, times, counts, ess, res_, comp, osp)
+    res = SlamResult(np.array([f.stamp for f in frames]), traj, mean_traj, map_xy, map_w, times, counts, ess, res_, comp, osp, start)
     res.metrics = evaluate(log, res, ospa_c, ospa_p)
     return res
 
@@ -167,6 +168,12 @@ def odometry_trajectory(log: SensorLog, stamps: np.ndarray, start: np.ndarray) -
     return out
 
 
+def dead_reckoning(log: SensorLog, res: SlamResult) -> np.ndarray:
+    """(T, 3) the odometry alone through the run's frames, from the filter's start pose."""
+    odo = odometry_trajectory(log, res.stamps, np.zeros(3))
+    return compose(res.start, relative(odo[0], odo))
+
+
 def evaluate(log: SensorLog, res: SlamResult, c: float = 1.0, p: float = 1.0) -> dict:
     """Trajectory RMSE and map OSPA / GOSPA, each beside dead reckoning from the same start.
 
@@ -180,9 +187,7 @@ def evaluate(log: SensorLog, res: SlamResult, c: float = 1.0, p: float = 1.0) ->
         "ms_per_step_median": float(np.median(res.step_ms)),
         "resampled_steps": int(res.resampled.sum()),
     }
-    # dead reckoning through the same frames from the filter's first pose
-    odo = odometry_trajectory(log, res.stamps, np.zeros(3))
-    odo = compose(res.trajectory[0], relative(odo[0], odo))
+    odo = dead_reckoning(log, res)
     for key in ("ground_truth", "gps"):
         ref = log.reference.get(key)
         if ref is None:
