@@ -51,41 +51,32 @@ def test_static_sensor_maps_its_landmarks():
     assert slam.map.total()[0] == pytest.approx(3.0, abs=0.6)
 
 
-def test_rbphd_on_a_clutter_free_park_beats_odometry_and_keeps_more_map_with_the_profile():
-    """No bushes, walls, posts or dust: the filter's trajectory beats dead reckoning, and the
-    calibrated P_D keeps the trees it cannot see in the map where a constant P_D forgets them."""
-    from calib.icp import odometry_poses
-    from calib.sim.park import simulate_park
-    from detectors.geometry import compose, interpolate_poses
-    from detectors.logs import ScanBatch, SensorLog
-    from profiles.store import resolve
-    from slam_runtime.metrics import trajectory_rmse
-    from slam_runtime.run import run_rbphd
-    from tests.conftest import small_park_config
+def test_rbphd_on_a_cluttered_park_beats_odometry_and_the_profile_maps_better_than_constant_pd():
+    """The park of the comparison (benchmarks/configs/small_park.yaml: bushes that fit circles,
+    walls, posts, dust), world seed 1, the whole run. Truth: the simulator's poses and trees.
 
-    cfg = small_park_config()
-    cfg.bushes.count = cfg.walls.count = cfg.posts.count = 0
-    cfg.laser.p_spurious = 0.0
-    log = simulate_park(cfg, 71).log
-    n = 150
-    short = SensorLog(
-        log.name,
-        sensor=log.sensor,
-        scans=ScanBatch(log.scans.stamp[:n], log.scans.ranges[:n]),
-        odometry=log.odometry,
-        reference=log.reference,
-        landmarks=log.landmarks,
-    )
-    ref = log.reference["ground_truth"]
-    truth = interpolate_poses(ref.stamp, ref.poses, short.scans.stamp)
-    odo = trajectory_rmse(compose(truth[0], odometry_poses(short)), truth)
+    The filter with the calibrated profile beats dead reckoning, and its map is closer to the
+    trees (OSPA c = 1 m, p = 1) than with a constant P_D, which forgets what it cannot see. One
+    world only (the margins here are 0.08 m vs 0.26 m and 0.48 vs 0.61); the ten-world figures
+    come from `detcal slam sweep` (see the README).
+    """
+    from pathlib import Path
+
+    from calib.config import load_yaml_model
+    from calib.sim.park import ParkConfig, simulate_park
+    from profiles.store import resolve
+    from slam_runtime.run import run_rbphd
+
+    cfg = load_yaml_model(ParkConfig, Path(__file__).resolve().parents[2] / "benchmarks/configs/small_park.yaml")
+    log = simulate_park(cfg, 1).log
     prof = resolve("sim-park-laser@1.0.0")
-    runs = {m: run_rbphd(short, prof, RBPHDConfig(particles=20, pd_mode=m, cap=150, prune=1e-3), seed=1) for m in ("profile", "constant")}
+    runs = {m: run_rbphd(log, prof, RBPHDConfig(pd_mode=m), seed=0) for m in ("profile", "constant")}
     for r in runs.values():
-        assert np.isfinite(r.trajectory).all()
-    assert runs["profile"].metrics["trajectory_rmse_vs_ground_truth_m"] < odo
-    assert runs["profile"].metrics["map_features"] > runs["constant"].metrics["map_features"]
-    assert runs["profile"].metrics["map_ospa"] < runs["constant"].metrics["map_ospa"]
+        assert np.isfinite(r.trajectory).all() and np.isfinite(r.map_ospa).all()
+    prof_m, const_m = runs["profile"].metrics, runs["constant"].metrics
+    assert prof_m["trajectory_rmse_vs_ground_truth_m"] < 0.5 * prof_m["odometry_rmse_vs_ground_truth_m"]
+    assert prof_m["map_ospa"] < 0.9 * const_m["map_ospa"]
+    assert prof_m["map_features"] > const_m["map_features"]
 
 
 @pytest.mark.parametrize("weighting", ["multi_feature", "marginal", "empty_set", "single_feature"])
