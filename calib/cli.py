@@ -576,7 +576,7 @@ def slam_sweep_cmd(
                     cfg = base.model_copy(update={"rbphd": base.rbphd.model_copy(update={"particles": n, "pd_mode": m})})
                     for sd in seed_list:
                         name = f"{i:02d}_{log.name}_{prof.ref}_{m}_p{n}_s{sd}"
-                        labels = {"log": p.name, "profile": prof.ref, "pd_mode": m, "particles": n, "seed": sd}
+                        labels = {"log": log.name, "profile": prof.ref, "pd_mode": m, "particles": n, "seed": sd}
                         job_list.append(SweepJob(name, log, prof, cfg, sd, labels, frames))
     by = ("profile", "pd_mode", "particles")
     with atomic_output(out_dir, overwrite=force, directory=True) as tmp:
@@ -587,15 +587,23 @@ def slam_sweep_cmd(
         summary = summarise(rows, by, label_keys)
         pd.DataFrame(summary).to_csv(tmp / "summary.csv", index=False, float_format="%.6g")
         (tmp / "config.yaml").write_text(_yaml_dump({"settings": base.model_dump(mode="json"), "logs": [p.name for p, _ in loaded], "seeds": seed_list}))
+    # one column per setting, one row per metric (mean +- standard deviation over its runs)
     t = Table(title=f"sweep of {len(job_list)} runs -> {out_dir}")
-    cols = [c for c in ("trajectory_rmse_vs_ground_truth_m", "odometry_rmse_vs_ground_truth_m", "trajectory_rmse_vs_gps_m", "map_ospa", "map_features", "ms_per_step_mean")]
-    for c in (*by, "runs"):
-        t.add_column(c)
-    shown = [c for c in cols if f"{c}_mean" in summary[0]]
-    for c in shown:
-        t.add_column(c.replace("_vs_ground_truth", "").replace("trajectory_", ""), justify="right")
+    t.add_column("metric")
     for e in summary:
-        t.add_row(*(str(e[c]) for c in (*by, "runs")), *(f"{e[c + '_mean']:.3f} ± {e[c + '_std']:.3f}" for c in shown))
+        t.add_column(f"{e['profile']}\n{e['pd_mode']}, {e['particles']} particles\n{e['runs']} runs", justify="right")
+    shown = [
+        ("trajectory RMSE [m]", "trajectory_rmse_vs_ground_truth_m"),
+        ("dead reckoning RMSE [m]", "odometry_rmse_vs_ground_truth_m"),
+        ("trajectory RMSE vs GPS [m]", "trajectory_rmse_vs_gps_m"),
+        ("dead reckoning vs GPS [m]", "odometry_rmse_vs_gps_m"),
+        ("map OSPA", "map_ospa"),
+        ("map features", "map_features"),
+        ("ms per step", "ms_per_step_mean"),
+    ]
+    for label, key in shown:
+        if f"{key}_mean" in summary[0]:
+            t.add_row(label, *(f"{e[key + '_mean']:.3f} ± {e[key + '_std']:.3f}" for e in summary))
     out.print(t)
 
 
