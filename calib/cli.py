@@ -207,7 +207,7 @@ def simulate_park_cmd(
 def detect_cmd(
     log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A log with laser scans.")],
     out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/detect_<log name>).")] = None,
-    profile: Annotated[str | None, typer.Option(help="Use a profile's detector, Hotelling gate and P_D table (name[@version] or a file).")] = None,
+    profile: Annotated[str | None, typer.Option(help="Use a profile's detector, Hotelling gate and P_D table (name or name@version, or a file).")] = None,
     config: Annotated[Path | None, typer.Option(help="YAML with `detector:` parameters and an optional `hotelling:` gate.")] = None,
     plot: Annotated[int | None, typer.Option("--plot", metavar="SCAN", help="Also draw this scan: clusters, circles, P_D field.")] = None,
     force: Annotated[bool, typer.Option(help="Replace the run folder if it exists.")] = False,
@@ -366,7 +366,7 @@ def calibrate_cmd(
 
 @app.command("validate")
 def validate_cmd(
-    profile_ref: Annotated[str, typer.Argument(metavar="PROFILE", help="name[@version] or a profile file.")],
+    profile_ref: Annotated[str, typer.Argument(metavar="PROFILE", help="name or name@version, or a profile file.")],
     log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A held-out log with truth.")],
     landmarks: Annotated[Path | None, typer.Option(help="Landmark truth: a CSV (id, x, y, radius) or `cloud`.")] = None,
     poses: Annotated[str, typer.Option(help="Scan poses from: auto, reference, icp.")] = "auto",
@@ -455,7 +455,7 @@ def _check_slam_inputs(log, prof) -> None:
 @slam_app.command("run")
 def slam_run_cmd(
     log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A log with odometry and scans (or detections).")],
-    profile_ref: Annotated[str, typer.Option("--profile", help="Detector profile: name[@version] or a file.")],
+    profile_ref: Annotated[str, typer.Option("--profile", help="Detector profile: name or name@version, or a file.")],
     filter_: Annotated[str, typer.Option("--filter", help="Filter: rbphd.")] = "rbphd",
     particles: Annotated[int | None, typer.Option(help="Particles (default: the config's, 20).")] = None,
     seed: Annotated[int, typer.Option(help="Random seed; same log, profile, settings and seed give the same run.")] = 0,
@@ -527,7 +527,7 @@ def _seed_list(text: str) -> list[int]:
 @slam_app.command("sweep")
 def slam_sweep_cmd(
     logs: Annotated[list[Path], typer.Argument(metavar="LOG...", help="Logs to run on (e.g. simulated parks of different seeds).")],
-    profile_refs: Annotated[list[str], typer.Option("--profile", help="Detector profile(s): name[@version] or a file (repeat the option).")],
+    profile_refs: Annotated[list[str], typer.Option("--profile", help="Detector profile(s): name or name@version, or a file (repeat the option).")],
     pd_modes: Annotated[list[str] | None, typer.Option("--pd-mode", help="profile and/or constant (repeat; default: both).")] = None,
     particles: Annotated[list[int] | None, typer.Option("--particles", help="Particle counts (repeat; default: the config's).")] = None,
     seeds: Annotated[str, typer.Option(help="Filter seeds: a count (3), a list (1,3,7) or a range (1-5).")] = "1",
@@ -627,7 +627,7 @@ def profile_list() -> None:
 
 
 @profile_app.command("show")
-def profile_show(ref: Annotated[str, typer.Argument(metavar="PROFILE", help="name[@version] or a file.")]) -> None:
+def profile_show(ref: Annotated[str, typer.Argument(metavar="PROFILE", help="name or name@version, or a file.")]) -> None:
     """Print a profile as YAML."""
     from profiles.store import dump_profile, resolve
 
@@ -645,8 +645,8 @@ def profile_validate(path: Annotated[Path, typer.Argument(metavar="FILE", help="
 
 @profile_app.command("diff")
 def profile_diff(
-    a: Annotated[str, typer.Argument(metavar="A", help="name[@version] or a file.")],
-    b: Annotated[str, typer.Argument(metavar="B", help="name[@version] or a file.")],
+    a: Annotated[str, typer.Argument(metavar="A", help="name or name@version, or a file.")],
+    b: Annotated[str, typer.Argument(metavar="B", help="name or name@version, or a file.")],
 ) -> None:
     """Show the fields in which two profiles differ."""
     from profiles.store import diff_profiles, resolve
@@ -674,7 +674,7 @@ def _short(v) -> str:
 
 @profile_app.command("export")
 def profile_export(
-    ref: Annotated[str, typer.Argument(metavar="PROFILE", help="name[@version] or a file.")],
+    ref: Annotated[str, typer.Argument(metavar="PROFILE", help="name or name@version, or a file.")],
     export_fmt: Annotated[str, typer.Option("--format", help="yaml or json.")] = "yaml",
     dest: Annotated[Path | None, typer.Option("--out", help="Write here instead of standard output (never replaced without --force).")] = None,
     force: Annotated[bool, typer.Option(help="Replace --out if it exists.")] = False,

@@ -101,7 +101,7 @@ def test_simulate_and_info_through_the_console_script(tmp_path):
     assert r.returncode == 0 and "simulate" in r.stdout
 
 
-@pytest.mark.parametrize("cmd", [["log", "info"], ["log", "convert"], ["simulate", "park"], ["log"], ["simulate"]])
+@pytest.mark.parametrize("cmd", [["log", "info"], ["log", "convert"], ["simulate", "park"], ["log"], ["simulate"], ["slam"], ["slam", "run"], ["slam", "sweep"]])
 def test_every_command_has_help(capsys, cmd):
     code, out, _ = run(capsys, *cmd, "--help")
     assert code == 0 and "Usage" in out
