@@ -16,7 +16,7 @@ from detectors.circle import detect_circles
 from detectors.geometry import compose, interpolate_poses, relative
 from detectors.logs import SensorLog
 from detectors.model import DetectionModel
-from profiles.errors import DataError
+from profiles.errors import DataError, UsageError
 from profiles.schema import HotellingParams
 from slam_runtime.metrics import gospa, ospa, trajectory_rmse
 from slam_runtime.motion import ackermann, odometry_increment, unicycle
@@ -44,26 +44,59 @@ class SlamResult:
 
 
 def _mover(log: SensorLog, rows: slice, motion: dict):
+    """Motion over the odometry rows ``rows`` (those up to a frame): ``move(poses, rng) -> poses``.
+
+    A velocity or Ackermann command holds until the next row, so the interval
+    from the previous row of the whole log (not of the frame) to row k is
+    driven by that previous row. Pose odometry (CARMEN ODOM) moves by the
+    increment from the previous row's pose.
+    """
     o = log.odometry
+    start = rows.start or 0
     vals, stamps = o.values[rows], o.stamp[rows]
-    prev = np.concatenate([[stamps[0] if stamps.size else 0], stamps[:-1]])
+    before = o.stamp[start - 1] if start > 0 else (stamps[0] if stamps.size else 0)
+    prev = np.concatenate([[before], stamps[:-1]])
+    # a velocity or Ackermann command holds until the next row: the interval ending at row k
+    # is driven by row k - 1 (the first row of the log has no interval before it)
+    held = np.vstack([o.values[start - 1][None] if start > 0 else vals[:1], vals[:-1]]) if len(vals) else vals
+    if o.kind == "pose":
+        base = o.values[start - 1] if start > 0 else (vals[0] if len(vals) else np.zeros(3))
+        chain = np.vstack([base[None], vals])
+        incs = relative(chain[:-1], chain[1:])
 
     def move(poses, rng):
         for k in range(vals.shape[0]):  # rows of one frame (a handful); each vectorised over particles
-            if o.kind == "increment":
+            if o.kind == "pose":
+                poses = odometry_increment(poses, incs[k], rng, **motion.get("increment", {}))
+            elif o.kind == "increment":
                 poses = odometry_increment(poses, vals[k], rng, **motion.get("increment", {}))
             elif o.kind == "velocity":
                 dt = (stamps[k] - prev[k]) / 1e9
-                poses = unicycle(poses, vals[k, 0], vals[k, 1], dt, rng, **motion.get("velocity", {}))
+                poses = unicycle(poses, held[k, 0], held[k, 1], dt, rng, **motion.get("velocity", {}))
             elif o.kind == "ackermann":
                 dt = (stamps[k] - prev[k]) / 1e9
                 veh = log.vehicle
-                poses = ackermann(poses, vals[k, 0], vals[k, 1], dt, veh.wheelbase, veh.encoder_offset, rng, **motion.get("ackermann", {}))
+                poses = ackermann(poses, held[k, 0], held[k, 1], dt, veh.wheelbase, veh.encoder_offset, rng, **motion.get("ackermann", {}))
             else:
                 raise DataError(f"odometry of kind {o.kind!r} cannot drive the filter")
         return poses
 
     return move
+
+
+def _same_beams(profile, sensor) -> None:
+    """An n_p table holds for the beam geometry it was measured with, and no other."""
+    p = profile.sensor
+    same = p.n_beams == sensor.n_beams and np.isclose(p.angle_min, sensor.angle_min, atol=1e-6) and np.isclose(
+        p.angle_increment, sensor.angle_increment, atol=1e-9
+    )
+    if not same:
+        raise UsageError(
+            f"profile {profile.ref} was calibrated for {p.n_beams} beams from {np.degrees(p.angle_min):.2f} deg every "
+            f"{np.degrees(p.angle_increment):.4f} deg; this log's laser has {sensor.n_beams} from "
+            f"{np.degrees(sensor.angle_min):.2f} deg every {np.degrees(sensor.angle_increment):.4f} deg "
+            "(calibrate a profile for this laser with detcal calibrate)"
+        )
 
 
 def run_slam(log: SensorLog, profile, cfg: SlamConfig, seed: int, *, progress=None, max_frames: int | None = None) -> SlamResult:
@@ -102,6 +135,8 @@ def run_rbphd(
         raise DataError(f"log {log.name!r}: profile {profile.ref} expects detections in the log, and it has none")
     model = DetectionModel.from_profile(profile)
     sensor = log.sensor if log.sensor is not None else profile.sensor
+    if profile.pd.covariate == "n_p" and log.scans is not None:
+        _same_beams(profile, sensor)
     mount = np.array([sensor.mount.x, sensor.mount.y, sensor.mount.theta])
     frames = [f for f in log.frames() if f.kind in ("scan", "detections")][:max_frames]
     if not frames:

@@ -95,3 +95,15 @@ def test_slam_sweep_tabulates_runs(tmp_path, capsys, park_log):
     code, _, err = run(capsys, "slam", "sweep", str(park_log), "--profile", "sim-park-laser", "--pd-mode", "fixed", "--out", str(tmp_path / "s2"))
     assert code == 2
     assert_one_line_error(err, "--pd-mode: expected one of profile, constant")
+
+
+def test_an_n_p_profile_refuses_a_laser_of_another_beam_geometry(tmp_path, capsys, park_log):
+    from profiles.store import dump_profile, resolve
+
+    prof = resolve("sim-park-laser@1.0.0")
+    other = prof.model_copy(update={"name": "coarse", "sensor": prof.sensor.model_copy(update={"n_beams": 181, "angle_increment": 0.017453292519943295})})
+    (tmp_path / "coarse.yaml").write_text(dump_profile(other))
+    code, _, err = run(capsys, "slam", "run", str(park_log), "--profile", str(tmp_path / "coarse.yaml"), "--out", str(tmp_path / "r"))
+    assert code == 2
+    assert_one_line_error(err, "calibrated for 181 beams from -90.00 deg every 1.0000 deg; this log's laser has 361")
+    assert not (tmp_path / "r").exists()
