@@ -477,7 +477,7 @@ def slam_run_cmd(
     from calib.progress import progress
     from profiles.store import resolve
     from slam_runtime.report import write_slam_run
-    from slam_runtime.run import dead_reckoning, run_slam
+    from slam_runtime.run import run_slam
 
     cfg = _slam_config(config, filter_, particles, pd_mode)
     if frames is not None and frames < 1:
@@ -488,7 +488,6 @@ def slam_run_cmd(
     target = out_dir or Path("runs") / f"slam_{log.name}_{prof.ref}_{seed}"
     _fresh(target, force)
     res = run_slam(log, prof, cfg, seed, progress=progress, max_frames=frames)
-    odo = dead_reckoning(log, res)
     settings = {
         "log": log_path.name,
         "log_sha256": _digest(log_path),
@@ -497,7 +496,7 @@ def slam_run_cmd(
         "frames": frames,
         "settings": cfg.model_dump(mode="json"),
     }
-    write_slam_run(log, res, target, settings, overwrite=force, odometry=odo)
+    write_slam_run(log, res, target, settings, overwrite=force)
     out.print(_summary_table(f"RB-PHD-SLAM on {log.name} with {prof.ref} -> {target}", res.metrics))
 
 

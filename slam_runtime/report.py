@@ -39,13 +39,13 @@ def _yaml(data: dict) -> str:
     return yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=120)
 
 
-def write_slam_run(log: SensorLog, res: SlamResult, out: Path, config: dict, *, overwrite: bool = False, odometry: np.ndarray | None = None) -> list[str]:
+def write_slam_run(log: SensorLog, res: SlamResult, out: Path, config: dict, *, overwrite: bool = False) -> list[str]:
     """Write the run folder; returns the figure names."""
     with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
         tmp.mkdir()
         (tmp / "config.yaml").write_text(_yaml(config))
         (tmp / "metrics.yaml").write_text(_yaml({k: (float(v) if isinstance(v, np.floating) else v) for k, v in res.metrics.items()}))
-        odo = odometry if odometry is not None else np.full_like(res.trajectory, np.nan)
+        odo = res.odometry if res.odometry is not None else np.full_like(res.trajectory, np.nan)
         _table(
             tmp / "trajectory.csv",
             ["stamp_ns", "x", "y", "theta", "mean_x", "mean_y", "mean_theta", "odometry_x", "odometry_y", "odometry_theta"],

@@ -40,6 +40,7 @@ class SlamResult:
     components: np.ndarray  # (T,) mean components per particle
     map_ospa: np.ndarray  # (T,) OSPA of the map estimate at each step (NaN without landmark truth)
     start: np.ndarray = field(default_factory=lambda: np.zeros(3))  # (3,) the pose the filter started from
+    odometry: np.ndarray | None = None  # (T, 3) dead reckoning through the same frames (set by evaluate)
     metrics: dict = field(default_factory=dict)
 
 
@@ -222,7 +223,7 @@ def evaluate(log: SensorLog, res: SlamResult, c: float = 1.0, p: float = 1.0) ->
         "ms_per_step_median": float(np.median(res.step_ms)),
         "resampled_steps": int(res.resampled.sum()),
     }
-    odo = dead_reckoning(log, res)
+    odo = res.odometry = dead_reckoning(log, res)
     for key in ("ground_truth", "gps"):
         ref = log.reference.get(key)
         if ref is None:

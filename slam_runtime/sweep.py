@@ -34,7 +34,7 @@ class SweepJob:
 def run_job(job: SweepJob, folder: Path) -> dict:
     """One run: filter, run folder, and the row for the sweep table."""
     from slam_runtime.report import write_slam_run
-    from slam_runtime.run import dead_reckoning, run_slam
+    from slam_runtime.run import run_slam
 
     res = run_slam(job.log, job.profile, job.config, job.seed, max_frames=job.max_frames)
     cfg = {
@@ -44,7 +44,7 @@ def run_job(job: SweepJob, folder: Path) -> dict:
         "frames": job.max_frames,
         "settings": job.config.model_dump(mode="json"),
     }
-    write_slam_run(job.log, res, folder / job.name, cfg, overwrite=False, odometry=dead_reckoning(job.log, res))
+    write_slam_run(job.log, res, folder / job.name, cfg, overwrite=False)
     return {**job.labels, **{k: v for k, v in res.metrics.items() if not isinstance(v, str)}}
 
 
