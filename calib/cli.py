@@ -443,15 +443,6 @@ def _slam_config(config: Path | None, filter_: str, particles: int | None, pd_mo
     return cfg.model_copy(update={"rbphd": cfg.rbphd.model_copy(update=upd)}) if upd else cfg
 
 
-def _check_slam_inputs(log, prof) -> None:
-    if prof.detector.kind == "circle2d" and log.scans is None:
-        raise UsageError(f"{log.name}: profile {prof.ref} detects circles in laser scans, and this log has none")
-    if prof.detector.kind != "circle2d" and log.detections is None:
-        raise UsageError(f"{log.name}: profile {prof.ref} takes the log's detections, and this log has none")
-    if log.odometry is None:
-        raise UsageError(f"{log.name}: no odometry to drive the filter")
-
-
 @slam_app.command("run")
 def slam_run_cmd(
     log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A log with odometry and scans (or detections).")],
@@ -477,20 +468,20 @@ def slam_run_cmd(
     from calib.progress import progress
     from profiles.store import resolve
     from slam_runtime.report import write_slam_run
-    from slam_runtime.run import run_slam
+    from slam_runtime.run import check_inputs, run_slam
 
     cfg = _slam_config(config, filter_, particles, pd_mode)
     if frames is not None and frames < 1:
         raise UsageError(f"--frames: expected a positive integer, got {frames}")
     prof = resolve(profile_ref)
     log = _read(log_path, fmt, max_backstep, laser, range_max, robot, scan_topic, odom_topic, truth_topic)
-    _check_slam_inputs(log, prof)
+    check_inputs(log, prof)
     target = out_dir or Path("runs") / f"slam_{log.name}_{prof.ref}_{seed}"
     _fresh(target, force)
     res = run_slam(log, prof, cfg, seed, progress=progress, max_frames=frames)
     settings = {
         "log": log_path.name,
-        "log_sha256": _digest(log_path),
+        "inputs": [r.model_dump() for r in _input_refs(log_path, log)],
         "profile": prof.ref,
         "seed": seed,
         "frames": frames,
@@ -500,10 +491,12 @@ def slam_run_cmd(
     out.print(_summary_table(f"RB-PHD-SLAM on {log.name} with {prof.ref} -> {target}", res.metrics))
 
 
-def _digest(path: Path) -> str:
+def _input_refs(path: Path, log) -> list:
+    """The log's input files with their sha256 (a folder's files as its reader hashed them)."""
     from calib.io.common import file_digest
+    from profiles.profile import InputRef
 
-    return file_digest(path) if path.is_file() else "folder"
+    return _source_refs(log) or ([InputRef(name=path.name, sha256=file_digest(path))] if path.is_file() else [])
 
 
 def _seed_list(text: str) -> list[int]:
@@ -544,6 +537,7 @@ def slam_sweep_cmd(
 
     from calib.io.atomic import atomic_output
     from profiles.store import resolve
+    from slam_runtime.run import check_inputs
     from slam_runtime.sweep import SweepJob, run_sweep, summarise
 
     modes = list(dict.fromkeys(pd_modes or list(PD_MODES)))
@@ -564,7 +558,7 @@ def slam_sweep_cmd(
     for p in logs:
         log = _read(p, fmt, max_backstep, "front", None, robot, None, None, None)
         for prof in profs:
-            _check_slam_inputs(log, prof)
+            check_inputs(log, prof)
         loaded.append((p, log))
     _fresh(out_dir, force)
     job_list = []

@@ -66,25 +66,24 @@ class DetectionModel:
         )
 
     # ------------------------------------------------------------------ P_D
-    def typical_radius(self, default: float = 0.2) -> float:
-        """The radius of a typical true detection (the Hotelling mean), for ray tracing map features."""
+    def radius_quantile(self, z: float, default: float) -> float:
+        """Radius of true detections ``z`` standard deviations above the Hotelling mean (log-normal
+        when the model has ``log_radius``), or ``default`` without a radius in the model."""
         h = self.hotelling
-        if h is not None and "log_radius" in h.names:
-            return float(np.exp(h.mean[h.names.index("log_radius")]))
-        if h is not None and "radius" in h.names:
-            return float(h.mean[h.names.index("radius")])
+        for name, log in (("log_radius", True), ("radius", False)):
+            if h is not None and name in h.names:
+                i = h.names.index(name)
+                v = h.mean[i] + z * np.sqrt(h.covariance[i][i])
+                return float(np.exp(v) if log else v)
         return default
 
-    def large_radius(self, default: float = 0.5, z: float = 2.326) -> float:
+    def typical_radius(self, default: float = 0.2) -> float:
+        """The radius of a typical true detection (the Hotelling mean), for ray tracing map features."""
+        return self.radius_quantile(0.0, default)
+
+    def large_radius(self, default: float = 0.5) -> float:
         """A generous radius: the Hotelling model's 99th percentile of true radii (occlusion tests)."""
-        h = self.hotelling
-        if h is not None and "log_radius" in h.names:
-            i = h.names.index("log_radius")
-            return float(np.exp(h.mean[i] + z * np.sqrt(h.covariance[i][i])))
-        if h is not None and "radius" in h.names:
-            i = h.names.index("radius")
-            return float(h.mean[i] + z * np.sqrt(h.covariance[i][i]))
-        return max(default, self.typical_radius())
+        return self.radius_quantile(2.326, max(default, self.typical_radius()))
 
     def pd_of_np(self, n_p: np.ndarray) -> np.ndarray:
         return self.pd_table.lookup(n_p)

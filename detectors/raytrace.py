@@ -157,10 +157,8 @@ def buffer_zone(
     meas = np.asarray(ranges)
     common = {"range_sigma": range_sigma, "k_sigma": k_sigma, "range_max": range_max}
     if phase_average:
-        ang = np.asarray(angles, dtype=np.float64)
         n_bar = expected_unoccluded(
-            poses, float(ang[0]), float(ang[1] - ang[0]) if ang.size > 1 else 1.0, ang.size, meas,
-            pts.reshape(s_, n * samples, 2), float(radii[0]) if n else 0.0, occlusion_radius=occlusion_radius, **common,
+            poses, angles, meas, pts.reshape(s_, n * samples, 2), float(radii[0]) if n else 0.0, occlusion_radius=occlusion_radius, **common
         )
         pd_s = expected_pd(n_bar, pd_of_np).reshape(s_, n, samples)
     else:
@@ -176,9 +174,7 @@ def buffer_zone(
 
 def expected_unoccluded(
     sensor_poses: np.ndarray,
-    angle_min: float,
-    angle_increment: float,
-    n_beams: int,
+    angles: np.ndarray,
     ranges: np.ndarray,
     centres: np.ndarray,
     radius: float,
@@ -208,8 +204,12 @@ def expected_unoccluded(
     feature's radius is not known; a generous one keeps a large trunk's own
     surface from counting as its occluder.
 
-    sensor_poses (S, 3); ranges (B,) shared or (S, B); centres (S, L, 2) -> (S, L) float.
+    sensor_poses (S, 3); angles (B,) evenly spaced, sensor frame; ranges (B,) shared or
+    (S, B); centres (S, L, 2) -> (S, L) float.
     """
+    angles = np.asarray(angles, dtype=np.float64)
+    n_beams = angles.size
+    angle_min, angle_increment = float(angles[0]), float(angles[1] - angles[0]) if n_beams > 1 else 1.0
     poses = np.atleast_2d(np.asarray(sensor_poses, dtype=np.float64))
     centres = np.asarray(centres, dtype=np.float64).reshape(poses.shape[0], -1, 2)
     meas = np.asarray(ranges, dtype=np.float64).reshape(-1, n_beams)

@@ -70,6 +70,18 @@ class RBPHDConfig(BaseModel):
     )
 
 
+def _spread(sp: np.ndarray, mu: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Range (P, J) of each component from its particle's sensor, and its position std across
+    and along the line of sight (P, J) each."""
+    los = mu - sp[:, None, :2]
+    rr = np.maximum(np.hypot(los[..., 0], los[..., 1]), 1e-9)
+    u = los / rr[..., None]
+    perp = np.stack([-u[..., 1], u[..., 0]], axis=-1)
+    s_lat = np.sqrt(np.maximum(np.einsum("pji,pjik,pjk->pj", perp, cov, perp), 0.0))
+    s_rad = np.sqrt(np.maximum(np.einsum("pji,pjik,pjk->pj", u, cov, u), 0.0))
+    return rr, s_lat, s_rad
+
+
 @dataclass
 class StepInfo:
     n_measurements: int
@@ -116,27 +128,22 @@ class RBPHDSlam:
             return np.where(inside, self.cfg.constant_pd, 0.0), np.zeros((p, j), dtype=bool)
         table = self.model.pd_table
         if table.covariate == "range":
-            pd = np.where(inside, table.lookup(z[..., 0]), 0.0)
+            full = table.lookup(z[..., 0])
+            pd = np.where(inside, full, 0.0)
             if not self.cfg.buffer_zone:
                 return pd, np.zeros((p, j), dtype=bool)
             # the buffer zone of a range-covariate detector is the edge of its field of view: the
             # component's +-buffer_sigmas spread across and along the line of sight is partly in, partly out
             # (a low P_D inside the field of view is real here, so the n_p rule "0 < P_D < 0.5" does not apply)
-            los = mu - sp[:, None, :2]
-            rr = np.maximum(np.hypot(los[..., 0], los[..., 1]), 1e-9)
-            u = los / rr[..., None]
-            perp = np.stack([-u[..., 1], u[..., 0]], axis=-1)
-            s_lat = np.sqrt(np.maximum(np.einsum("pji,pjik,pjk->pj", perp, cov, perp), 0.0))
-            s_rad = np.sqrt(np.maximum(np.einsum("pji,pjik,pjk->pj", u, cov, u), 0.0))
+            rr, s_lat, s_rad = _spread(sp, mu, cov)
             k = self.cfg.buffer_sigmas
-            offsets = [(-k, 0.0), (k, 0.0), (0.0, -k), (0.0, k)]
-            ins = [inside]
-            for dl, dr in offsets:
-                ins.append(self.model.in_fov(np.stack([z[..., 0] + dr * s_rad, z[..., 1] + dl * s_lat / rr], axis=-1)))
+            ins = [inside] + [
+                self.model.in_fov(np.stack([z[..., 0] + dr * s_rad, z[..., 1] + dl * s_lat / rr], axis=-1))
+                for dl, dr in ((-k, 0.0), (k, 0.0), (0.0, -k), (0.0, k))
+            ]
             ins = np.stack(ins, axis=-1)
             mixed = ins.any(axis=-1) & ~ins.all(axis=-1)
-            pd_best = np.where(inside, pd, table.lookup(z[..., 0]))
-            return np.where(mixed, pd_best, pd), mixed
+            return np.where(mixed, full, pd), mixed
         if scan is None:
             raise ValueError("an n_p profile needs the current scan")
         pd_full = np.zeros((p, j))
@@ -153,17 +160,13 @@ class RBPHDSlam:
         ang = sensor.angles()
         if self.cfg.buffer_zone:
             # sec. 6.1: samples across the line of sight, spread by the position std
-            los = mu_v - sp[:, None, :2]
-            perp = np.stack([-los[..., 1], los[..., 0]], axis=-1) / np.maximum(np.hypot(los[..., 0], los[..., 1]), 1e-9)[..., None]
-            lat = self.cfg.buffer_sigmas * np.sqrt(np.maximum(np.einsum("pji,pjik,pjk->pj", perp, cov_v, perp), 0.0))
+            lat = self.cfg.buffer_sigmas * _spread(sp, mu_v, cov_v)[1]
             pd_v, buf_v = buffer_zone(
                 sp, ang, scan, mu_v, self.radius, lat, table.lookup, samples=self.model.buffer_samples,
                 phase_average=self.cfg.phase_average, occlusion_radius=self.occlusion_radius, **common,
             )
         elif self.cfg.phase_average:
-            n_bar = expected_unoccluded(
-                sp, float(ang[0]), float(ang[1] - ang[0]), ang.size, scan, mu_v, self.radius, occlusion_radius=self.occlusion_radius, **common
-            )
+            n_bar = expected_unoccluded(sp, ang, scan, mu_v, self.radius, occlusion_radius=self.occlusion_radius, **common)
             pd_v, buf_v = expected_pd(n_bar, table.lookup), np.zeros((p, jf), dtype=bool)
         else:
             n_p, _ = count_unoccluded(sp, ang, scan, mu_v, self.radius, **common)
@@ -212,9 +215,9 @@ class RBPHDSlam:
             gained = w_det.sum(axis=2)
             # eq. 3.21: no weight lost in the buffer zone -- up to one feature's worth: a component
             # whose P_D is underestimated gathers weight 1 / P_D, which the rule would otherwise lock in
-            keep = np.minimum(w, 1.0)
-            short = buf & (gained + missed < keep)
-            missed = np.where(short, keep - gained, missed)
+            protect = np.minimum(w, 1.0)
+            short = buf & (gained + missed < protect)
+            missed = np.where(short, protect - gained, missed)
         # EKF-updated components (eqs. 3.17-3.18) only for the (component, measurement) pairs whose
         # weight survives pruning: the rest would be dropped by prune_merge anyway
         keep = (w_det > cfg.prune).reshape(p, j * m)

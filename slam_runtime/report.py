@@ -2,7 +2,7 @@
 
 Layout::
 
-    config.yaml       filter settings, profile reference, seed, log and its sha256
+    config.yaml       filter settings, profile reference, seed, the input files and their sha256
     metrics.yaml      trajectory RMSE (filter, weighted mean, dead reckoning), map OSPA/GOSPA, timings
     trajectory.csv    stamp_ns, best particle x/y/theta, weighted mean x/y/theta, dead reckoning x/y/theta
     map.csv           x, y, weight of the map estimate (components of weight >= map_threshold)

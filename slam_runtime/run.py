@@ -85,8 +85,20 @@ def _mover(log: SensorLog, rows: slice, motion: dict):
     return move
 
 
+def check_inputs(log: SensorLog, profile) -> None:
+    """Refuse a log this profile cannot run on: the measurements it needs, odometry, and for an
+    n_p table the beam geometry it was measured with (it holds for no other)."""
+    if profile.detector.kind == "circle2d" and log.scans is None:
+        raise UsageError(f"{log.name}: profile {profile.ref} detects circles in laser scans, and this log has none")
+    if profile.detector.kind != "circle2d" and log.detections is None:
+        raise UsageError(f"{log.name}: profile {profile.ref} takes the log's detections, and this log has none")
+    if log.odometry is None:
+        raise UsageError(f"{log.name}: no odometry to drive the filter")
+    if profile.pd.covariate == "n_p" and log.sensor is not None:
+        _same_beams(profile, log.sensor)
+
+
 def _same_beams(profile, sensor) -> None:
-    """An n_p table holds for the beam geometry it was measured with, and no other."""
     p = profile.sensor
     same = p.n_beams == sensor.n_beams and np.isclose(p.angle_min, sensor.angle_min, atol=1e-6) and np.isclose(
         p.angle_increment, sensor.angle_increment, atol=1e-9
@@ -128,18 +140,11 @@ def run_rbphd(
     comes from the profile's covariate (range). ``motion`` overrides the
     motion-model noise, e.g. ``{"increment": {"a_trans": 0.1}}``.
     """
-    if log.odometry is None:
-        raise DataError(f"log {log.name!r}: no odometry to drive the filter")
-    if profile.detector.kind == "circle2d" and log.scans is None:
-        raise DataError(f"log {log.name!r}: profile {profile.ref} detects circles in laser scans, and the log has none")
-    if profile.detector.kind != "circle2d" and log.detections is None:
-        raise DataError(f"log {log.name!r}: profile {profile.ref} expects detections in the log, and it has none")
+    check_inputs(log, profile)
     model = DetectionModel.from_profile(profile)
     sensor = log.sensor if log.sensor is not None else profile.sensor
-    if profile.pd.covariate == "n_p" and log.scans is not None:
-        _same_beams(profile, sensor)
     mount = np.array([sensor.mount.x, sensor.mount.y, sensor.mount.theta])
-    frames = [f for f in log.frames() if f.kind in ("scan", "detections")][:max_frames]
+    frames = list(log.frames())[:max_frames]
     if not frames:
         raise DataError(f"log {log.name!r}: no scans or detections to run on")
     # start at the true first pose when the log has one (map and truth then share a frame);
