@@ -1,0 +1,154 @@
+"""``detcal calibrate``, ``detcal validate`` and ``detcal icp``."""
+
+from __future__ import annotations
+
+import os
+import shlex
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from calib.cli.common import ReaderArgs, fresh, out, reader_options, summary_table
+from profiles.errors import UsageError
+
+POSE_SOURCES = ("auto", "reference", "icp")
+
+RobotsOpt = Annotated[list[int] | None, typer.Option("--robot", help="UTIAS: robots to read from a dataset folder (repeat the option).")]
+
+
+def check_poses(poses: str | None) -> None:
+    if poses is not None and poses not in POSE_SOURCES:
+        raise UsageError(f"--poses: expected {', '.join(POSE_SOURCES)}, got {poses!r}")
+
+
+def typed_command(name: str) -> str:
+    """The command as typed; absolute paths lose their folders (a profile names inputs by file name and hash)."""
+    words = [Path(a).name if os.path.isabs(a) else a for a in sys.argv[2:]]
+    return " ".join([f"detcal {name}", *(shlex.quote(w) for w in words)])
+
+
+@reader_options("fmt", "max_backstep", "laser", "range_max", "scan_topic", "truth_topic")
+def calibrate_cmd(
+    reader: ReaderArgs,
+    logs: Annotated[list[Path] | None, typer.Argument(metavar="[LOG]...", help="Logs with truth; none: the embedded default park log.")] = None,
+    name: Annotated[str | None, typer.Option(help="Profile name (default: sim-park-laser for the default log, else the first log's name).")] = None,
+    version: Annotated[str, typer.Option("--version", help="Profile version MAJOR.MINOR.PATCH; an existing one is never replaced silently.")] = "1.0.0",
+    description: Annotated[str, typer.Option(help="Free text stored in the profile.")] = "",
+    config: Annotated[Path | None, typer.Option(help="YAML calibration config (detector, descriptors, confidence, gate, pd, ...).")] = None,
+    landmarks: Annotated[
+        Path | None, typer.Option(help="Landmark truth: a CSV (id, x, y, radius; world frame) or `cloud` (recurring circles of the registered scans).")
+    ] = None,
+    poses: Annotated[str | None, typer.Option(help="Scan poses from: auto (truth if the log has it, else ICP), reference, icp.")] = None,
+    out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/calibrate_<name>@<version>).")] = None,
+    profiles_dir: Annotated[Path | None, typer.Option(help="Where to save the profile (default: the user profile folder).")] = None,
+    force: Annotated[bool, typer.Option(help="Replace an existing run folder and profile version.")] = False,
+    robot: RobotsOpt = None,
+) -> None:
+    """Calibrate a detector on logs with truth -> a profile and a report.
+
+    Laser logs: the circle detector, P_D against n_p, Hotelling ellipsoid, Poisson clutter.
+    Detection-level logs (UTIAS): P_D against range, clutter from non-landmark detections.
+    """
+    from calib.calibrate import CalibrateConfig, calibrate
+    from calib.config import load_yaml_model
+    from calib.default import DEFAULT_PROFILE_NAME, default_log
+    from calib.io.common import file_digest
+    from calib.runs import write_calibration_run
+    from profiles.profile import NAME_RE, SEMVER_RE, InputRef
+    from profiles.store import save_profile
+
+    check_poses(poses)
+    if not SEMVER_RE.match(version):
+        raise UsageError(f"--version: {version!r} is not MAJOR.MINOR.PATCH")
+    if logs:
+        loaded, paths = reader.read_many(logs, robot)
+        prof_name = name or loaded[0].name.lower().replace("_", "-")
+    else:
+        log, path = default_log()
+        loaded = [log]
+        prof_name = name or DEFAULT_PROFILE_NAME
+        paths = [path]
+    refs = [InputRef(name=p.name, sha256=file_digest(p)) for p in dict.fromkeys(paths)]
+    if not NAME_RE.match(prof_name):
+        raise UsageError(f"--name: {prof_name!r} must match [a-z0-9][a-z0-9._-]*")
+    target = out_dir or Path("runs") / f"calibrate_{prof_name}@{version}"
+    fresh(target, force)
+    command = typed_command("calibrate")
+    # the logs decide which calibration (and so which config schema) applies
+    if all(lg.scans is None and lg.detections is not None for lg in loaded):
+        from calib.detlevel import DetectionCalibConfig, calibrate_detections, input_refs_for, write_detection_run
+
+        dcfg = load_yaml_model(DetectionCalibConfig, config)
+        refs = [r for lg in loaded for r in input_refs_for(lg)] or refs
+        cal = calibrate_detections(loaded, dcfg, name=prof_name, version=version, description=description, input_refs=refs, command=command)
+        figures = write_detection_run(cal, target, overwrite=force)
+    else:
+        cfg = load_yaml_model(CalibrateConfig, config)
+        if poses is not None:
+            cfg = cfg.model_copy(update={"poses": poses})
+        cal = calibrate(
+            loaded, cfg, name=prof_name, version=version, description=description, landmarks_csv=landmarks, input_refs=refs, command=command
+        )
+        figures = write_calibration_run(cal, target, overwrite=force)
+    saved, status = save_profile(cal.profile, profiles_dir, force=force)
+    p = cal.profile
+    rows = {
+        "profile": f"{p.ref} ({status}: {saved})",
+        "run folder": f"{target} ({len(figures)} figures)",
+        **{k: v for k, v in cal.summary.items() if k not in ("logs",)},
+        "P_D table": ", ".join(f"{int(e) if float(e).is_integer() else e}:{v:.2f}" for e, v in zip(p.pd.edges[:-1], p.pd.pd, strict=True)),
+    }
+    out.print(summary_table(f"calibration of {', '.join(cal.summary['logs'])}", rows))
+
+
+@reader_options("fmt", "max_backstep", "laser", "range_max", "scan_topic", "truth_topic")
+def validate_cmd(
+    profile_ref: Annotated[str, typer.Argument(metavar="PROFILE", help="name or name@version, or a profile file.")],
+    log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A held-out log with truth.")],
+    reader: ReaderArgs,
+    landmarks: Annotated[Path | None, typer.Option(help="Landmark truth: a CSV (id, x, y, radius) or `cloud`.")] = None,
+    poses: Annotated[str, typer.Option(help="Scan poses from: auto, reference, icp.")] = "auto",
+    out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/validate_<profile>_<log>).")] = None,
+    force: Annotated[bool, typer.Option(help="Replace the run folder if it exists.")] = False,
+    robot: RobotsOpt = None,
+) -> None:
+    """Check a profile on a held-out log: P_D reliability (ECE), false alarms per scan, Hotelling coverage."""
+    from calib.validate import validate, write_validation_run
+    from profiles.store import resolve
+
+    check_poses(poses)
+    prof = resolve(profile_ref)
+    loaded, _ = reader.read_many([log_path], robot)
+    log = loaded[0]
+    target = out_dir or Path("runs") / f"validate_{prof.ref}_{log.name}"
+    fresh(target, force)
+    if prof.detector.kind == "external":
+        from calib.detlevel import validate_detections
+
+        v = validate_detections(prof, loaded)
+    else:
+        if len(loaded) > 1:
+            raise UsageError("validate one laser log at a time")
+        v = validate(prof, log, landmarks_csv=landmarks, poses=poses)
+    write_validation_run(v, target, overwrite=force)
+    out.print(summary_table(f"validation of {prof.ref} on {log.name} -> {target}", v.summary))
+
+
+@reader_options("fmt", "max_backstep", "laser", "range_max", "scan_topic")
+def icp_cmd(
+    log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A log with laser scans and odometry.")],
+    reader: ReaderArgs,
+    out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/icp_<log name>).")] = None,
+    relations: Annotated[Path | None, typer.Option(help="Benchmark relations (t1 t2 x y z roll pitch yaw) to score the poses against.")] = None,
+    force: Annotated[bool, typer.Option(help="Replace the run folder if it exists.")] = False,
+) -> None:
+    """Ground truth from the scans: sequential point-to-line ICP, loop closures, pose graph."""
+    from calib.groundtruth import write_icp_run
+
+    log = reader.read(log_path)
+    target = out_dir or Path("runs") / f"icp_{log.name}"
+    fresh(target, force)
+    summary = write_icp_run(log, target, relations=relations, overwrite=force)
+    out.print(summary_table(f"ICP ground truth of {log.name} -> {target}", summary))

@@ -1,0 +1,138 @@
+"""What every command group shares: consoles, the reader options (defined once), output checks, tables.
+
+Reader options are declared once here and added to a command by
+:func:`reader_options`, which hands the command a single
+:class:`calib.io.registry.ReadOptions` object: a command names the options it
+offers, typer shows them in its help, and the body never repeats them.
+"""
+
+from __future__ import annotations
+
+import functools
+import inspect
+import typing
+from collections.abc import Callable
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from pydantic import ValidationError
+from rich.console import Console
+from rich.table import Table
+
+from profiles.errors import UsageError
+
+out = Console(highlight=False, markup=False)  # file names may hold brackets
+
+READER_OPTIONS: dict[str, tuple[type, object, typer.models.OptionInfo]] = {
+    "fmt": (
+        str | None,
+        None,
+        typer.Option("--format", "-f", help="Input format: native, carmen, rosbag, victoria, utias, kitti (default: from the path)."),
+    ),
+    "max_backstep": (float, 1.0, typer.Option(help="Tolerated step back in time within a stream [s]; such records are re-sorted. 0 = strict.")),
+    "laser": (str, "front", typer.Option(help="CARMEN: which laser, front or rear.")),
+    "range_max": (float | None, None, typer.Option(help="CARMEN: readings at or above this [m] are no return (default: the log's saturation value).")),
+    "robot": (int, 1, typer.Option(help="UTIAS: which robot (1-5).")),
+    "scan_topic": (str | None, None, typer.Option(help="Bags: the LaserScan topic.")),
+    "odom_topic": (str | None, None, typer.Option(help="Bags: the nav_msgs/Odometry topic.")),
+    "truth_topic": (str | None, None, typer.Option(help="Bags: a ground-truth pose topic (Odometry or PoseStamped).")),
+}
+ALL_READER_OPTIONS = tuple(READER_OPTIONS)
+
+
+def reader_options(*names: str) -> Callable:
+    """Give a command the reader options ``names`` (default: all) as one ``reader: ReaderArgs`` argument.
+
+    The wrapped function declares ``reader: ReaderArgs``; typer sees the
+    individual options in its place.
+    """
+    names = names or ALL_READER_OPTIONS
+
+    def deco(func: Callable) -> Callable:
+        hints = typing.get_type_hints(func, include_extras=True)
+        sig = inspect.signature(func)
+        params = [p.replace(annotation=hints.get(p.name, p.annotation)) for p in sig.parameters.values() if p.name != "reader"]
+        extra = [
+            inspect.Parameter(n, inspect.Parameter.KEYWORD_ONLY, default=READER_OPTIONS[n][1], annotation=Annotated[READER_OPTIONS[n][0], READER_OPTIONS[n][2]])
+            for n in names
+        ]
+        new_sig = sig.replace(parameters=[p.replace(kind=inspect.Parameter.KEYWORD_ONLY) for p in params] + extra)
+
+        @functools.wraps(func)
+        def wrapper(**kwargs):
+            given = {n: kwargs.pop(n) for n in names}
+            return func(**kwargs, reader=ReaderArgs(**given))
+
+        wrapper.__signature__ = new_sig  # type: ignore[attr-defined]
+        wrapper.__annotations__ = {p.name: p.annotation for p in new_sig.parameters.values()}
+        return wrapper
+
+    return deco
+
+
+class ReaderArgs:
+    """The reader options of one command: ``fmt`` and the :class:`ReadOptions` (validated once, errors name the option)."""
+
+    def __init__(self, fmt: str | None = None, **opts) -> None:
+        from calib.io.registry import ReadOptions
+
+        self.fmt = fmt
+        try:
+            self.options = ReadOptions(**opts)
+        except ValidationError as exc:
+            e = exc.errors()[0]
+            flag = "--" + str(e["loc"][0]).replace("_", "-")
+            raise UsageError(f"{flag}: {e['msg']}") from None
+
+    def read(self, path: Path, robot: int | None = None):
+        """The log at ``path`` (``robot`` overrides the UTIAS robot)."""
+        from calib.io.registry import read_log
+
+        opts = self.options if robot is None else self.options.model_copy(update={"robot": robot})
+        return read_log(path, self.fmt, opts)
+
+    def read_many(self, paths: list[Path], robots: list[int] | None = None) -> tuple[list, list[Path]]:
+        """Logs from paths; a UTIAS dataset folder gives one log per requested robot (each robot once)."""
+        from calib.io.registry import detect_format
+
+        loaded, used = [], []
+        for p in paths:
+            kind = self.fmt or detect_format(p)
+            for r in list(dict.fromkeys(robots or [self.options.robot])) if kind == "utias" else [None]:
+                loaded.append(self.read(p, r))
+                used.append(p)
+        return loaded, used
+
+
+def fresh(target: Path, force: bool) -> None:
+    """Refuse to replace an existing output unless --force was given."""
+    if target.exists() and not force:
+        raise UsageError(f"{target}: already exists (use --force to replace it)")
+
+
+def positive(flag: str, value: int | None) -> None:
+    if value is not None and value < 1:
+        raise UsageError(f"{flag}: expected a positive integer, got {value}")
+
+
+def summary_table(title: str, rows: dict) -> Table:
+    t = Table(title=title)
+    t.add_column("quantity")
+    t.add_column("value", justify="right")
+    for k, v in rows.items():
+        if isinstance(v, float):
+            v = f"{v:.4g}"
+        elif isinstance(v, list):
+            v = ", ".join(str(x) for x in v)
+        t.add_row(k, str(v))
+    return t
+
+
+def input_refs(path: Path, log) -> list:
+    """The log's input files with their sha256 (a folder's files as its reader hashed them)."""
+    from calib.detlevel import input_refs_for
+    from calib.io.common import file_digest
+    from profiles.profile import InputRef
+
+    return input_refs_for(log) or ([InputRef(name=path.name, sha256=file_digest(path))] if path.is_file() else [])

@@ -1,0 +1,86 @@
+"""``detcal log info`` and ``detcal log convert``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import typer
+from rich.table import Table
+
+from calib.cli.common import ReaderArgs, fresh, out, reader_options
+
+app = typer.Typer(help="Inspect and convert sensor logs.", no_args_is_help=True, rich_markup_mode=None)
+
+
+@app.command("info")
+@reader_options()
+def log_info(path: Annotated[Path, typer.Argument(help="A log file or folder.")], reader: ReaderArgs) -> None:
+    """Print a summary of a log: streams, counts, duration, beam geometry."""
+    log = reader.read(path)
+    out.print(info_table(log, path))
+
+
+def info_table(log, path: Path) -> Table:
+    t = Table(title=f"{path} ({log.source.get('reader', 'native')})", show_header=True)
+    t.add_column("stream")
+    t.add_column("count", justify="right")
+    t.add_column("details")
+    span = log.time_span()
+    if log.scans is not None:
+        s = log.scans
+        finite = np.isfinite(s.ranges)
+        t.add_row("scans", f"{len(s):,}", f"{s.n_beams} beams, {finite.mean() * 100:.1f} % returning")
+    if log.odometry is not None:
+        t.add_row("odometry", f"{len(log.odometry):,}", f"{log.odometry.kind}: {', '.join(log.odometry.columns)}")
+    for k, r in log.reference.items():
+        t.add_row(f"reference ({k})", f"{len(r):,}", "x, y" + (", theta" if np.isfinite(r.poses[:, 2]).any() else ""))
+    if log.landmarks is not None:
+        t.add_row("landmarks", f"{len(log.landmarks):,}", "with radii" if np.isfinite(log.landmarks.radius).any() else "positions")
+    if log.detections is not None:
+        d = log.detections
+        t.add_row("detection frames", f"{d.n_frames:,}", "")
+        t.add_row("detections", f"{len(d):,}", "descriptors: " + (", ".join(sorted(d.descriptors)) or "none"))
+    if log.clouds is not None:
+        t.add_row("point clouds", f"{len(log.clouds):,}", f"{log.clouds.points.shape[0]:,} points")
+    if span is not None:
+        t.add_row("duration", "", f"{(span[1] - span[0]) / 1e9:,.3f} s")
+    sen = log.sensor
+    if sen is not None:
+        geo = f"{sen.kind}"
+        if sen.n_beams is not None:
+            geo += (
+                f", {sen.n_beams} beams from {np.rad2deg(sen.angle_min):.2f} deg every "
+                f"{np.rad2deg(sen.angle_increment):.4f} deg (fov {np.rad2deg(sen.field_of_view):.1f} deg)"
+            )
+        if sen.range_max is not None:
+            geo += f", range {sen.range_min:g}-{sen.range_max:g} m"
+        if sen.range_sigma is not None:
+            geo += f", sigma_r {sen.range_sigma:g} m"
+        m = sen.mount
+        geo += f", mounted at ({m.x:g}, {m.y:g}, {m.theta:g})"
+        t.add_row("sensor", "", geo)
+    moved = {k: v for k, v in dict(log.source.get("reordered", {})).items() if v}
+    if moved:
+        t.add_row("re-sorted", "", ", ".join(f"{k}: {v}" for k, v in moved.items()) + " records were out of time order")
+    return t
+
+
+@app.command("convert")
+@reader_options()
+def log_convert(
+    src: Annotated[Path, typer.Argument(help="The log to read.")],
+    dst: Annotated[Path, typer.Argument(help="Output: NAME.dlog (native) or a folder name (ROS 2 bag).")],
+    reader: ReaderArgs,
+    to: Annotated[str | None, typer.Option("--to", help="Output format: native or ros2 (default: from DST).")] = None,
+    force: Annotated[bool, typer.Option(help="Replace DST if it exists.")] = False,
+) -> None:
+    """Convert a log to detcal's native format or to a ROS 2 bag."""
+    from calib.io.registry import output_format, write_log
+
+    kind = output_format(dst, to)  # check before the (possibly long) read
+    fresh(dst, force)
+    log = reader.read(src)
+    write_log(log, dst, kind, overwrite=force)
+    out.print(f"wrote {dst} ({kind}): {', '.join(log.streams())}")

@@ -1,0 +1,171 @@
+"""``detcal slam run`` and ``detcal slam sweep``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from calib.cli.common import ReaderArgs, fresh, input_refs, out, positive, reader_options, summary_table
+from profiles.errors import UsageError
+
+app = typer.Typer(help="Run SLAM filters with a detector profile.", no_args_is_help=True, rich_markup_mode=None)
+
+FILTERS = ("rbphd",)
+PD_MODES = ("profile", "constant")
+
+
+def slam_config(config: Path | None, filter_: str, particles: int | None, pd_mode: str | None):
+    from calib.config import load_yaml_model
+    from slam_runtime.config import SlamConfig
+
+    if filter_ not in FILTERS:
+        raise UsageError(f"--filter: expected one of {', '.join(FILTERS)}, got {filter_!r} (delta-GLMB-SLAM is not available yet)")
+    positive("--particles", particles)
+    if pd_mode is not None and pd_mode not in PD_MODES:
+        raise UsageError(f"--pd-mode: expected one of {', '.join(PD_MODES)}, got {pd_mode!r}")
+    cfg = load_yaml_model(SlamConfig, config)
+    upd = {k: v for k, v in (("particles", particles), ("pd_mode", pd_mode)) if v is not None}
+    return cfg.model_copy(update={"rbphd": cfg.rbphd.model_copy(update=upd)}) if upd else cfg
+
+
+@app.command("run")
+@reader_options()
+def slam_run_cmd(
+    log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A log with odometry and scans (or detections).")],
+    reader: ReaderArgs,
+    profile_ref: Annotated[str, typer.Option("--profile", help="Detector profile: name or name@version, or a file.")],
+    filter_: Annotated[str, typer.Option("--filter", help="Filter: rbphd.")] = "rbphd",
+    particles: Annotated[int | None, typer.Option(help="Particles (default: the config's, 20).")] = None,
+    seed: Annotated[int, typer.Option(help="Random seed; same log, profile, settings and seed give the same run.")] = 0,
+    pd_mode: Annotated[str | None, typer.Option(help="P_D from the profile, or `constant` inside the sensor range (for comparison).")] = None,
+    config: Annotated[Path | None, typer.Option(help="YAML settings (filter, motion noise, metric); unknown keys are refused.")] = None,
+    frames: Annotated[int | None, typer.Option(help="Only the first N frames.")] = None,
+    out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/slam_<log>_<profile>_<seed>).")] = None,
+    force: Annotated[bool, typer.Option(help="Replace the run folder if it exists.")] = False,
+) -> None:
+    """RB-PHD-SLAM over a log with a detector profile's P_D and clutter: trajectory, map, metrics, figures."""
+    from calib.progress import progress
+    from profiles.store import resolve
+    from slam_runtime.report import write_slam_run
+    from slam_runtime.run import check_inputs, run_slam
+
+    cfg = slam_config(config, filter_, particles, pd_mode)
+    positive("--frames", frames)
+    prof = resolve(profile_ref)
+    log = reader.read(log_path)
+    check_inputs(log, prof)
+    target = out_dir or Path("runs") / f"slam_{log.name}_{prof.ref}_{seed}"
+    fresh(target, force)
+    res = run_slam(log, prof, cfg, seed, progress=progress, max_frames=frames)
+    settings = {
+        "log": log_path.name,
+        "inputs": [r.model_dump() for r in input_refs(log_path, log)],
+        "profile": prof.ref,
+        "seed": seed,
+        "frames": frames,
+        "settings": cfg.model_dump(mode="json"),
+    }
+    write_slam_run(log, res, target, settings, overwrite=force)
+    out.print(summary_table(f"RB-PHD-SLAM on {log.name} with {prof.ref} -> {target}", res.metrics))
+
+
+def seed_list(text: str) -> list[int]:
+    """`5` -> 0..4; `1,3,7` or `1-5` -> those seeds."""
+    try:
+        if "," in text:
+            seeds = [int(x) for x in text.split(",")]
+        elif "-" in text:
+            a, b = (int(x) for x in text.split("-", 1))
+            seeds = list(range(a, b + 1))
+        else:
+            seeds = list(range(int(text)))
+    except ValueError:
+        raise UsageError(f"--seeds: expected a count (5), a list (1,3,7) or a range (1-5), got {text!r}") from None
+    if not seeds or min(seeds) < 0:
+        raise UsageError(f"--seeds: expected non-negative seeds, got {text!r}")
+    return seeds
+
+
+@app.command("sweep")
+@reader_options("fmt", "max_backstep", "robot")
+def slam_sweep_cmd(
+    logs: Annotated[list[Path], typer.Argument(metavar="LOG...", help="Logs to run on (e.g. simulated parks of different seeds).")],
+    reader: ReaderArgs,
+    profile_refs: Annotated[list[str], typer.Option("--profile", help="Detector profile(s): name or name@version, or a file (repeat the option).")],
+    pd_modes: Annotated[list[str] | None, typer.Option("--pd-mode", help="profile and/or constant (repeat; default: both).")] = None,
+    particles: Annotated[list[int] | None, typer.Option("--particles", help="Particle counts (repeat; default: the config's).")] = None,
+    seeds: Annotated[str, typer.Option(help="Filter seeds: a count (3), a list (1,3,7) or a range (1-5).")] = "1",
+    config: Annotated[Path | None, typer.Option(help="YAML settings shared by every run.")] = None,
+    frames: Annotated[int | None, typer.Option(help="Only the first N frames of each log.")] = None,
+    jobs: Annotated[int | None, typer.Option(help="Parallel processes (default: the CPU count).")] = None,
+    out_dir: Annotated[Path, typer.Option("--out", help="Sweep folder: one run folder per run, runs.csv and summary.csv.")] = Path("runs/sweep"),
+    force: Annotated[bool, typer.Option(help="Replace the sweep folder if it exists.")] = False,
+) -> None:
+    """Monte Carlo sweep: every log x profile x P_D mode x particle count x seed, in parallel processes."""
+    import pandas as pd
+
+    from calib.config import dump_yaml
+    from calib.io.atomic import atomic_output
+    from profiles.store import resolve
+    from slam_runtime.run import check_inputs
+    from slam_runtime.sweep import SweepJob, run_sweep, summarise
+
+    modes = list(dict.fromkeys(pd_modes or list(PD_MODES)))
+    for m in modes:
+        if m not in PD_MODES:
+            raise UsageError(f"--pd-mode: expected one of {', '.join(PD_MODES)}, got {m!r}")
+    base = slam_config(config, "rbphd", None, None)
+    counts = list(dict.fromkeys(particles or [base.rbphd.particles]))
+    if min(counts) < 1:
+        raise UsageError(f"--particles: expected positive integers, got {counts}")
+    positive("--frames", frames)
+    positive("--jobs", jobs)
+    seeds_ = seed_list(seeds)
+    profs = [resolve(r) for r in dict.fromkeys(profile_refs)]
+    loaded = []
+    for p in logs:
+        log = reader.read(p)
+        for prof in profs:
+            check_inputs(log, prof)
+        loaded.append((p, log))
+    fresh(out_dir, force)
+    job_list = []
+    for i, (p, log) in enumerate(loaded):
+        for prof in profs:
+            for m in modes:
+                for n in counts:
+                    cfg = base.model_copy(update={"rbphd": base.rbphd.model_copy(update={"particles": n, "pd_mode": m})})
+                    for sd in seeds_:
+                        name = f"{i:02d}_{log.name}_{prof.ref}_{m}_p{n}_s{sd}"
+                        labels = {"log": log.name, "profile": prof.ref, "pd_mode": m, "particles": n, "seed": sd}
+                        job_list.append(SweepJob(name, log, prof, cfg, sd, labels, frames))
+    by = ("profile", "pd_mode", "particles")
+    with atomic_output(out_dir, overwrite=force, directory=True) as tmp:
+        tmp.mkdir()
+        rows = run_sweep(job_list, tmp, jobs)
+        label_keys = ("log", "profile", "pd_mode", "particles", "seed")
+        pd.DataFrame(rows).to_csv(tmp / "runs.csv", index=False, float_format="%.6g")
+        summary = summarise(rows, by, label_keys)
+        pd.DataFrame(summary).to_csv(tmp / "summary.csv", index=False, float_format="%.6g")
+        (tmp / "config.yaml").write_text(dump_yaml({"settings": base.model_dump(mode="json"), "logs": [p.name for p, _ in loaded], "seeds": seeds_}))
+    # one column per setting, one row per metric (mean +- standard deviation over its runs)
+    t = Table(title=f"sweep of {len(job_list)} runs -> {out_dir}")
+    t.add_column("metric")
+    for e in summary:
+        t.add_column(f"{e['profile']}\n{e['pd_mode']}, {e['particles']} particles\n{e['runs']} runs", justify="right")
+    shown = [
+        ("trajectory RMSE [m]", "trajectory_rmse_vs_ground_truth_m"),
+        ("dead reckoning RMSE [m]", "odometry_rmse_vs_ground_truth_m"),
+        ("trajectory RMSE vs GPS [m]", "trajectory_rmse_vs_gps_m"),
+        ("dead reckoning vs GPS [m]", "odometry_rmse_vs_gps_m"),
+        ("map OSPA", "map_ospa"),
+        ("map features", "map_features"),
+        ("ms per step", "ms_per_step_mean"),
+    ]
+    for label, key in shown:
+        if f"{key}_mean" in summary[0]:
+            t.add_row(label, *(f"{e[key + '_mean']:.3f} ± {e[key + '_std']:.3f}" for e in summary))
+    out.print(t)
