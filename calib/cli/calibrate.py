@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import shlex
-import sys
 from pathlib import Path
 from typing import Annotated
 
@@ -25,11 +24,13 @@ def check_poses(poses: str | None) -> None:
 
 def typed_command(name: str) -> str:
     """The command as typed; absolute paths lose their folders (a profile names inputs by file name and hash)."""
-    words = [Path(a).name if os.path.isabs(a) else a for a in sys.argv[2:]]
+    from calib.cli.common import ARGV
+
+    words = [Path(a).name if os.path.isabs(a) else a for a in ARGV[1:]]
     return " ".join([f"detcal {name}", *(shlex.quote(w) for w in words)])
 
 
-@reader_options("fmt", "max_backstep", "laser", "range_max", "scan_topic", "truth_topic")
+@reader_options("fmt", "max_backstep", "laser", "range_max", "range_sigma", "scan_topic", "truth_topic")
 def calibrate_cmd(
     reader: ReaderArgs,
     logs: Annotated[list[Path] | None, typer.Argument(metavar="[LOG]...", help="Logs with truth; none: the embedded default park log.")] = None,

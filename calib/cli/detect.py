@@ -11,7 +11,7 @@ from calib.cli.common import ReaderArgs, fresh, out, reader_options, summary_tab
 from profiles.errors import UsageError
 
 
-@reader_options("fmt", "max_backstep", "laser", "range_max", "scan_topic")
+@reader_options("fmt", "max_backstep", "laser", "range_max", "range_sigma", "scan_topic")
 def detect_cmd(
     log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A log with laser scans.")],
     reader: ReaderArgs,

@@ -77,10 +77,14 @@ def log_convert(
     force: Annotated[bool, typer.Option(help="Replace DST if it exists.")] = False,
 ) -> None:
     """Convert a log to detcal's native format or to a ROS 2 bag."""
+    from calib.io.native import is_detcal_log
     from calib.io.registry import output_format, write_log
 
     kind = output_format(dst, to)  # check before the (possibly long) read
-    fresh(dst, force)
+    if kind == "native":
+        fresh(dst, force, directory=False, owned=is_detcal_log)
+    else:
+        fresh(dst, force)
     log = reader.read(src)
     write_log(log, dst, kind, overwrite=force)
     out.print(f"wrote {dst} ({kind}): {', '.join(log.streams())}")

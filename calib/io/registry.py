@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -24,9 +25,10 @@ class ReadOptions(BaseModel):
     """Reader options; each reader uses the ones that concern it."""
 
     model_config = ConfigDict(extra="forbid")
-    max_backstep: float = Field(default=DEFAULT_MAX_BACKSTEP, ge=0.0)
+    max_backstep: float = Field(default=DEFAULT_MAX_BACKSTEP, ge=0.0, allow_inf_nan=False)
     laser: str = "front"
-    range_max: float | None = Field(default=None, gt=0.0)
+    range_max: float | None = Field(default=None, gt=0.0, allow_inf_nan=False)
+    range_sigma: float | None = Field(default=None, gt=0.0, allow_inf_nan=False)
     robot: int = 1
     scan_topic: str | None = None
     odom_topic: str | None = None
@@ -53,8 +55,17 @@ def detect_format(path: Path) -> str:
 
 
 def read_log(path: str | Path, fmt: str | None = None, options: ReadOptions | None = None) -> SensorLog:
-    path = Path(path)
+    """The log at ``path`` in format ``fmt`` (default: from the path); ``options.range_sigma`` replaces the sensor's."""
     opt = options or ReadOptions()
+    log = _read(Path(path), fmt, opt)
+    if opt.range_sigma is not None:
+        if log.sensor is None or log.sensor.kind != "laser2d":
+            raise UsageError(f"--range-sigma: {path} has no 2D laser")
+        log = dataclasses.replace(log, sensor=type(log.sensor).model_validate({**log.sensor.model_dump(), "range_sigma": opt.range_sigma}))
+    return log
+
+
+def _read(path: Path, fmt: str | None, opt: ReadOptions) -> SensorLog:
     fmt = fmt or detect_format(path)
     if fmt == "native":
         return read_native(path)

@@ -89,8 +89,18 @@ def test_existing_file_not_overwritten_without_force(tmp_path):
     with pytest.raises(UsageError, match="already exists"):
         write_native(full_log(), p)
     assert p.read_text() == "keep me"
+    # --force replaces only a log detcal wrote, never another file or a folder
+    with pytest.raises(UsageError, match="a.dlog: was not written by detcal; --force does not replace it"):
+        write_native(full_log(), p, overwrite=True)
+    assert p.read_text() == "keep me"
+    (tmp_path / "d.dlog").mkdir()
+    with pytest.raises(UsageError, match="d.dlog: is a folder; --force replaces only a file detcal wrote"):
+        write_native(full_log(), tmp_path / "d.dlog", overwrite=True)
+    p.unlink()
+    write_native(full_log(), p)
     write_native(full_log(), p, overwrite=True)
     assert read_native(p).name == "full"
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["a.dlog", "d.dlog"]  # no temporary left behind
 
 
 def test_truncated_file_is_a_clear_error(tmp_path):
@@ -121,7 +131,7 @@ def test_wrong_version_and_missing_file(tmp_path):
         zf.writestr("meta.json", '{"format": "detcal-log", "version": 99, "streams": {}}')
     with pytest.raises(DataError, match="log format version 99 is not supported"):
         read_native(p)
-    with pytest.raises(DataError, match="no such file"):
+    with pytest.raises(UsageError, match="nope.dlog: no such file"):
         read_native(tmp_path / "nope.dlog")
 
 
