@@ -151,8 +151,7 @@ def log_landmarks(
 def _check_same_sensor(logs: list[SensorLog]) -> SensorModel:
     s0 = logs[0].sensor
     for lg in logs[1:]:
-        s = lg.sensor
-        if (s.n_beams, s.angle_min, s.angle_increment) != (s0.n_beams, s0.angle_min, s0.angle_increment):
+        if lg.sensor.layouts() != s0.layouts():
             raise UsageError(f"logs {logs[0].name!r} and {lg.name!r} have different beam geometries; calibrate them separately")
     return s0
 

@@ -48,13 +48,13 @@ def run_detector(log: SensorLog, cfg: DetectConfig, *, show_progress: bool = Tru
     """Detections of every scan of ``log`` (chunked so memory stays flat)."""
     if log.scans is None or log.sensor is None:
         raise DataError(f"log {log.name!r} has no laser scans to detect circles in")
-    ang = log.sensor.angles()
     n = len(log.scans)
     parts = []
     chunks = range(0, n, CHUNK)
     it = progress(chunks, len(chunks), "detecting") if show_progress else chunks
     for a in it:
-        d = detect_circles(log.scans.ranges[a : a + CHUNK], ang, cfg.detector, cfg.hotelling, log.sensor.range_sigma)
+        rows = slice(a, a + CHUNK)
+        d = detect_circles(log.scans.ranges[rows], log.scan_angles(rows), cfg.detector, cfg.hotelling, log.sensor.range_sigma)
         parts.append(d.offset(a))
     return CircleDetections.concat(parts)
 

@@ -49,10 +49,18 @@ def info_table(log, path: Path) -> Table:
     sen = log.sensor
     if sen is not None:
         geo = f"{sen.kind}"
-        if sen.n_beams is not None:
+        layouts = sen.layouts()
+        if len(layouts) == 1:
+            g = layouts[0]
             geo += (
-                f", {sen.n_beams} beams from {np.rad2deg(sen.angle_min):.2f} deg every "
-                f"{np.rad2deg(sen.angle_increment):.4f} deg (fov {np.rad2deg(sen.field_of_view):.1f} deg)"
+                f", {g.n_beams} beams from {np.rad2deg(g.angle_min):.2f} deg every "
+                f"{np.rad2deg(g.angle_increment):.4f} deg (fov {np.rad2deg(sen.field_of_view):.1f} deg)"
+            )
+        elif layouts:
+            used = np.bincount(log.scans.geometry, minlength=len(layouts)) if log.scans is not None else np.zeros(len(layouts), int)
+            geo += f", {len(layouts)} beam layouts: " + "; ".join(
+                f"{g.n_beams} beams from {np.rad2deg(g.angle_min):.2f} deg every {np.rad2deg(g.angle_increment):.4f} deg ({n:,} scans)"
+                for g, n in zip(layouts, used, strict=True)
             )
         if sen.range_max is not None:
             geo += f", range {sen.range_min:g}-{sen.range_max:g} m"
@@ -64,6 +72,9 @@ def info_table(log, path: Path) -> Table:
     moved = {k: v for k, v in dict(log.source.get("reordered", {})).items() if v}
     if moved:
         t.add_row("re-sorted", "", ", ".join(f"{k}: {v}" for k, v in moved.items()) + " records were out of time order")
+    untimed = {k: v for k, v in dict(log.source.get("untimed", {})).items() if v}
+    if untimed:
+        t.add_row("untimed", "", ", ".join(f"{k}: {v}" for k, v in untimed.items()) + " records stamped 0, placed by their order")
     return t
 
 
