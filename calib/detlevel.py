@@ -68,6 +68,9 @@ def _need(log: SensorLog) -> None:
         raise DataError(f"log {log.name!r} has no detections")
     if log.landmarks is None or "ground_truth" not in log.reference:
         raise DataError(f"log {log.name!r} needs landmark truth and ground-truth poses for a detection-level calibration")
+    from calib.truth import check_within_truth
+
+    check_within_truth(log)  # a detection outside the truth's time span would get a clamped, wrong pose
     if "subject" not in log.detections.descriptors:
         raise DataError(f"log {log.name!r}: detections carry no identity (descriptor 'subject')")
 
@@ -245,16 +248,22 @@ def input_refs_for(log: SensorLog) -> list[InputRef]:
 
 
 def write_detection_run(cal: DetectionCalibration, out, *, overwrite: bool = False) -> list[str]:
-    from calib.config import dump_yaml
     from calib.io.atomic import atomic_output
+
+    with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
+        return fill_detection_run(cal, tmp)
+
+
+def fill_detection_run(cal: DetectionCalibration, folder) -> list[str]:
+    """Create ``folder`` with profile.yaml, summary.yaml, pairs.csv.gz and the figures; returns the figure names."""
+    from calib.config import dump_yaml
     from calib.report import plot_clutter, plot_pd
     from profiles.store import dump_profile
 
-    with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
-        tmp.mkdir()
-        (tmp / "profile.yaml").write_text(dump_profile(cal.profile))
-        (tmp / "summary.yaml").write_text(dump_yaml(cal.summary))
-        cal.pairs.to_csv(tmp / "pairs.csv.gz", index=False, float_format="%.9g", compression={"method": "gzip", "mtime": 0})
-        plot_pd(cal, tmp / "pd_vs_range.png")
-        plot_clutter(cal, tmp / "clutter.png")
+    folder.mkdir()
+    (folder / "profile.yaml").write_text(dump_profile(cal.profile))
+    (folder / "summary.yaml").write_text(dump_yaml(cal.summary))
+    cal.pairs.to_csv(folder / "pairs.csv.gz", index=False, float_format="%.9g", compression={"method": "gzip", "mtime": 0})
+    plot_pd(cal, folder / "pd_vs_range.png")
+    plot_clutter(cal, folder / "clutter.png")
     return ["pd_vs_range.png", "clutter.png"]

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -41,6 +42,29 @@ def _field_path(loc: tuple) -> str:
     return ".".join(str(p) for p in loc) or "(top level)"
 
 
+#: How the parameters a calibration records (``provenance.parameters``) are validated, per detector
+#: kind: (detcal version whose records it knows, factory of a pydantic model refusing unknown keys).
+#: The calibrating package registers them (``calib`` does on import); ``profiles`` cannot import it.
+PARAMETER_MODELS: dict[str, tuple[str, Callable[[], type]]] = {}
+
+
+def register_parameters(kind: str, detcal_version: str, model: Callable[[], type]) -> None:
+    """Validate the recorded parameters of ``kind`` profiles made by ``detcal_version`` with ``model()``."""
+    PARAMETER_MODELS[kind] = (detcal_version, model)
+
+
+def _check_parameters(prof: DetectorProfile, where: str) -> None:
+    known = PARAMETER_MODELS.get(prof.detector.kind)
+    if known is None or known[0] != prof.provenance.detcal_version or not prof.provenance.parameters:
+        return  # none recorded (a profile written by hand), or by another detcal version: kept as recorded
+    try:
+        known[1]().model_validate(prof.provenance.parameters)
+    except ValidationError as exc:
+        e = exc.errors()[0]
+        msg = "unknown key" if e["type"] == "extra_forbidden" else e["msg"]
+        raise DataError(f"{where}: provenance.parameters.{_field_path(e['loc'])}: {msg}") from None
+
+
 def parse_profile(data: object, where: str) -> DetectorProfile:
     """Validate a loaded document; migrate or refuse other schema versions by name."""
     if not isinstance(data, dict):
@@ -56,13 +80,15 @@ def parse_profile(data: object, where: str) -> DetectorProfile:
             "and has no migration from it"
         )
     try:
-        return DetectorProfile.model_validate(data)
+        prof = DetectorProfile.model_validate(data)
     except ValidationError as exc:
         errs = exc.errors()
         e = errs[0]
         msg = "unknown key" if e["type"] == "extra_forbidden" else e["msg"]
         more = f" (and {len(errs) - 1} more)" if len(errs) > 1 else ""
         raise DataError(f"{where}: {_field_path(e['loc'])}: {msg}{more}") from None
+    _check_parameters(prof, where)
+    return prof
 
 
 def load_profile_file(path: str | Path) -> DetectorProfile:
@@ -133,31 +159,58 @@ def bundled(name: str, version: str) -> Path | None:
     return p if p.is_file() else None
 
 
-def check_save(profile: DetectorProfile, folder: str | Path | None = None, *, force: bool = False) -> tuple[Path, str]:
-    """What :func:`save_profile` would do, decided before any work: (path, ``"write"``, ``"replace"``,
-    ``"unchanged"`` or ``"bundled"``); a conflict is a UsageError.
+@dataclass(frozen=True)
+class Request:
+    """What identifies a profile before it is computed: name@version, description, inputs and parameters.
 
-    ``profile`` may be a stand-in holding only what identifies the result (name,
-    version and provenance); see :func:`same_request`.
+    Two calibrations of the same request give the same profile (up to the
+    creation time and command line), so a rerun is no conflict; another
+    request under an existing name@version is refused before any work.
     """
+
+    name: str
+    version: str
+    description: str
+    inputs: list
+    parameters: dict
+    detcal_version: str
+    seed: int | None
+
+    @classmethod
+    def of(cls, p: DetectorProfile) -> Request:
+        v = p.provenance
+        return cls(p.name, p.version, p.description, list(v.inputs), dict(v.parameters), v.detcal_version, v.seed)
+
+    @property
+    def ref(self) -> str:
+        return f"{self.name}@{self.version}"
+
+
+def same_request(a: Request, b: Request) -> bool:
+    return a == b
+
+
+def check_save(request: Request, folder: str | Path | None = None, *, force: bool = False) -> tuple[Path, str]:
+    """What saving the profile of ``request`` will do, decided before any work: (path, ``"write"``,
+    ``"replace"``, ``"unchanged"`` or ``"bundled"``); a conflict is a UsageError."""
     folder = Path(folder) if folder is not None else user_dirs()[0]
-    path = folder / profile_filename(profile)
-    builtin = bundled(profile.name, profile.version)
+    path = folder / f"{request.name}@{request.version}.yaml"
+    builtin = bundled(request.name, request.version)
     if builtin is not None and folder.resolve() != BUILTIN.resolve():
         old = _load_or_none(builtin)
-        if old is not None and same_request(old, profile):
+        if old is not None and same_request(Request.of(old), request):
             return builtin, "bundled"
         raise UsageError(
-            f"profile {profile.ref} is bundled with detcal with other content; a user profile of that name and version "
+            f"profile {request.ref} is bundled with detcal with other content; a user profile of that name and version "
             "would shadow it: choose another --name or --version"
         )
     if not path.exists():
         return path, "write"
     old = _load_or_none(path)
-    if old is not None and same_request(old, profile) and not force:
+    if old is not None and same_request(Request.of(old), request) and not force:
         return path, "unchanged"
     if not force:
-        raise UsageError(f"{path}: profile {profile.ref} exists with other content; bump the version (--version) or use --force")
+        raise UsageError(f"{path}: profile {request.ref} exists with other content; bump the version (--version) or use --force")
     return path, "replace"
 
 
@@ -166,14 +219,6 @@ def _load_or_none(path: Path) -> DetectorProfile | None:
         return load_profile_file(path)
     except DetcalError:
         return None
-
-
-def same_request(a: DetectorProfile, b: DetectorProfile) -> bool:
-    """Made from the same inputs with the same parameters (what :func:`check_save` compares before the work)."""
-    pa, pb = a.provenance, b.provenance
-    return (a.name, a.version, a.description, pa.inputs, pa.parameters, pa.detcal_version, pa.seed) == (
-        b.name, b.version, b.description, pb.inputs, pb.parameters, pb.detcal_version, pb.seed
-    )  # fmt: skip
 
 
 def save_profile(profile: DetectorProfile, folder: str | Path | None = None, *, force: bool = False) -> tuple[Path, str]:
@@ -185,7 +230,7 @@ def save_profile(profile: DetectorProfile, folder: str | Path | None = None, *, 
     content is left to the bundled file, other content is refused. Returns the
     path and ``"written"``, ``"replaced"``, ``"unchanged"`` or ``"unchanged (bundled)"``.
     """
-    path, status = _final_status(profile, folder, force)
+    path, status = final_status(profile, folder, force)
     if status in ("unchanged", "unchanged (bundled)"):
         return path, status
     with atomic_output(path, overwrite=force, owned=looks_like_profile) as tmp:
@@ -201,9 +246,9 @@ def write_profile_text(profile: DetectorProfile, path: Path) -> None:
         os.fsync(fh.fileno())
 
 
-def _final_status(profile: DetectorProfile, folder: str | Path | None, force: bool) -> tuple[Path, str]:
+def final_status(profile: DetectorProfile, folder: str | Path | None, force: bool) -> tuple[Path, str]:
     """(path, ``"written"``, ``"replaced"``, ``"unchanged"`` or ``"unchanged (bundled)"``) for a finished profile."""
-    path, plan = check_save(profile, folder, force=force)
+    path, plan = check_save(Request.of(profile), folder, force=force)
     if plan == "bundled":
         if not same_content(load_profile_file(path), profile):
             raise UsageError(f"profile {profile.ref} is bundled with detcal with other content; choose another --name or --version")

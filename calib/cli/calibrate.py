@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from calib.cli.common import ReaderArgs, fresh, out, reader_options, summary_table
+from calib.cli.common import ReaderArgs, fresh, input_refs, out, reader_options, summary_table, warn
 from profiles.errors import UsageError
 
 POSE_SOURCES = ("auto", "reference", "icp")
@@ -49,59 +49,61 @@ def calibrate_cmd(
 ) -> None:
     """Calibrate a detector on logs with truth -> a profile and a report.
 
-    Laser logs: the circle detector, P_D against n_p, Hotelling ellipsoid, Poisson clutter.
+    Laser logs: the circle detector, P_D against n_p, Hotelling ellipsoid, Poisson clutter;
+    sigma_r from the log, --range-sigma, or estimated from the registered scans.
     Detection-level logs (UTIAS): P_D against range, clutter from non-landmark detections.
     """
-    from calib.calibrate import CalibrateConfig, calibrate
-    from calib.config import load_yaml_model
-    from calib.default import DEFAULT_PROFILE_NAME, default_log
-    from calib.io.common import file_digest
-    from calib.runs import write_calibration_run
-    from profiles.profile import NAME_RE, SEMVER_RE, InputRef
-    from profiles.store import save_profile
+    from calib.pipeline import CalibrationJob, check_name, run_calibration
 
     check_poses(poses)
-    if not SEMVER_RE.match(version):
-        raise UsageError(f"--version: {version!r} is not MAJOR.MINOR.PATCH")
+    check_name(name or "x", version)
+    landmark_ref = landmark_input(landmarks)
     if logs:
         loaded, paths = reader.read_many(logs, robot)
         prof_name = name or loaded[0].name.lower().replace("_", "-")
     else:
-        log, path = default_log()
-        loaded = [log]
-        prof_name = name or DEFAULT_PROFILE_NAME
-        paths = [path]
-    refs = [InputRef(name=p.name, sha256=file_digest(p)) for p in dict.fromkeys(paths)]
-    if not NAME_RE.match(prof_name):
-        raise UsageError(f"--name: {prof_name!r} must match [a-z0-9][a-z0-9._-]*")
-    target = out_dir or Path("runs") / f"calibrate_{prof_name}@{version}"
-    fresh(target, force)
-    command = typed_command("calibrate")
-    # the logs decide which calibration (and so which config schema) applies
-    if all(lg.scans is None and lg.detections is not None for lg in loaded):
-        from calib.detlevel import DetectionCalibConfig, calibrate_detections, input_refs_for, write_detection_run
+        from calib.default import DEFAULT_PROFILE_NAME, default_log
 
-        dcfg = load_yaml_model(DetectionCalibConfig, config)
-        refs = [r for lg in loaded for r in input_refs_for(lg)] or refs
-        cal = calibrate_detections(loaded, dcfg, name=prof_name, version=version, description=description, input_refs=refs, command=command)
-        figures = write_detection_run(cal, target, overwrite=force)
-    else:
-        cfg = load_yaml_model(CalibrateConfig, config)
-        if poses is not None:
-            cfg = cfg.model_copy(update={"poses": poses})
-        cal = calibrate(
-            loaded, cfg, name=prof_name, version=version, description=description, landmarks_csv=landmarks, input_refs=refs, command=command
-        )
-        figures = write_calibration_run(cal, target, overwrite=force)
-    saved, status = save_profile(cal.profile, profiles_dir, force=force)
-    p = cal.profile
+        log, path = default_log()
+        loaded, paths, prof_name = [log], [path], name or DEFAULT_PROFILE_NAME
+    refs = unique_refs([r for p, lg in zip(paths, loaded, strict=True) for r in input_refs(p, lg)] + landmark_ref)
+    job = CalibrationJob(
+        loaded, refs, prof_name, version, out_dir, profiles_dir, description, config, landmarks, poses, force,
+        typed_command("calibrate"), reader.options.range_sigma is not None,
+    )  # fmt: skip
+    done = run_calibration(job)
+    for note in done.notes:
+        warn(note)
+    p = done.profile
     rows = {
-        "profile": f"{p.ref} ({status}: {saved})",
-        "run folder": f"{target} ({len(figures)} figures)",
-        **{k: v for k, v in cal.summary.items() if k not in ("logs",)},
+        "profile": f"{p.ref} ({done.profile_status}: {done.profile_path})",
+        "run folder": f"{done.run_folder} ({done.run_status}" + (f", {len(done.figures)} figures)" if done.figures else ")"),
+        **{k: v for k, v in done.summary.items() if k not in ("logs", "range_noise")},
         "P_D table": ", ".join(f"{int(e) if float(e).is_integer() else e}:{v:.2f}" for e, v in zip(p.pd.edges[:-1], p.pd.pd, strict=True)),
     }
-    out.print(summary_table(f"calibration of {', '.join(cal.summary['logs'])}", rows))
+    out.print(summary_table(f"calibration of {', '.join(done.summary['logs'])}", rows))
+
+
+def landmark_input(landmarks: Path | None) -> list:
+    """A landmark CSV is an input of the profile (name and sha256); ``cloud`` is not a file."""
+    if landmarks is None or str(landmarks) == "cloud":
+        return []
+    from calib.io.common import file_digest
+    from profiles.profile import InputRef
+
+    if not landmarks.is_file():
+        raise UsageError(f"--landmarks: {landmarks}: no such file (give a CSV of id, x, y, radius, or `cloud`)")
+    return [InputRef(name=landmarks.name, sha256=file_digest(landmarks))]
+
+
+def unique_refs(refs: list) -> list:
+    """Each input once (a dataset folder read for several robots hashes the same files)."""
+    seen, outl = set(), []
+    for r in refs:
+        if (r.name, r.sha256) not in seen:
+            seen.add((r.name, r.sha256))
+            outl.append(r)
+    return outl
 
 
 @reader_options("fmt", "max_backstep", "laser", "range_max", "scan_topic", "truth_topic")

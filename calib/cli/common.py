@@ -157,9 +157,7 @@ def summary_table(title: str, rows: dict) -> Table:
 
 
 def input_refs(path: Path, log) -> list:
-    """The log's input files with their sha256 (a folder's files as its reader hashed them)."""
-    from calib.detlevel import input_refs_for
-    from calib.io.common import file_digest
-    from profiles.profile import InputRef
+    """The log's input files with their sha256 (see :func:`calib.io.registry.input_refs`)."""
+    from calib.io.registry import input_refs as refs
 
-    return input_refs_for(log) or ([InputRef(name=path.name, sha256=file_digest(path))] if path.is_file() else [])
+    return refs(path, log)

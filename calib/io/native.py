@@ -18,6 +18,7 @@ no return), so a round trip is lossless bit for bit.
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import zipfile
@@ -185,6 +186,26 @@ def is_detcal_log(path: Path) -> bool:
     except (OSError, KeyError, ValueError, zipfile.BadZipFile, zlib.error):
         return False
     return isinstance(meta, dict) and meta.get("format") == FORMAT
+
+
+def content_digest(path: Path) -> str:
+    """sha256 of a native log's content: every member's name and uncompressed bytes, in the file's order.
+
+    Unlike the file's own hash it does not depend on the zlib that compressed
+    it, so the same log has the same digest on every machine (the embedded
+    default log is simulated and written anew on each one).
+    """
+    h = hashlib.sha256()
+    try:
+        with zipfile.ZipFile(path) as zf:
+            for info in zf.infolist():
+                h.update(info.filename.encode() + b"\0")
+                with zf.open(info) as fh:
+                    for chunk in iter(lambda fh=fh: fh.read(1 << 20), b""):
+                        h.update(chunk)
+    except (OSError, zipfile.BadZipFile, zlib.error, EOFError) as exc:
+        raise DataError(f"{path}: not a detcal log or truncated ({exc})") from None
+    return h.hexdigest()
 
 
 def _has_meta(path: Path) -> bool:

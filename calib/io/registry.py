@@ -84,6 +84,28 @@ def _read(path: Path, fmt: str | None, opt: ReadOptions) -> SensorLog:
     raise UsageError(f"--format: expected one of {', '.join(FORMATS)}, got {fmt!r}")
 
 
+def input_refs(path: Path, log: SensorLog) -> list:
+    """The input files of a log read from ``path``, with their sha256, for provenance.
+
+    A native log is identified by its content (:func:`calib.io.native.content_digest`:
+    the same on every machine, whatever zlib compressed it); a folder by each
+    file its reader read; any other file by its bytes.
+    """
+    from calib.io.common import file_digest
+    from calib.io.native import content_digest
+    from profiles.profile import InputRef
+
+    path = Path(path)
+    if path.is_file() and is_native(path):
+        return [InputRef(name=path.name, sha256=content_digest(path))]
+    files = log.source.get("files")
+    if isinstance(files, dict) and files:
+        return [InputRef(name=str(k), sha256=str(v)) for k, v in files.items()]
+    if isinstance(log.source.get("sha256"), str) and path.is_file():
+        return [InputRef(name=path.name, sha256=str(log.source["sha256"]))]
+    return [InputRef(name=path.name, sha256=file_digest(path))] if path.exists() else []
+
+
 def output_format(path: Path, fmt: str | None) -> str:
     if fmt is not None:
         if fmt not in OUTPUT_FORMATS:
