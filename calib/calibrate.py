@@ -179,23 +179,32 @@ def log_landmarks(
             raise UsageError("landmarks from the cloud need the scan poses")
         return landmarks_from_cloud(log, sensor_poses, params or CircleDetectorParams(), cloud)
     if landmarks_csv is not None:
-        try:
-            t = pd.read_csv(landmarks_csv)
-        except (OSError, ValueError) as exc:
-            raise DataError(f"{landmarks_csv}: cannot read landmarks ({exc})") from None
-        missing = {"id", "x", "y", "radius"} - set(t.columns)
-        if missing:
-            raise DataError(f"{landmarks_csv}: missing columns {sorted(missing)} (need id, x, y, radius)")
-        bad = t[["x", "y", "radius"]].isna().any(axis=1) | (t["radius"] <= 0)
-        if bad.any():
-            raise DataError(f"{landmarks_csv}:{int(np.flatnonzero(bad)[0]) + 2}: x, y must be numbers and radius > 0")
-        return t["id"].to_numpy(np.int64), t[["x", "y"]].to_numpy(np.float64), t["radius"].to_numpy(np.float64)
+        return read_landmarks_csv(Path(landmarks_csv))
     if log.landmarks is None:
         raise UsageError(f"log {log.name!r} has no landmark truth; pass --landmarks FILE.csv (id, x, y, radius) or --landmarks cloud")
     lm = log.landmarks
     if np.isnan(lm.radius).any():
         raise DataError(f"log {log.name!r}: landmark radii are unknown; the n_p ray tracer needs them (--landmarks)")
     return lm.ids, lm.xy, lm.radius
+
+
+def read_landmarks_csv(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(ids (L,), xy (L, 2), radius (L,)) from a CSV with columns id, x, y, radius (world frame, metres)."""
+    try:
+        t = pd.read_csv(path)
+    except (OSError, ValueError) as exc:
+        raise DataError(f"{path}: cannot read landmarks ({' '.join(str(exc).split())})") from None
+    missing = {"id", "x", "y", "radius"} - set(t.columns)
+    if missing:
+        raise DataError(f"{path}: missing columns {sorted(missing)} (need id, x, y, radius)")
+    num = t[["id", "x", "y", "radius"]].apply(pd.to_numeric, errors="coerce")
+    bad = ~np.isfinite(num.to_numpy(np.float64)).all(axis=1) | (num["radius"] <= 0).to_numpy() | (num["id"] % 1 != 0).to_numpy()
+    if bad.any():
+        raise DataError(f"{path}:{int(np.flatnonzero(bad)[0]) + 2}: id must be an integer, x, y numbers and radius > 0")
+    ids = num["id"].to_numpy(np.int64)
+    if np.unique(ids).size != ids.size:
+        raise DataError(f"{path}: landmark ids are not unique")
+    return ids, num[["x", "y"]].to_numpy(np.float64), num["radius"].to_numpy(np.float64)
 
 
 def _check_same_sensor(logs: list[SensorLog]) -> SensorModel:

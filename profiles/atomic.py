@@ -156,7 +156,9 @@ class _Staged:
                 os.close(fd)
                 self.holder = self.tmp = Path(name)
         except OSError as exc:
-            raise UsageError(f"{path}: cannot write here ({exc.strerror or exc})") from None
+            blocker = next((p for p in path.parents if p.exists() and not p.is_dir()), None)
+            why = f"{blocker} is a file, not a folder" if blocker is not None else (exc.strerror or str(exc))
+            raise UsageError(f"{path}: cannot write here ({why})") from None
 
     def finish(self) -> None:
         """Everything but the move: the marker of a folder, the mode of a file."""

@@ -91,8 +91,11 @@ def landmark_input(landmarks: Path | None) -> list:
     from calib.io.common import file_digest
     from profiles.profile import InputRef
 
+    from calib.calibrate import read_landmarks_csv
+
     if not landmarks.is_file():
         raise UsageError(f"--landmarks: {landmarks}: no such file (give a CSV of id, x, y, radius, or `cloud`)")
+    read_landmarks_csv(landmarks)  # a bad file is refused before any work
     return [InputRef(name=landmarks.name, sha256=file_digest(landmarks))]
 
 

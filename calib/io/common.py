@@ -196,7 +196,7 @@ def table_stamps(seconds: np.ndarray, path: Path, what: str) -> np.ndarray:
     t = np.asarray(seconds, dtype=np.float64)
     bad = np.flatnonzero(~(np.abs(t) < MAX_SECONDS))
     if bad.size:
-        raise DataError(f"{path}:{_data_line(path, int(bad[0]))}: {what}: time {t[bad[0]]!r} s is out of range (at most {MAX_SECONDS:.3g} s)")
+        raise DataError(f"{path}:{_data_line(path, int(bad[0]))}: {what}: time {float(t[bad[0]])!r} s is out of range (at most {MAX_SECONDS:.3g} s)")
     return seconds_to_stamp(t)
 
 

@@ -217,8 +217,9 @@ def _has_meta(path: Path) -> bool:
 
 
 def _where(exc: ValidationError) -> str:
+    """``.field.path: what was wrong`` of the first error (no path for a check of the whole section)."""
     e = exc.errors()[0]
-    loc = ".".join(str(p) for p in e["loc"])
+    loc = "".join(f".{p}" for p in e["loc"])
     return f"{loc}: {'unknown key' if e['type'] == 'extra_forbidden' else e['msg']}"
 
 
@@ -300,11 +301,11 @@ def read_native(path: str | Path) -> SensorLog:
             try:
                 models[key] = None if meta.get(key) is None else model.model_validate(meta[key])
             except ValidationError as exc:
-                raise DataError(f"{path}: meta.json {key}.{_where(exc)}") from None
+                raise DataError(f"{path}: meta.json {key}{_where(exc)}") from None
         try:
             streams = _Streams.model_validate(meta["streams"])
         except ValidationError as exc:
-            raise DataError(f"{path}: meta.json streams.{_where(exc)}") from None
+            raise DataError(f"{path}: meta.json streams{_where(exc)}") from None
         try:
             log = _build(meta, models["sensor"], models["vehicle"], streams, load)
             _check_counts(log, streams)
