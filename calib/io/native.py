@@ -265,8 +265,8 @@ def read_native(path: str | Path) -> SensorLog:
                 arr = np.lib.format.read_array(io.BytesIO(raw), allow_pickle=False)
             except DataError:
                 raise
-            except (zipfile.BadZipFile, zlib.error, EOFError, ValueError, OSError, MemoryError, TypeError) as exc:
-                raise DataError(f"{path}: member {member} is truncated or corrupt ({exc})") from None
+            except Exception as exc:  # noqa: BLE001  (numpy's header parser raises SyntaxError, TokenError, ValueError...)
+                raise DataError(f"{path}: member {member} is truncated or corrupt ({type(exc).__name__}: {exc})") from None
             if want == "number":
                 if arr.dtype.kind not in "biuf":
                     raise DataError(f"{path}: member {member} has dtype {arr.dtype}, expected numbers")
