@@ -30,7 +30,7 @@ from detectors.logs import SensorLog
 from profiles.atomic import Output, atomic_outputs, check_replaceable
 from profiles.errors import UsageError
 from profiles.profile import NAME_RE, SEMVER_RE, InputRef
-from profiles.store import Request, final_status, check_save, load_profile_file, same_content, same_request, write_profile_text
+from profiles.store import Request, check_save, final_status, load_profile_file, same_content, same_request, write_profile_text
 
 
 @dataclass
@@ -64,8 +64,9 @@ class CalibrationOutcome:
     notes: list[str] = field(default_factory=list)  # what the user should know (records dropped, ...)
 
 
-def check_name(name: str, version: str) -> None:
-    if not NAME_RE.match(name):
+def check_name(name: str | None, version: str) -> None:
+    """The profile's name (when given) and version, as ``--name`` and ``--version`` must be."""
+    if name is not None and not NAME_RE.match(name):
         raise UsageError(f"--name: {name!r} must match [a-z0-9][a-z0-9._-]*")
     if not SEMVER_RE.match(version):
         raise UsageError(f"--version: {version!r} is not MAJOR.MINOR.PATCH")
@@ -182,3 +183,26 @@ def _check_run_folder(run_dir: Path, request: Request, force: bool) -> str:
         raise UsageError(f"{run_dir}: already exists (use --force to replace it)")
     check_replaceable(run_dir, overwrite=True, directory=True)  # it must be a run folder detcal wrote
     return "unchanged"
+
+
+def run_validation(profile, logs: list[SensorLog], *, landmarks: Path | None, poses: str, out: Path, force: bool):
+    """``detcal validate``: score ``profile`` on held-out logs and write the run folder; returns (validation, notes)."""
+    from calib.truth import trim_to_truth
+    from calib.validate import validate, write_validation_run
+
+    check_replaceable(out, overwrite=force, directory=True)
+    notes, kept = [], []
+    for lg in logs:
+        lg, dropped = trim_to_truth(lg)
+        notes += [f"log {lg.name!r}: {n} {what} outside the ground truth's time span dropped" for what, n in dropped.items()]
+        kept.append(lg)
+    if profile.detector.kind == "external":
+        from calib.detlevel import validate_detections
+
+        v = validate_detections(profile, kept)
+    else:
+        if len(kept) > 1:
+            raise UsageError("validate one laser log at a time")
+        v = validate(profile, kept[0], landmarks_csv=landmarks, poses=poses)
+    write_validation_run(v, out, overwrite=force)
+    return v, notes

@@ -56,7 +56,7 @@ def calibrate_cmd(
     from calib.pipeline import CalibrationJob, check_name, run_calibration
 
     check_poses(poses)
-    check_name(name or "x", version)
+    check_name(name, version)
     landmark_ref = landmark_input(landmarks)
     if logs:
         loaded, paths = reader.read_many(logs, robot)
@@ -121,25 +121,19 @@ def validate_cmd(
     robot: RobotsOpt = None,
 ) -> None:
     """Check a profile on a held-out log: P_D reliability (ECE), false alarms per scan, Hotelling coverage."""
-    from calib.validate import validate, write_validation_run
+    from calib.pipeline import run_validation
     from profiles.store import resolve
 
     check_poses(poses)
+    landmark_input(landmarks)
     prof = resolve(profile_ref)
     loaded, _ = reader.read_many([log_path], robot)
-    log = loaded[0]
-    target = out_dir or Path("runs") / f"validate_{prof.ref}_{log.name}"
+    target = out_dir or Path("runs") / f"validate_{prof.ref}_{loaded[0].name}"
     fresh(target, force)
-    if prof.detector.kind == "external":
-        from calib.detlevel import validate_detections
-
-        v = validate_detections(prof, loaded)
-    else:
-        if len(loaded) > 1:
-            raise UsageError("validate one laser log at a time")
-        v = validate(prof, log, landmarks_csv=landmarks, poses=poses)
-    write_validation_run(v, target, overwrite=force)
-    out.print(summary_table(f"validation of {prof.ref} on {log.name} -> {target}", v.summary))
+    v, notes = run_validation(prof, loaded, landmarks=landmarks, poses=poses, out=target, force=force)
+    for note in notes:
+        warn(note)
+    out.print(summary_table(f"validation of {prof.ref} on {loaded[0].name} -> {target}", v.summary))
 
 
 @reader_options("fmt", "max_backstep", "laser", "range_max", "scan_topic")

@@ -24,7 +24,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-
 from pydantic import ValidationError
 
 from calib.io.common import DEFAULT_MAX_BACKSTEP, file_digest, iter_lines, parse_floats, parse_stamp, time_order
@@ -149,7 +148,7 @@ def read_carmen(
                 sensor = SensorModel(n_beams=width, geometries=geoms, **common)
                 geometry = which.reshape(-1)[perm]
         except ValidationError as exc:
-            raise DataError(f"{path}: {str(scan_kind)} beam geometry: {exc.errors()[0]['msg']}") from None
+            raise DataError(f"{path}: {scan_kind!s} beam geometry: {exc.errors()[0]['msg']}") from None
         scans = ScanBatch(np.array(scan_stamp, dtype=np.int64)[perm], ranges, None, np.stack(scan_odom)[perm], geometry)
     odometry = None
     if odom_rows:

@@ -7,6 +7,7 @@ import gzip
 import hashlib
 import io
 import lzma
+import math
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -60,11 +61,11 @@ def parse_stamp(token: str, path: Path, lineno: int, what: str = "timestamp") ->
     try:
         if "e" in token or "E" in token:
             sec_f = float(token)
-            if sec_f != sec_f:
+            if math.isnan(sec_f):
                 raise ValueError(token)
             if not abs(sec_f) < MAX_SECONDS:
                 raise DataError(f"{path}:{lineno}: {what} {token!r} is out of range (at most {MAX_SECONDS:.3g} s)")
-            ns = int(round(sec_f * 1e9))
+            ns = round(sec_f * 1e9)
         else:
             neg = token.startswith("-")
             body = token[1:] if token[:1] in "+-" else token

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import bz2
 import io
-import json
 import zipfile
 from pathlib import Path
 
@@ -95,8 +94,8 @@ def _utias_big_time(d: Path) -> None:
 
 
 def interlaced_log(tmp: Path) -> str:
-    from calib.io.native import write_native
     from calib.io.carmen import read_carmen
+    from calib.io.native import write_native
 
     lines = [odom(1.0), flaser(1.05, [1.0] * 181), flaser(1.15, [2.0] * 180), odom(1.2, 0.1)]
     log = read_carmen(carmen(tmp, *lines, base=[], name="i.clf"))

@@ -118,7 +118,7 @@ def test_records_outside_the_truth_span(capsys, tmp_path):
     assert dropped == {"scans": first_kept} and len(trimmed.scans) == len(log.scans) - first_kept
     p = write_native(late, tmp_path / "late.dlog")
     (tmp_path / "c.yaml").write_text("pd: {min_count: 30}\n")
-    code, out, err = run(capsys, "calibrate", str(p), "--config", str(tmp_path / "c.yaml"), "--profiles-dir", str(tmp_path / "p"), "--out", str(tmp_path / "r"))
+    code, _, err = run(capsys, "calibrate", str(p), "--config", str(tmp_path / "c.yaml"), "--profiles-dir", str(tmp_path / "p"), "--out", str(tmp_path / "r"))
     assert code == 0, err
     assert f"detcal: warning: log 'park_seed43': {first_kept} scans outside the ground truth's time span dropped" in err
     assert yaml.safe_load((tmp_path / "r/summary.yaml").read_text())["scans"] == len(log.scans) - first_kept
