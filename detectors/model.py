@@ -200,6 +200,13 @@ class DetectionModel:
         pd = np.where(inside | near, pd_in, 0.0)
         return pd, near
 
+    def pd_features(self, sensor_poses: np.ndarray, mu: np.ndarray, cov: np.ndarray, meas) -> tuple[np.ndarray, np.ndarray]:
+        """What a map filter calls: P_D (P, J) and buffer flags (P, J) of the map features mu (P, J, dx)
+        with covariances cov (P, J, dx, dx) seen from sensor poses (P, 3), given the frame's measurements
+        ``meas`` (:class:`slam_runtime.mapfilter.Measurements`: its scan and beam angles for n_p profiles).
+        Detection models of other feature kinds (planes) offer the same method."""
+        return self.pd_points(sensor_poses, mu, cov, getattr(meas, "scan", None), getattr(meas, "angles", None))
+
     def pd_points(
         self,
         sensor_poses: np.ndarray,

@@ -39,7 +39,7 @@ class Measurements:
     fit's), added to the filter's noise floor, or None; ratio (M,) the
     descriptor likelihood ratio g_x(d) / g_FA(d) of eq. 5.6, or None; scan (B,)
     and angles (B,) the laser scan the measurements came from (ray-traced P_D),
-    or None.
+    or None; cloud (N, 4) the point cloud they came from (3D features), or None.
     """
 
     z: np.ndarray
@@ -47,6 +47,7 @@ class Measurements:
     ratio: np.ndarray | None = None
     scan: np.ndarray | None = None
     angles: np.ndarray | None = None
+    cloud: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.z.shape[0])

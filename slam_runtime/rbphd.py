@@ -136,7 +136,7 @@ class RBPHD(MapFilter):
         w, mu, cov = prior.w, prior.mu, prior.cov
         p, j = w.shape
         with tm("pd"):
-            pd, buf = self.detection.pd_points(sp, mu, cov, meas.scan, meas.angles)
+            pd, buf = self.detection.pd_features(sp, mu, cov, meas)
             buf[:, n_map:] = False  # the rule protects map features, not this step's birth hypotheses
         kappa = self.detection.clutter_intensity(z) if m else np.zeros(0)
         if meas.ratio is not None and m:
