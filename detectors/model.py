@@ -6,10 +6,14 @@ passes arrays and gets arrays back:
 * :meth:`DetectionModel.pd_landmarks` -- P_D of L landmarks from one sensor pose
   given the current scan, through n_p (eqs. 4.1, 6.1) and the P_D table, with
   the buffer-zone flag of sec. 6.1 (for eq. 3.21);
+* :meth:`DetectionModel.pd_at` -- P_D at predicted measurements z = (range,
+  bearing) in the sensor frame, for detection-level profiles (a range table or a
+  range x bearing grid), 0 outside the field of view;
 * :meth:`DetectionModel.pd_covariate` -- P_D from the covariate directly (e.g.
   range, for detectors without scans);
-* :meth:`DetectionModel.clutter_intensity` -- kappa(z) = lambda / |FoV| inside
-  the field of view, 0 outside (sec. 4.2);
+* :meth:`DetectionModel.clutter_intensity` -- kappa(z): lambda / |FoV| inside
+  the field of view (sec. 4.2), or lambda x the profile's clutter density over
+  (range, bearing) when it has one; 0 outside;
 * :meth:`DetectionModel.g_true` / :meth:`DetectionModel.g_false` -- the
   descriptor likelihoods of eq. 5.6 for the amplitude-feature update (eq. 2.26).
 """
@@ -26,7 +30,7 @@ from scipy.stats import chi2
 from detectors.circle import hotelling_maha2
 from detectors.logs import SensorModel
 from detectors.raytrace import buffer_zone, count_unoccluded
-from profiles.errors import DataError
+from profiles.errors import DataError, UsageError
 from profiles.schema import ClutterParams, HotellingParams, MeasurementNoise, PdTable
 
 
@@ -89,8 +93,26 @@ class DetectionModel:
         return self.pd_table.lookup(n_p)
 
     def pd_covariate(self, v: np.ndarray) -> np.ndarray:
-        """P_D for covariate values (any shape): n_p counts or ranges, as the table says."""
+        """P_D for covariate values (any shape): n_p counts or ranges, as a one-covariate table says."""
         return self.pd_table.lookup(v)
+
+    def pd_at(self, z: np.ndarray) -> np.ndarray:
+        """P_D (...) at predicted measurements z (..., 2) = (range [m], bearing [rad]) in the sensor frame.
+
+        For detection-level profiles: a range table (thesis eq. 6.2 with range as
+        the covariate) or a range x bearing grid; 0 outside the field of view
+        (range_min..range_max, the angular span). An n_p profile needs the current
+        scan and raises :class:`UsageError` (use :meth:`pd_landmarks`).
+
+        >>> # m = DetectionModel.from_profile(profile); m.pd_at(np.array([[2.0, 0.1], [9.0, 0.0]]))
+        """
+        t = self.pd_table
+        if t.covariate == "n_p":
+            raise UsageError("an n_p P_D table needs the current scan to ray-trace: use pd_landmarks, not pd_at")
+        z = np.asarray(z, dtype=np.float64)
+        if z.shape[-1:] != (2,):
+            raise UsageError(f"pd_at: z must have shape (..., 2) = (range, bearing), got {z.shape}")
+        return np.where(self.in_fov(z), t.lookup_rb(z[..., 0], z[..., 1]), 0.0)
 
     def pd_landmarks(
         self,
@@ -138,9 +160,18 @@ class DetectionModel:
         return ok
 
     def clutter_intensity(self, z: np.ndarray) -> np.ndarray:
-        """kappa(z) (M,) for range-bearing measurements z (M, 2), per unit of the clutter space."""
+        """kappa(z) (M,) for range-bearing measurements z (M, 2) in the sensor frame.
+
+        Per unit of range x bearing [1 / (m rad)]: lambda x density(z) when the
+        profile has a clutter density (it integrates to lambda over the field of
+        view), else the uniform lambda / |FoV| of the thesis (sec. 4.2); 0 outside
+        the field of view. For an ``xy`` profile the uniform density per m^2 times
+        the Jacobian r.
+        """
         z = np.atleast_2d(np.asarray(z, dtype=np.float64))
         k = self.clutter.kappa
+        if self.clutter.density is not None:
+            return np.where(self.in_fov(z), self.clutter.rate * self.clutter.density.at(z[:, 0], z[:, 1]), 0.0)
         if self.clutter.space == "xy":
             # a uniform density in x-y is r times a density in (r, bearing)
             return np.where(self.in_fov(z), k * z[:, 0], 0.0)

@@ -63,7 +63,7 @@ def test_bad_profiles_are_rejected_with_the_field_path(tmp_path, edit, match):
 
 def test_other_schema_versions_are_refused_by_name(tmp_path):
     d = make_profile().model_dump(mode="json")
-    for v, match in ((2, "schema_version 2 is newer than this detcal reads"), (0, "schema_version 0 is not supported")):
+    for v, match in ((3, "schema_version 3 is newer than this detcal reads"), (0, "schema_version 0 is not supported")):
         d["schema_version"] = v
         (tmp_path / "v.yaml").write_text(yaml.safe_dump(d))
         with pytest.raises(DataError, match=match):
