@@ -129,6 +129,16 @@ def summary_table(title: str, rows: dict) -> Table:
     return t
 
 
+def frame_table(title: str, df) -> Table:
+    """A pandas table as a plain-text table (numbers to 4 significant digits)."""
+    t = Table(title=title)
+    for c in df.columns:
+        t.add_column(str(c), justify="left" if df[c].dtype == object else "right")
+    for row in df.itertuples(index=False):
+        t.add_row(*[f"{v:.4g}" if isinstance(v, float) else str(v) for v in row])
+    return t
+
+
 def input_refs(path: Path, log) -> list:
     """The log's input files with their sha256 (a folder's files as its reader hashed them)."""
     from calib.detlevel import input_refs_for
