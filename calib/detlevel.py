@@ -312,7 +312,7 @@ def calibrate_detections(
         cluster = pairs.groupby(["log", "landmark", "block"], sort=False).ngroup().to_numpy()
         pooling = pool_sensors(table, pairs, pairs["log"].to_numpy(), names, cluster)
         _, tau, weights, member_rates = shrink_rates([p.counts for p in parts])
-        table = table.model_copy(update={"between_sensor_sd": between_sensor_sd(table, pooling.concentration)})
+        table = table.model_copy(update={"between_sensor_sd": between_sensor_sd(table, pooling)})
         spread = dict(
             names=names,
             pairs=pooling.pairs,
@@ -320,6 +320,8 @@ def calibrate_detections(
             pd_predicted=pooling.pd_predicted,
             frames=[int(p.counts.size) for p in parts],
             clutter_rate=[float(p.counts.mean()) for p in parts],
+            pd_logit_offset=pooling.offsets,
+            pd_logit_sd=pooling.offset_sd,
             pd_concentration=pooling.concentration,
             pd_between_sd=pooling.between_sd,
             clutter_between_sd=tau,
@@ -387,7 +389,10 @@ def calibrate_detections(
                 "pd_observed_per_sensor": [round(x, 4) for x in pooling.pd_observed],
                 "pd_predicted_per_sensor": [round(x, 4) for x in pooling.pd_predicted],
                 "pd_between_sensor_sd": pooling.between_sd,
+                "pd_logit_offset_per_sensor": [round(x, 4) for x in pooling.offsets],
+                "pd_logit_offset_sd": pooling.offset_sd,
                 "pd_pooling_concentration": pooling.concentration,
+                "pd_design_effect_per_sensor": [round(x, 2) for x in pooling.design_effects],
                 "clutter_rate_per_sensor": [round(float(p.counts.mean()), 4) for p in parts],
                 "clutter_between_sensor_sd": spread["clutter_between_sd"],
             }

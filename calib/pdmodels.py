@@ -19,11 +19,10 @@ sensor; contiguous time blocks otherwise) and keeps the one with the highest
 mean Bernoulli log-likelihood per held-out pair.
 
 Several sensors (robots, logs): :func:`pool_sensors` states how far they differ
-and gives each its own partially pooled table. A beta prior Beta(m p_c,
-m (1 - p_c)) centred on the pooled table's P_D p_c is fitted to the sensors' bin
-counts by the beta-binomial marginal likelihood (empirical Bayes); a sensor's
-bin with k detections in n pairs then gets (k + m p_c) / (n + m): a sensor with
-little data stays near the pooled value, one with much data follows its own.
+and gives each its own partially pooled table (empirical Bayes in two levels: a
+logit offset per sensor shrunk by the offsets' spread, then each cell shrunk by
+a beta prior fitted with the beta-binomial likelihood): a sensor with little
+data stays near the pooled table, one with much data follows its own.
 """
 
 from __future__ import annotations
@@ -88,8 +87,8 @@ def n_cells(table: PdTable) -> int:
 
 def predict(table: PdTable, pairs: pd.DataFrame) -> np.ndarray:
     """P_D (N,) the table gives each pair (columns n_p, or range and bearing)."""
-    if table.covariate == "n_p":
-        return table.lookup(pairs["n_p"].to_numpy())
+    if not table.two_d:
+        return table.lookup(pairs[table.covariate].to_numpy())
     return table.lookup_rb(pairs["range"].to_numpy(np.float64), pairs["bearing"].to_numpy(np.float64))
 
 
@@ -242,13 +241,14 @@ def choose_pd_model(pairs: pd.DataFrame, fold: np.ndarray, folds_label: str, fov
 
 
 def beta_binomial_concentration(k: np.ndarray, n: np.ndarray, p: np.ndarray, bounds: tuple[float, float] = (0.1, 1e6)) -> float | None:
-    """m of Beta(m p_c, m (1 - p_c)) maximising the beta-binomial likelihood of k, n (S, C) around p (C,).
+    """m of Beta(m p_c, m (1 - p_c)) maximising the beta-binomial likelihood of k, n (S, C) around p (C,) or (S, C).
 
     None when the likelihood keeps rising to the upper bound: the sensors agree
     within binomial noise (complete pooling).
     """
     k, n = np.asarray(k, dtype=np.float64), np.asarray(n, dtype=np.float64)
-    p = np.clip(np.asarray(p, dtype=np.float64), LOGLIK_CLIP, 1 - LOGLIK_CLIP)[None, :]
+    p = np.clip(np.asarray(p, dtype=np.float64), LOGLIK_CLIP, 1 - LOGLIK_CLIP)
+    p = p[None, :] if p.ndim == 1 else p
     use = n > 0
     if not use.any():
         return None
@@ -287,14 +287,39 @@ def design_effect(y: np.ndarray, p: np.ndarray, cluster: np.ndarray | None) -> f
     return max(1.0, float((sums**2).sum()) / v_binom)
 
 
+def sensor_offset(k: np.ndarray, n: np.ndarray, p: np.ndarray, iterations: int = 30) -> tuple[float, float]:
+    """(u, s.e.) of the logit offset u maximising sum_c binomial(k_c | n_c, sigmoid(logit p_c + u)).
+
+    k, n (C,) a sensor's (possibly deflated) counts per cell; p (C,) the pooled P_D.
+    Newton's method on one parameter; u is clipped to [-6, 6] (a sensor that never
+    or always detects).
+    """
+    eta = np.log(np.clip(p, LOGLIK_CLIP, 1 - LOGLIK_CLIP) / (1 - np.clip(p, LOGLIK_CLIP, 1 - LOGLIK_CLIP)))
+    u = 0.0
+    info = 0.0
+    for _ in range(iterations):
+        q = expit(eta + u)
+        g = float((k - n * q).sum())
+        info = float((n * q * (1 - q)).sum())
+        if info <= 0:
+            return 0.0, float("inf")
+        step = g / info
+        u = float(np.clip(u + step, -6.0, 6.0))
+        if abs(step) < 1e-10:
+            break
+    return u, float(1 / np.sqrt(info)) if info > 0 else float("inf")
+
+
 @dataclass
 class Pooling:
-    """Per-sensor figures and partially pooled tables (see the module docstring)."""
+    """Per-sensor figures and partially pooled tables (see :func:`pool_sensors`)."""
 
     names: list[str]
     pairs: list[int]
     pd_observed: list[float]
     pd_predicted: list[float]
+    offsets: list[float]  # each sensor's logit offset, shrunk
+    offset_sd: float  # tau: the spread of the sensors' logit offsets beyond their sampling error
     concentration: float | None
     between_sd: float
     tables: list[PdTable]
@@ -302,16 +327,27 @@ class Pooling:
 
 
 def pool_sensors(pooled: PdTable, pairs: pd.DataFrame, sensor: np.ndarray, names: list[str], cluster: np.ndarray | None = None) -> Pooling:
-    """Partial pooling of the pooled table toward each sensor.
+    """Partial pooling of the pooled table toward each sensor, in two levels.
 
     pairs: the pooled table's covariate columns and ``detected``; sensor (N,) index
-    into ``names``; cluster (N,) optional groups of correlated pairs. Each
-    sensor's counts are divided by its design effect (:func:`design_effect`)
-    before they meet the beta prior: its pairs carry that much less information
-    than as many independent trials. Each member table keeps the pooled layout
-    with counts of its own pairs and values (k' + m p) / (n' + m), k' and n' the
-    deflated counts (``model: partial_pooling``), or the pooled values when the
-    sensors agree within their noise.
+    into ``names``; cluster (N,) optional groups of correlated pairs.
+
+    1. Each sensor's counts are divided by its design effect (:func:`design_effect`):
+       its pairs carry that much less information than as many independent trials.
+    2. A sensor is more or less sensitive everywhere (a camera's gain, focus):
+       logit P_D_s = logit p_c + u_s. Each u_s is fitted (:func:`sensor_offset`)
+       with its standard error se_s; the offsets' spread beyond sampling error is
+       tau^2 = max(0, var(u) - mean(se^2)) (method of moments) and each offset is
+       shrunk by tau^2 / (tau^2 + se_s^2) -- a sensor with little data keeps little
+       of its own offset.
+    3. What the offset leaves, cell by cell: a beta prior centred on the shifted
+       table q_sc, its concentration m from the beta-binomial likelihood
+       (:func:`beta_binomial_concentration`); the member's value is
+       (k' + m q_sc) / (n' + m) with k', n' the deflated counts, or q_sc itself when
+       the cells agree within their noise.
+
+    Each member table keeps the pooled layout (``model: partial_pooling``,
+    ``shrinkage`` = m, None when the cells are pooled completely).
     """
     sensor = np.asarray(sensor)
     y = pairs["detected"].to_numpy(bool)
@@ -327,31 +363,39 @@ def pool_sensors(pooled: PdTable, pairs: pd.DataFrame, sensor: np.ndarray, names
         ns.append(n)
         ks.append(k)
         deffs.append(design_effect(y[w], pred[w], None if cluster is None else np.asarray(cluster)[w]))
-    k_all, n_all = np.array(ks), np.array(ns)
+    k_all, n_all = np.array(ks, dtype=np.float64), np.array(ns, dtype=np.float64)
     d = np.array(deffs)[:, None]
-    m = beta_binomial_concentration(k_all / d, n_all / d, p)
+    kd, nd = k_all / d, n_all / d
+    fits = [sensor_offset(kd[s], nd[s], p) for s in range(len(names))]
+    u, se = np.array([f[0] for f in fits]), np.array([f[1] for f in fits])
+    finite = np.isfinite(se)
+    tau2 = max(0.0, float(u[finite].var(ddof=1)) - float(np.mean(se[finite] ** 2))) if finite.sum() > 1 else 0.0
+    shrunk = np.where(finite, u * tau2 / (tau2 + np.where(finite, se, 1.0) ** 2), 0.0) if tau2 > 0 else np.zeros_like(u)
+    eta = np.log(np.clip(p, LOGLIK_CLIP, 1 - LOGLIK_CLIP) / (1 - np.clip(p, LOGLIK_CLIP, 1 - LOGLIK_CLIP)))
+    q = expit(eta[None, :] + u[:, None])  # each sensor's own offset, to measure what is left cell by cell
+    m = beta_binomial_concentration(kd, nd, q)
     overall = float(y.mean()) if y.size else 0.0
-    between = 0.0 if m is None else float(np.sqrt(overall * (1 - overall) / (m + 1)))
+    cell_var = 0.0 if m is None else overall * (1 - overall) / (m + 1)
+    between = float(np.sqrt((overall * (1 - overall)) ** 2 * tau2 + cell_var))
     tables = []
     for s in range(len(names)):
         n, k = n_all[s], k_all[s]
         lo, hi = wilson(k, n)
-        vals = p if m is None else (k / deffs[s] + m * p) / (n / deffs[s] + m)
+        qs = expit(eta + shrunk[s])
+        vals = qs if m is None else (kd[s] + m * qs) / (nd[s] + m)
         upd = {
             "pd": vals.reshape(shape).tolist(),
-            "counts": n.reshape(shape).tolist(),
-            "detections": k.reshape(shape).tolist(),
+            "counts": n.astype(np.int64).reshape(shape).tolist(),
+            "detections": k.astype(np.int64).reshape(shape).tolist(),
             "wilson_low": np.nan_to_num(lo, nan=0.0).reshape(shape).tolist(),
             "wilson_high": np.nan_to_num(hi, nan=1.0).reshape(shape).tolist(),
             "between_sensor_sd": None,
             "selection": None,
+            "model": "partial_pooling",
+            "shrinkage": m,
+            "clamping": f"{pooled.clamping}; partially pooled: logit offset {shrunk[s]:+.3g} (own {u[s]:+.3g}, tau {np.sqrt(tau2):.3g}), "
+            f"cells with m = {m if m is None else round(m, 4)}, counts / design effect {deffs[s]:.3g}",
         }
-        if m is not None:
-            upd.update(
-                model="partial_pooling",
-                shrinkage=m,
-                clamping=f"{pooled.clamping}; partially pooled toward the pooled table with m = {m:.4g}, counts / design effect {deffs[s]:.3g}",
-            )
         tables.append(PdTable.model_validate({**pooled.model_dump(), **upd}))
     sel = [sensor == s for s in range(len(names))]
     return Pooling(
@@ -359,6 +403,8 @@ def pool_sensors(pooled: PdTable, pairs: pd.DataFrame, sensor: np.ndarray, names
         pairs=[int(w.sum()) for w in sel],
         pd_observed=[float(y[w].mean()) if w.any() else float("nan") for w in sel],
         pd_predicted=[float(pred[w].mean()) if w.any() else float("nan") for w in sel],
+        offsets=shrunk.tolist(),
+        offset_sd=float(np.sqrt(tau2)),
         concentration=m,
         between_sd=between,
         tables=tables,
@@ -366,12 +412,14 @@ def pool_sensors(pooled: PdTable, pairs: pd.DataFrame, sensor: np.ndarray, names
     )
 
 
-def between_sensor_sd(pooled: PdTable, m: float | None) -> list | None:
-    """Per bin sqrt(p (1 - p) / (m + 1)): the spread of the sensors' P_D the beta prior implies."""
-    if m is None:
-        return None
+def between_sensor_sd(pooled: PdTable, pool: Pooling) -> list:
+    """Per bin the spread of the sensors' P_D the two-level prior implies:
+    sqrt((p (1 - p) tau)^2 + p (1 - p) / (m + 1)) (the offset by the delta method, then the cells)."""
     p = np.asarray(pooled.pd, dtype=np.float64)
-    return np.sqrt(p * (1 - p) / (m + 1)).tolist()
+    v = (p * (1 - p) * pool.offset_sd) ** 2
+    if pool.concentration is not None:
+        v = v + p * (1 - p) / (pool.concentration + 1)
+    return np.sqrt(v).tolist()
 
 
 def shrink_rates(counts: list[np.ndarray], n_batches: int = 20) -> tuple[float, float, list[float], list[float]]:

@@ -177,7 +177,11 @@ def plot_sensors(cal, path: Path) -> None:
     ax.set_xlabel("range [m]")
     ax.set_ylabel("detection rate (dotted: pooled model on the same pairs)")
     sp = cal.profile.sensors
-    ax.set_title(f"P_D per sensor; between-sensor sd {sp.pd_between_sd:.3f}" + (f", pooling m = {sp.pd_concentration:.3g}" if sp.pd_concentration else ""), fontsize=9)
+    ax.set_title(
+        f"P_D per sensor; between-sensor sd {sp.pd_between_sd:.3f} (logit offsets sd {sp.pd_logit_sd:.2f}"
+        + (f", cells m = {sp.pd_concentration:.3g})" if sp.pd_concentration else ")"),
+        fontsize=9,
+    )
     ax.set_ylim(0, 1)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, ncol=2)

@@ -111,12 +111,12 @@ class SensorSpread(Strict):
     Lists run over ``names``. ``pd_observed`` is each sensor's detection rate over
     its own pairs and ``pd_predicted`` what the pooled model predicts for the same
     pairs (they differ when the sensors differ, not only by where they looked).
-    ``pd_concentration`` is m of the beta prior fitted to the sensors' tables
-    (beta-binomial marginal likelihood): a sensor's bin with n pairs and k
-    detections gets (k + m p_pooled) / (n + m); None means the sensors agree
-    within binomial noise (complete pooling). ``pd_between_sd`` is the typical
-    between-sensor standard deviation of P_D this implies, at the pooled overall
-    P_D: sqrt(p (1 - p) / (m + 1)). Clutter rates are pooled the same way:
+    Partial pooling in two levels: ``pd_logit_offset`` is each sensor's shift of
+    logit P_D from the pooled table (shrunk by ``pd_logit_sd``, the offsets' spread
+    beyond their sampling error), and ``pd_concentration`` is m of the beta prior
+    on what the offset leaves cell by cell (None: the cells agree within their
+    noise). ``pd_between_sd`` is the between-sensor standard deviation of P_D
+    both imply at the pooled overall P_D. Clutter rates are pooled likewise:
     ``clutter_between_sd`` is the spread of the sensors' rates beyond their
     sampling error (batch means), and a member's rate is w own + (1 - w) pooled.
     ``member``: None for the pooled profile, else the sensor this profile is for.
@@ -129,6 +129,8 @@ class SensorSpread(Strict):
     pd_predicted: list[float]
     frames: list[int]
     clutter_rate: list[float]
+    pd_logit_offset: list[float]
+    pd_logit_sd: float = Field(ge=0.0)
     pd_concentration: float | None = Field(default=None, gt=0.0)
     pd_between_sd: float = Field(ge=0.0)
     clutter_between_sd: float = Field(ge=0.0)
@@ -137,7 +139,7 @@ class SensorSpread(Strict):
     @model_validator(mode="after")
     def _lengths(self) -> SensorSpread:
         n = len(self.names)
-        for name in ("pairs", "pd_observed", "pd_predicted", "frames", "clutter_rate"):
+        for name in ("pairs", "pd_observed", "pd_predicted", "frames", "clutter_rate", "pd_logit_offset"):
             if len(getattr(self, name)) != n:
                 raise ValueError(f"{name} has {len(getattr(self, name))} entries for {n} sensors")
         if self.member is not None and self.member not in self.names:

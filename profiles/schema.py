@@ -157,8 +157,9 @@ class PdTable(Strict):
     ``additive_logit`` (logit P_D = a(range bin) + b(bearing bin), a logistic
     regression: few parameters, no cell left empty) or ``cells_shrunk`` (each
     cell's rate shrunk toward the additive model with ``shrinkage`` pseudo-pairs)
-    or ``partial_pooling`` (one sensor's rates shrunk toward a pooled table of
-    several sensors with ``shrinkage`` = m pseudo-pairs, see ``sensors``).
+    or ``partial_pooling`` (one sensor's table: the pooled table of several
+    sensors shifted by the sensor's logit offset, its cells shrunk toward that
+    with ``shrinkage`` = m pseudo-pairs; see ``sensors``).
 
     ``between_sensor_sd`` (pooled profiles): how far the sensors' own P_D spread
     about the pooled one in each bin, beyond binomial noise (beta-binomial).
@@ -174,7 +175,9 @@ class PdTable(Strict):
     wilson_high: list[float] | list[list[float]] | None = None
     clamping: str = Field(default="none", description="how the raw estimates were clamped")
     model: Literal["binned", "additive_logit", "cells_shrunk", "partial_pooling"] = "binned"
-    shrinkage: float | None = Field(default=None, gt=0.0, description="pseudo-pairs toward the additive model (cells_shrunk) or the pooled table (partial_pooling)")
+    shrinkage: float | None = Field(
+        default=None, gt=0.0, description="pseudo-pairs toward the additive model (cells_shrunk) or the shifted pooled table (partial_pooling; None: cells fully pooled)"
+    )
     between_sensor_sd: list[float] | list[list[float]] | None = None
     selection: Selection | None = None
 
@@ -204,8 +207,10 @@ class PdTable(Strict):
         pd = np.asarray(self.pd, dtype=np.float64)
         if not np.all((pd >= 0.0) & (pd <= 1.0)):
             raise ValueError("pd values must lie in [0, 1]")
-        if (self.model in ("cells_shrunk", "partial_pooling")) != (self.shrinkage is not None):
-            raise ValueError("shrinkage is given exactly when the model is cells_shrunk or partial_pooling")
+        if self.model == "cells_shrunk" and self.shrinkage is None:
+            raise ValueError("a cells_shrunk table needs its shrinkage")
+        if self.model not in ("cells_shrunk", "partial_pooling") and self.shrinkage is not None:
+            raise ValueError("shrinkage belongs to cells_shrunk and partial_pooling tables")
         return self
 
     @property

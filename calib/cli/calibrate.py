@@ -118,7 +118,10 @@ def calibrate_cmd(
 
 @reader_options("fmt", "max_backstep", "laser", "range_max", "scan_topic", "truth_topic")
 def validate_cmd(
-    args: Annotated[list[str], typer.Argument(metavar="[PROFILE] LOG...", help="A profile (name, name@version or file) and held-out logs; with --cv only logs.")],
+    args: Annotated[
+        list[str] | None, typer.Argument(metavar="[PROFILE] LOG...", help="A profile (name, name@version or file) and held-out logs; with --cv only logs.")
+    ] = None,
+    *,
     reader: ReaderArgs,
     cv: Annotated[str | None, typer.Option("--cv", help="Cross-validate the calibration instead: robots (leave one sensor out) or time (first half / second half).")] = None,
     config: Annotated[Path | None, typer.Option(help="--cv: the calibration config (as for calibrate).")] = None,
@@ -136,6 +139,7 @@ def validate_cmd(
     Hotelling coverage against the nominal confidence, and the held-out frames' period.
     """
     check_poses(poses)
+    args = args or []
     if cv is not None:
         _cross_validate(args, reader, cv, config, adapt, landmarks, poses, out_dir, force, robot)
         return

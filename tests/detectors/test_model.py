@@ -4,7 +4,7 @@ from scipy.stats import chi2
 
 from detectors.logs import SensorModel
 from detectors.model import DetectionModel, fov_volume
-from profiles.errors import DataError
+from profiles.errors import DataError, UsageError
 from profiles.schema import ClutterParams, HotellingParams, PdTable
 
 SENSOR = SensorModel(n_beams=361, angle_min=-np.pi / 2, angle_increment=np.pi / 360, range_max=80.0, range_sigma=0.02)
@@ -77,3 +77,24 @@ def test_model_from_the_bundled_profile():
     pd, _ = m.pd_landmarks(np.zeros(3), np.full(361, np.nan), np.array([[4.0, 0.0]]), 0.3)
     assert pd[0] > 0.9
     assert m.g_true(np.asarray([m.hotelling.mean]))[0] > m.g_false(np.asarray([m.hotelling.mean]))[0]
+
+
+CAMERA = SensorModel(kind="camera", fov=np.deg2rad(60), range_max=6.0)
+
+
+def test_pd_at_for_a_range_table_and_a_range_bearing_grid():
+    rt = PdTable(covariate="range", edges=[0, 2, 4, 6], pd=[0.8, 0.5, 0.2])
+    m = DetectionModel(rt, ClutterParams(rate=1.0, volume=6.0), CAMERA)
+    z = np.array([[1.0, 0.0], [3.0, 0.4], [5.0, -0.4], [5.0, 0.6], [6.5, 0.0]])
+    assert m.pd_at(z).tolist() == [0.8, 0.5, 0.2, 0.0, 0.0]  # 0.6 rad is outside 30 deg; 6.5 m beyond range_max
+    grid = PdTable(covariate="range_bearing", edges=[0, 3, 6], bearing_edges=[-0.5, 0.0, 0.5], pd=[[0.1, 0.2], [0.3, 0.4]])
+    g = DetectionModel(grid, ClutterParams(rate=1.0, volume=6.0), CAMERA)
+    zz = np.array([[[1.0, -0.2], [1.0, 0.2]], [[4.0, -0.2], [4.0, 0.2]]])  # (2, 2, 2): any leading shape
+    np.testing.assert_array_equal(g.pd_at(zz), [[0.1, 0.2], [0.3, 0.4]])
+    assert g.pd_at(np.array([4.0, 0.51])) == 0.0  # outside the grid's bearings: out of view
+    with pytest.raises(UsageError, match="an n_p P_D table needs the current scan"):
+        model().pd_at(z)
+    with pytest.raises(UsageError, match=r"z must have shape \(..., 2\)"):
+        m.pd_at(np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="pd has shape \\(2, 3\\) for a 2x2 table"):
+        PdTable(covariate="range_bearing", edges=[0, 3, 6], bearing_edges=[-0.5, 0.0, 0.5], pd=[[0.1, 0.2, 0.3], [0.3, 0.4, 0.5]])
