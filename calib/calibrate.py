@@ -31,7 +31,7 @@ import pandas as pd
 from pydantic import BaseModel, ConfigDict, Field
 
 from calib import __version__
-from calib.clutter import ClutterModelConfig, fit_density, time_folds
+from calib.clutter import ClutterModelConfig, density_summary, fit_density, time_folds
 from calib.fits import (
     ClutterFit,
     HotellingFit,
@@ -240,7 +240,7 @@ def calibrate(
     clut = fit_clutter(counts, cfg.clutter.dispersion_level)
     volume = fov_volume(sensor, cfg.clutter_space)
     density = None
-    if cfg.clutter.density and cfg.clutter_space == "range_bearing":
+    if cfg.clutter.use_density(len(logs)) and cfg.clutter_space == "range_bearing":
         lo = min(sensor.angle_min, sensor.angle_min + sensor.angle_increment * (sensor.n_beams - 1))
         re_ = np.linspace(sensor.range_min, sensor.range_max, cfg.clutter.range_bins + 1)
         be = np.linspace(lo, lo + sensor.field_of_view, cfg.clutter.bearing_bins + 1)
@@ -306,7 +306,7 @@ def calibrate(
         "clutter_count_model": clut.count_model,
         "clutter_nb_size": clut.size,
         "clutter_dispersion_test_p_value": clut.dispersion_test.p_value if clut.dispersion_test else None,
-        "clutter_density": density.selection.chosen if density is not None and density.selection else "uniform",
+        "clutter_density": density_summary(density),
         "hotelling_gamma": hot.gamma,
         "hotelling_gamma_method": cfg.gamma,
     }

@@ -16,7 +16,11 @@ its park data); the PHD filter needs only the mean. This module goes further:
 * :func:`fit_density` -- the density of false alarms over (range, bearing): a
   histogram smoothed toward the uniform density by Dirichlet pseudo-counts, the
   amount chosen by held-out log-likelihood (the uniform density of the thesis is
-  one of the candidates);
+  one of the candidates). Where clutter falls depends on the environment as
+  much as on the sensor (bushes near the path, other robots in one room), so
+  by default the choice is made across logs: a density is adopted only when it
+  predicts a log it was not fitted to. Time blocks of one log share one
+  environment and would adopt a density that may not transfer (on request);
 * :func:`batch_means_ci` -- a confidence interval for a mean per frame that
   survives the frames' correlation (clutter sources stay in view for many
   frames), from the means of contiguous batches.
@@ -29,6 +33,7 @@ the honest measure of how well a rate is known.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -46,13 +51,20 @@ class ClutterModelConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     dispersion_level: float = Field(default=0.05, gt=0.0, lt=1.0, description="negative binomial when the dispersion test rejects the Poisson at this level")
-    density: bool = Field(default=True, description="fit a density over (range, bearing) (else uniform over the field of view)")
+    density: Literal["auto", "always", "never"] = Field(
+        default="auto",
+        description="a density over (range, bearing): auto = chosen against the uniform one by leave-one-log-out likelihood "
+        "when there are several logs (one log: uniform); always = also over time blocks of a single log; never = uniform",
+    )
     range_bins: int = Field(default=8, ge=1, le=200)
     bearing_bins: int = Field(default=8, ge=1, le=200)
     smoothing: list[float] = Field(
         default=[0.25, 1.0, 4.0, 16.0], min_length=1, description="Dirichlet pseudo-counts per cell tried against the uniform density"
     )
     folds: int = Field(default=5, ge=2, le=50, description="time blocks for the held-out choice when there is one sensor")
+
+    def use_density(self, n_logs: int) -> bool:
+        return self.density == "always" or (self.density == "auto" and n_logs > 1)
 
 
 def _loglik_poisson(values: np.ndarray, weights: np.ndarray, mu: float) -> float:
@@ -248,6 +260,15 @@ def fit_density(
     d = smoothed_density(counts, re_, be, a)
     d = d / float((d * np.diff(re_)[:, None] * np.diff(be)[None, :]).sum())  # exact unit mass after rounding
     return ClutterDensity(range_edges=re_.tolist(), bearing_edges=be.tolist(), density=d.tolist(), counts=counts.tolist(), smoothing=float(a), selection=sel)
+
+
+def density_summary(density: ClutterDensity | None) -> str:
+    """One line for a summary: what the clutter density is and how it was chosen."""
+    if density is None:
+        return "uniform (not tried: one log; clutter.density: always tries time blocks)"
+    if density.selection is None:
+        return "uniform (one fold: no held-out choice)"
+    return f"{density.selection.chosen} (held out over {density.selection.folds})"
 
 
 def density_loglik(density: ClutterDensity, r: np.ndarray, b: np.ndarray) -> tuple[float, int]:

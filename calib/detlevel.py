@@ -40,7 +40,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from calib import __version__
 from calib.calibrate import created_now
-from calib.clutter import ClutterModelConfig, fit_density, time_folds
+from calib.clutter import ClutterModelConfig, density_summary, fit_density, time_folds
 from calib.fits import ClutterFit, clutter_params, fit_clutter
 from calib.io.common import index_of
 from calib.pdmodels import PdModelConfig, between_sensor_sd, choose_pd_model, pool_sensors, predict, shrink_rates
@@ -299,7 +299,7 @@ def calibrate_detections(
     table = choose_pd_model(pairs, pd_fold, label, fov, cfg.pd)
     clut = fit_clutter(counts, cfg.clutter.dispersion_level)
     density = None
-    if cfg.clutter.density:
+    if cfg.clutter.use_density(len(logs)):
         re_ = np.linspace(0.0, rmax, cfg.clutter.range_bins + 1)
         be = np.linspace(-fov / 2, fov / 2, cfg.clutter.bearing_bins + 1)
         density = fit_density(fas["range"].to_numpy(), fas["bearing"].to_numpy(), fa_fold, re_, be, cfg.clutter, label)
@@ -380,7 +380,7 @@ def calibrate_detections(
         "clutter_poisson_p_value": clut.p_value,
         "clutter_dispersion": clut.dispersion,
         "clutter_dispersion_test_p_value": clut.dispersion_test.p_value if clut.dispersion_test else None,
-        "clutter_density": density.selection.chosen if density is not None and density.selection else "uniform",
+        "clutter_density": density_summary(density),
     }
     if pooling is not None:
         summary.update(
