@@ -11,7 +11,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from calib.cli.common import ReaderArgs, frame_table, fresh, out, reader_options, summary_table
+from calib.cli.common import ReaderArgs, fresh, out, reader_options, summary_table
 from profiles.errors import UsageError
 
 POSE_SOURCES = ("auto", "reference", "icp")
@@ -85,7 +85,8 @@ def calibrate_cmd(
         from calib.detlevel import DetectionCalibConfig, calibrate_detections, input_refs_for, write_detection_run
 
         dcfg = load_yaml_model(DetectionCalibConfig, config)
-        refs = [r for lg in loaded for r in input_refs_for(lg)] or refs
+        # robots of one dataset folder share files (Barcodes.dat, ...): each file once
+        refs = list({(r.name, r.sha256): r for lg in loaded for r in input_refs_for(lg)}.values()) or refs
         cal = calibrate_detections(
             loaded, dcfg, name=prof_name, version=version, description=description, input_refs=refs, command=command, per_sensor=per_sensor
         )
@@ -147,7 +148,7 @@ def validate_cmd(
         raise UsageError("--config and --adapt go with --cv")
     if len(args) < 2:
         raise UsageError("validate needs a PROFILE and at least one LOG (or --cv robots|time with logs)")
-    from calib.validate import per_log_table, validate, write_validation_run
+    from calib.validate import validate, write_validation_run
     from profiles.store import resolve
 
     prof = resolve(args[0])
@@ -163,23 +164,25 @@ def validate_cmd(
     write_validation_run(v, target, overwrite=force)
     out.print(summary_table(f"validation of {prof.ref} on {', '.join(lg.name for lg in loaded)} -> {target}", v.summary))
     if len(loaded) > 1:
-        out.print(frame_table("per held-out log", per_log_table(v)))
+        out.print(scores_table("per held-out log (ECE noise: what a calibrated model would show)", v.per_log, ("log",)))
 
 
-def cv_table(title: str, t) -> Table:
-    """The fold rows in columns narrow enough for a terminal."""
+def scores_table(title: str, t, first: tuple[str, ...]) -> Table:
+    """Rows of validation scores (fold rows or per-log rows) in columns narrow enough for a terminal."""
     tab = Table(title=title)
-    cover = t["hotelling_coverage"].notna().any()
-    for c in ("fold", "test", "profile", "ECE (noise)", "Brier", "loglik", "FA error [95 % CI]", *(["coverage"] if cover else [])):
-        tab.add_column(c, overflow="fold", justify="left" if c in ("fold", "test", "profile") else "right")
-    for r in t.itertuples(index=False):
-        row = [
-            r.fold, r.test, r.profile, f"{r.ece:.3f} ({r.ece_if_calibrated_blocks:.3f})", f"{r.brier:.3f}", f"{r.loglik_per_pair:.3f}",
-            f"{100 * r.false_alarm_relative_error:+.0f} [{100 * r.false_alarm_relative_error_ci95_low:+.0f}, "
-            f"{100 * r.false_alarm_relative_error_ci95_high:+.0f}] %",
+    cover = "hotelling_coverage" in t and t["hotelling_coverage"].notna().any()
+    for c in (*first, "ECE (noise)", "Brier", "loglik", "FA error [95 % CI]", *(["coverage"] if cover else [])):
+        tab.add_column(c, overflow="fold", justify="left" if c in first else "right")
+    for r in t.to_dict("records"):
+        row = [str(r[c]) for c in first] + [
+            f"{r['ece']:.3f} ({r['ece_if_calibrated_blocks']:.3f})",
+            f"{r['brier']:.3f}",
+            f"{r['loglik_per_pair']:.3f}",
+            f"{100 * r['false_alarm_relative_error']:+.0f} [{100 * r['false_alarm_relative_error_ci95_low']:+.0f}, "
+            f"{100 * r['false_alarm_relative_error_ci95_high']:+.0f}] %",
         ]
         if cover:
-            row.append(f"{r.hotelling_coverage:.4f}")
+            row.append(f"{r['hotelling_coverage']:.4f}")
         tab.add_row(*row)
     return tab
 
@@ -208,7 +211,7 @@ def _cross_validate(args, reader, cv, config, adapt, landmarks, poses, out_dir, 
         cfg = load_yaml_model(CalibrateConfig, config)
     res = cross_validate(loaded, cv, config=cfg, adapt=adapt, landmarks_csv=landmarks, poses=poses)
     figures = write_cv_run(res, target, overwrite=force)
-    out.print(cv_table(f"cross-validation ({cv}) -> {target} ({len(figures)} figures)", res.table))
+    out.print(scores_table(f"cross-validation ({cv}) -> {target} ({len(figures)} figures)", res.table, ("fold", "test", "profile")))
     for prof, s in res.summary.items():
         if isinstance(s, dict):
             out.print(summary_table(f"{prof} profile over the folds", s))

@@ -124,18 +124,8 @@ def summary_table(title: str, rows: dict) -> Table:
         if isinstance(v, float):
             v = f"{v:.4g}"
         elif isinstance(v, list):
-            v = ", ".join(str(x) for x in v)
+            v = ", ".join(f"{x:.4g}" if isinstance(x, float) else str(x) for x in v)
         t.add_row(k, str(v))
-    return t
-
-
-def frame_table(title: str, df) -> Table:
-    """A pandas table as a plain-text table (numbers to 4 significant digits)."""
-    t = Table(title=title)
-    for c in df.columns:
-        t.add_column(str(c), justify="left" if df[c].dtype == object else "right")
-    for row in df.itertuples(index=False):
-        t.add_row(*[f"{v:.4g}" if isinstance(v, float) else str(v) for v in row])
     return t
 
 
