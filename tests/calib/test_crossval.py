@@ -80,3 +80,39 @@ def test_validate_usage_errors(capsys, args, needle):
     code, _, err = run(capsys, "validate", *args)
     assert code == 2
     assert_one_line_error(err, needle)
+
+
+def test_cross_validation_errors():
+    cams = [camera_log(1, n=2000), camera_log(2, n=2000)]
+    with pytest.raises(UsageError, match="--cv robots needs at least two logs"):
+        cross_validate(cams[:1], "robots")
+    with pytest.raises(UsageError, match="cross-validate laser logs and detection-level logs separately"):
+        cross_validate([cams[0], park(51, 0.2)], "time")
+    with pytest.raises(UsageError, match="--adapt 9999 s is longer than log 'cam1'"):
+        cross_validate(cams, "robots", adapt=9999.0)
+    with pytest.raises(UsageError, match="log 'cam1_x' has too few frames to cut in halves"):
+        halves(time_slice(cams[0], 0, int(3 * 0.25e9), "x"))
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--cv", "robots", "a.dlog", "--adapt", "-5"], "--adapt: expected a positive number of seconds, got -5"),
+    ],
+)
+def test_cv_option_errors(capsys, args, needle):
+    code, _, err = run(capsys, "validate", *args)
+    assert code == 2
+    assert_one_line_error(err, needle)
+
+
+def test_per_sensor_needs_several_detection_level_sensors(tmp_path, capsys):
+    cam = write_native(camera_log(1, n=3000), tmp_path / "cam.dlog")
+    code, _, err = run(capsys, "calibrate", str(cam), "--per-sensor", "--out", str(tmp_path / "r"), "--profiles-dir", str(tmp_path / "p"))
+    assert code == 2
+    assert_one_line_error(err, "--per-sensor needs logs of at least two sensors")
+    assert not (tmp_path / "r").exists() and not (tmp_path / "p").exists()  # nothing half-written
+    laser = write_native(park(53, 0.3), tmp_path / "p.dlog")
+    code, _, err = run(capsys, "calibrate", str(laser), "--per-sensor", "--out", str(tmp_path / "r2"))
+    assert code == 2
+    assert_one_line_error(err, "--per-sensor applies to detection-level logs")

@@ -5,7 +5,7 @@ import pytest
 
 from calib.detlevel import DetectionCalibConfig, IdentityAudit, calibrate_detections, validate_detections
 from detectors.model import DetectionModel
-from profiles.errors import DataError
+from profiles.errors import DataError, UsageError
 from profiles.profile import DetectorProfile
 from tests.calib.camera import FOV, PERIOD, camera_log, pd_edges, pd_range
 from tests.conftest import shared
@@ -140,3 +140,20 @@ def test_real_utias_robots_1_3_predict_robots_4_5():
     # robots 4 and 5 see less and more than robots 1-3 (P_D 0.18 and 0.43 against 0.30-0.34): alone their ECE
     # is 0.14 and 0.10; together the two errors partly cancel (0.046 measured)
     assert v["ece"] < 0.07 and v["pairs_informative"] > 20000
+
+
+def test_same_inputs_same_bytes(plain):
+    from profiles.store import dump_profile
+
+    again = calibrate_detections([camera_log(1), camera_log(2)], DetectionCalibConfig(), name="cam", version="1.0.0")
+    assert dump_profile(again.profile) == dump_profile(plain.profile)
+
+
+def test_validation_errors(plain):
+    from tests.profiles.test_store import make_profile
+
+    with pytest.raises(UsageError, match="has an n_p P_D table; a detection-level log needs a range or range_bearing table"):
+        validate_detections(make_profile(), [camera_log(3, n=500)])
+    no_fov = plain.profile.model_copy(update={"sensor": plain.profile.sensor.model_copy(update={"fov": None})})
+    with pytest.raises(DataError, match="the sensor has no fov or range_max"):
+        validate_detections(no_fov, [camera_log(3, n=500)])

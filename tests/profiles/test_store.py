@@ -200,3 +200,35 @@ def test_bad_schema_2_fields_name_their_path(tmp_path, edit, match):
     f.write_text(yaml.safe_dump(d))
     with pytest.raises(DataError, match="bad.yaml: " + match):
         load_profile_file(f)
+
+
+@pytest.mark.parametrize(
+    ("edit", "match"),
+    [
+        (lambda d: d["pd"].update(model="cells_shrunk"), r"pd: Value error, a cells_shrunk table needs its shrinkage"),
+        (lambda d: d["pd"].update(shrinkage=5.0), r"pd: Value error, shrinkage belongs to cells_shrunk and partial_pooling tables"),
+        (lambda d: d["pd"]["selection"].update(loglik=[-0.5]), r"pd.selection: Value error, loglik has 1 entries for 2 candidates"),
+        (lambda d: d["clutter"].update(space="xy"), r"clutter: Value error, a clutter density is over range and bearing"),
+        (lambda d: d["detector"].update(kind="circle2d"), r"\(top level\): Value error, a range_bearing P_D table is for detection-level sensors"),
+        (
+            lambda d: d.update(sensors={"names": ["a", "b"], "pairs": [1], "pd_observed": [0.1, 0.2], "pd_predicted": [0.1, 0.2], "frames": [1, 1],
+                                        "clutter_rate": [0.1, 0.1], "pd_logit_offset": [0, 0], "pd_logit_sd": 0.0, "pd_between_sd": 0.0, "clutter_between_sd": 0.0}),
+            r"sensors: Value error, pairs has 1 entries for 2 sensors",
+        ),
+    ],
+)
+def test_more_bad_schema_2_fields(tmp_path, edit, match):
+    d = v2_profile().model_dump(mode="json")
+    edit(d)
+    f = tmp_path / "bad.yaml"
+    f.write_text(yaml.safe_dump(d))
+    with pytest.raises(DataError, match="bad.yaml: " + match):
+        load_profile_file(f)
+
+
+def test_table_lookups_refuse_the_wrong_covariates():
+    p = v2_profile()
+    with pytest.raises(ValueError, match="a range_bearing table needs range and bearing: use lookup_rb"):
+        p.pd.lookup(np.array([1.0]))
+    with pytest.raises(ValueError, match="a n_p table cannot be looked up by range and bearing"):
+        make_profile().pd.lookup_rb(np.array([1.0]), np.array([0.0]))
