@@ -69,50 +69,56 @@ class Validation:
     profile: DetectorProfile
 
 
+def _scores(profile: DetectorProfile, hs: list[Held]) -> tuple[dict, pd.DataFrame, pd.DataFrame, np.ndarray]:
+    """(summary, reliability table, pairs, counts) of held-out logs taken together."""
+    pairs = pd.concat([x.pairs for x in hs], ignore_index=True)
+    counts = np.concatenate([x.counts for x in hs])
+    cl = pairs.groupby(["log", "landmark", "block"], sort=False).ngroup().to_numpy() if "block" in pairs else None
+    s, bins = score_pd(pairs["predicted"].to_numpy(), pairs["observed"].to_numpy(), cl)
+    s.update(score_counts(counts, profile.clutter))
+    d = profile.clutter.density
+    if d is not None:
+        r = np.concatenate([x.fa_range for x in hs])
+        b = np.concatenate([x.fa_bearing for x in hs])
+        dl, n_in = density_loglik(d, r, b)
+        s["clutter_density_loglik"] = dl
+        s["clutter_density_loglik_uniform"] = float(-np.log((d.range_edges[-1] - d.range_edges[0]) * (d.bearing_edges[-1] - d.bearing_edges[0])))
+        s["false_alarms_outside_density_grid"] = int(r.size - n_in)
+    ins = [x.inside for x in hs if x.inside is not None]
+    if ins:
+        s.update(score_coverage(np.concatenate(ins), None if profile.hotelling is None else profile.hotelling.confidence))
+    s["frame_period_s"] = float(np.median([x.frame_period for x in hs]))
+    for x in hs:  # per-log extras: numbers add up over logs, anything else is listed
+        for k, v in x.extra.items():
+            if len(hs) == 1:
+                s[k] = v
+            elif isinstance(v, int | float) and not isinstance(v, bool):
+                s[k] = s.get(k, 0) + v
+            else:
+                s.setdefault(k, []).append(v)
+    return s, bins, pairs, counts
+
+
+def _row(name: str, s: dict) -> dict:
+    """One row of the per-log table: scalars as they are, intervals as _low and _high."""
+    row = {"log": name}
+    for k, v in s.items():
+        if isinstance(v, list):
+            if len(v) == 2 and all(isinstance(x, float) for x in v):
+                row[k + "_low"], row[k + "_high"] = v
+        else:
+            row[k] = v
+    return row
+
+
 def score(profile: DetectorProfile, held: list[Held], extra: dict | None = None) -> Validation:
     """The validation report of ``profile`` over held-out logs (one row each and all together)."""
-    rows = []
-    for h in [*held, None]:
-        hs = held if h is None else [h]
-        pairs = pd.concat([x.pairs for x in hs], ignore_index=True)
-        counts = np.concatenate([x.counts for x in hs])
-        cl = pairs.groupby(["log", "landmark", "block"], sort=False).ngroup().to_numpy() if "block" in pairs else None
-        s, bins = score_pd(pairs["predicted"].to_numpy(), pairs["observed"].to_numpy(), cl)
-        s.update(score_counts(counts, profile.clutter))
-        if profile.clutter.density is not None:
-            r = np.concatenate([x.fa_range for x in hs])
-            b = np.concatenate([x.fa_bearing for x in hs])
-            dl, n_in = density_loglik(profile.clutter.density, r, b)
-            vol = (profile.clutter.density.range_edges[-1] - profile.clutter.density.range_edges[0]) * (
-                profile.clutter.density.bearing_edges[-1] - profile.clutter.density.bearing_edges[0]
-            )
-            s["clutter_density_loglik"] = dl
-            s["clutter_density_loglik_uniform"] = float(-np.log(vol))
-            s["false_alarms_outside_density_grid"] = int(r.size - n_in)
-        ins = [x.inside for x in hs if x.inside is not None]
-        if ins:
-            s.update(score_coverage(np.concatenate(ins), None if profile.hotelling is None else profile.hotelling.confidence))
-        s["frame_period_s"] = float(np.median([x.frame_period for x in hs]))
-        for x in hs:  # per-log extras: numbers add up over logs, anything else is listed
-            for k, v in x.extra.items():
-                if len(hs) == 1:
-                    s[k] = v
-                elif isinstance(v, int | float) and not isinstance(v, bool):
-                    s[k] = s.get(k, 0) + v
-                else:
-                    s.setdefault(k, []).append(v)
-        rows.append((("all" if h is None else h.name), s, bins, pairs, counts))
-    name, summary, bins, pairs, counts = rows[-1]
+    per = [_scores(profile, [h]) for h in held]
+    summary, bins, pairs, counts = _scores(profile, held) if len(held) > 1 else per[0]
+    per_log = pd.DataFrame([_row(h.name, p[0]) for h, p in zip(held, per, strict=True)] + [_row("all", summary)])
     trained = profile.provenance.parameters.get("frame_period")
     head = {"profile": profile.ref, "logs": [h.name for h in held], "frame_period_training_s": trained}
-    summary = {**head, **summary, **(extra or {})}
-    per_log = pd.DataFrame([{"log": n, **{k: v for k, v in s.items() if not isinstance(v, list)}} for n, s, *_ in rows])
-    for n_, s, *_ in rows:
-        for k, v in s.items():
-            if isinstance(v, list) and len(v) == 2:
-                per_log.loc[per_log["log"] == n_, k + "_low"] = v[0]
-                per_log.loc[per_log["log"] == n_, k + "_high"] = v[1]
-    return Validation(summary, pairs, bins, counts, per_log, profile)
+    return Validation({**head, **summary, **(extra or {})}, pairs, bins, counts, per_log, profile)
 
 
 # ------------------------------------------------------------------------------------------ laser logs
