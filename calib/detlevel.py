@@ -251,6 +251,7 @@ class DetectionCalibration:
     members: list[DetectorProfile] = field(default_factory=list)
     labelled: list[Labelled] = field(default_factory=list)
     names: list[str] = field(default_factory=list)
+    config: DetectionCalibConfig | None = None
 
 
 def calibrate_detections(
@@ -397,7 +398,7 @@ def calibrate_detections(
                 "clutter_between_sensor_sd": spread["clutter_between_sd"],
             }
         )
-    return DetectionCalibration(profile, pairs, clut, summary, members, parts, names)
+    return DetectionCalibration(profile, pairs, clut, summary, members, parts, names, cfg)
 
 
 def held_out_detections(profile: DetectorProfile, log: SensorLog, *, remap: dict[int, int], period: float) -> Held:
@@ -461,6 +462,8 @@ def write_detection_run(cal: DetectionCalibration, out, *, overwrite: bool = Fal
             for m in cal.members:
                 (tmp / "sensors" / f"{m.name}@{m.version}.yaml").write_text(dump_profile(m))
         (tmp / "summary.yaml").write_text(dump_yaml(cal.summary))
+        if cal.config is not None:
+            (tmp / "config.yaml").write_text(dump_yaml(cal.config.model_dump(mode="json")))
         cal.pairs.to_csv(tmp / "pairs.csv.gz", index=False, float_format="%.9g", compression={"method": "gzip", "mtime": 0})
         if cal.profile.pd.two_d:
             plot_pd_grid(cal.profile.pd, cal.pairs, tmp / "pd_range_bearing.png")
