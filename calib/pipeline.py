@@ -21,6 +21,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -50,6 +51,7 @@ class CalibrationJob:
     force: bool = False
     command: str = ""
     range_sigma_given: bool = False
+    per_sensor: bool = False  # detection-level logs of several sensors: one profile per sensor too
 
 
 @dataclass
@@ -62,6 +64,7 @@ class CalibrationOutcome:
     run_status: str  # written | replaced | unchanged
     figures: list[str]
     notes: list[str] = field(default_factory=list)  # what the user should know (records dropped, ...)
+    members: list[tuple[Path, str]] = field(default_factory=list)  # per-sensor profiles: (path, status)
 
 
 def check_name(name: str | None, version: str) -> None:
@@ -95,32 +98,44 @@ def run_calibration(job: CalibrationJob) -> CalibrationOutcome:
         notes += [f"log {lg.name!r}: {n} {what} outside the ground truth's time span dropped" for what, n in dropped.items()]
         logs.append(lg)
     levels = detection_level(logs)
+    derived: tuple[str, ...] = ()
+    members: list[str] = []
     if levels:
-        from calib.detlevel import DetectionCalibConfig, frame_period
+        from calib.detlevel import DetectionCalibConfig, sensor_names
 
         cfg = load_yaml_model(DetectionCalibConfig, job.config)
         if job.landmarks is not None:
             raise UsageError("--landmarks: detection-level logs carry their landmark truth")
-        params = {**cfg.model_dump(mode="json"), "frame_period": cfg.frame_period or frame_period(logs)}
+        # the frame period and the identity audit follow from the inputs and the config: not part of the request
+        derived = ("frame_period", "identity_remap")
+        params = cfg.model_dump(mode="json")
         seed = None
+        if job.per_sensor:
+            if len(logs) < 2:
+                raise UsageError("--per-sensor needs logs of at least two sensors (e.g. --robot 1 --robot 2)")
+            members = [f"{job.name}-{n}" for n in sensor_names(logs)]
     else:
         from calib.calibrate import CalibrateConfig, parameters
 
+        if job.per_sensor:
+            raise UsageError("--per-sensor applies to detection-level logs (laser logs are pooled)")
         cfg = load_yaml_model(CalibrateConfig, job.config)
         if job.poses is not None:
             cfg = CalibrateConfig.model_validate({**cfg.model_dump(), "poses": job.poses})
         params = parameters(logs, cfg, job.landmarks, job.range_sigma_given)
         seed = _seed(logs)
-    request = Request(job.name, job.version, job.description, list(job.inputs), params, __version__, seed)
-    _, planned = check_save(request, job.profiles_dir, force=job.force)
+    request = Request(job.name, job.version, job.description, list(job.inputs), params, __version__, seed, derived)
+    for ref in [job.name, *members]:  # every profile this calibration will write, before any work
+        check_save(dataclasses.replace(request, name=ref), job.profiles_dir, force=job.force)
     run_plan = _check_run_folder(run_dir, request, job.force)
     # ---- the work
     if levels:
         from calib.detlevel import calibrate_detections, fill_detection_run
 
         cal = calibrate_detections(
-            logs, cfg, name=job.name, version=job.version, description=job.description, input_refs=list(job.inputs), command=job.command
-        )
+            logs, cfg, name=job.name, version=job.version, description=job.description, input_refs=list(job.inputs),
+            command=job.command, per_sensor=job.per_sensor,
+        )  # fmt: skip
         fill = fill_detection_run
     else:
         from calib.calibrate import calibrate
@@ -139,21 +154,23 @@ def run_calibration(job: CalibrationJob) -> CalibrationOutcome:
         )
         fill = fill_calibration_run
     profile = cal.profile
-    if Request.of(profile) != request:  # the request said what the work would record
+    if Request.of(profile, derived) != request:  # the request said what the work would record
         raise RuntimeError(f"calibration recorded other parameters than planned ({profile.provenance.parameters} != {params})")
-    path, status = final_status(profile, job.profiles_dir, job.force)
+    path, status = final_status(profile, job.profiles_dir, job.force, derived)
+    written = [(m, *final_status(m, job.profiles_dir, job.force, derived)) for m in getattr(cal, "members", [])]
     run_status = run_plan
     if run_plan == "unchanged" and not same_content(load_profile_file(run_dir / "profile.yaml"), profile):
         raise UsageError(f"{run_dir}: holds a calibration of {profile.ref} with other content; use --force or another --out")
+    from profiles.store import looks_like_profile
+
     outputs, writers = [], []
     if run_status != "unchanged":
         outputs.append(Output(run_dir, directory=True, overwrite=job.force))
         writers.append(lambda tmp: fill(cal, tmp))
-    if status in ("written", "replaced"):
-        from profiles.store import looks_like_profile
-
-        outputs.append(Output(path, overwrite=job.force, owned=looks_like_profile))
-        writers.append(lambda tmp: write_profile_text(profile, tmp))
+    for prof, p_path, p_status in [(profile, path, status), *written]:  # the profiles last: one in the store has its run folder
+        if p_status in ("written", "replaced"):
+            outputs.append(Output(p_path, overwrite=job.force, owned=looks_like_profile))
+            writers.append(lambda tmp, prof=prof: write_profile_text(prof, tmp))
     figures: list[str] = []
     if outputs:
         with atomic_outputs(outputs) as tmps:
@@ -161,8 +178,7 @@ def run_calibration(job: CalibrationJob) -> CalibrationOutcome:
                 got = w(tmp)
                 if isinstance(got, list):
                     figures = got
-    del planned
-    return CalibrationOutcome(profile, cal.summary, path, status, run_dir, run_status, figures, notes)
+    return CalibrationOutcome(profile, cal.summary, path, status, run_dir, run_status, figures, notes, [(p, st) for _, p, st in written])
 
 
 def _check_run_folder(run_dir: Path, request: Request, force: bool) -> str:
@@ -201,8 +217,6 @@ def run_validation(profile, logs: list[SensorLog], *, landmarks: Path | None, po
 
         v = validate_detections(profile, kept)
     else:
-        if len(kept) > 1:
-            raise UsageError("validate one laser log at a time")
-        v = validate(profile, kept[0], landmarks_csv=landmarks, poses=poses)
+        v = validate(profile, kept, landmarks_csv=landmarks, poses=poses)
     write_validation_run(v, out, overwrite=force)
     return v, notes

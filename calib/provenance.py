@@ -37,6 +37,7 @@ def detection_parameters() -> type:
 
     class DetectionCalibrationParameters(DetectionCalibConfig):
         frame_period: float = Field(gt=0.0)  # type: ignore[assignment]  (always recorded: given or estimated)
+        identity_remap: dict[str, int] = {}  # barcodes the identity audit found swapped in the truth
 
     return DetectionCalibrationParameters
 

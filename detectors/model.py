@@ -1,17 +1,33 @@
 """The runtime detection model a filter calls: P_D, clutter intensity and descriptor likelihoods.
 
 Built from the parts of a detector profile (``profiles.schema``); a filter
-passes arrays and gets arrays back:
+passes arrays and gets arrays back. It is the only place that knows n_p, the
+P_D tables, the buffer bands and the clutter:
 
+* :meth:`DetectionModel.pd_points` -- P_D and buffer-zone flags of the point
+  features of many particles' maps at once, (P, J): through n_p ray-traced
+  against the current scan for a laser profile (eqs. 4.1, 6.1, 6.2), through the
+  predicted measurement for a detection-level profile (:meth:`pd_at`), or a
+  constant inside the field of view (for comparison);
+* :meth:`DetectionModel.pd_at` -- P_D of a feature predicted at range-bearing z
+  (sensor frame) for detection-level profiles: a range table or a range x
+  bearing grid, 0 outside the field of view;
 * :meth:`DetectionModel.pd_landmarks` -- P_D of L landmarks from one sensor pose
-  given the current scan, through n_p (eqs. 4.1, 6.1) and the P_D table, with
-  the buffer-zone flag of sec. 6.1 (for eq. 3.21);
-* :meth:`DetectionModel.pd_covariate` -- P_D from the covariate directly (e.g.
-  range, for detectors without scans);
-* :meth:`DetectionModel.clutter_intensity` -- kappa(z) = lambda / |FoV| inside
-  the field of view, 0 outside (sec. 4.2);
+  given the current scan, with the buffer-zone flag of sec. 6.1 (for eq. 3.21);
+* :meth:`DetectionModel.clutter_intensity` -- kappa(z): lambda / |FoV| inside
+  the field of view (sec. 4.2), or lambda x the profile's clutter density over
+  (range, bearing) when it has one; 0 outside;
 * :meth:`DetectionModel.g_true` / :meth:`DetectionModel.g_false` -- the
   descriptor likelihoods of eq. 5.6 for the amplitude-feature update (eq. 2.26).
+
+Buffer zone (eq. 3.21, sec. 6.1): a feature whose P_D is uncertain may not lose
+weight when it is not detected. At the edges of the field of view and of the
+range limits, whether the sensor reports a feature depends on the sensor's own
+noise, so the band there is ``buffer_sigmas`` standard deviations of the
+measurement noise (the profile's measured noise, else the sensor's range
+sigma) combined with the feature's own spread; a well-mapped feature still
+has a band as wide as the sensor's noise. For n_p profiles the thesis's rules
+apply (samples across the line of sight, 0 < P_D < 0.5).
 """
 
 from __future__ import annotations
@@ -25,9 +41,15 @@ from scipy.stats import chi2
 
 from detectors.circle import hotelling_maha2
 from detectors.logs import SensorModel
-from detectors.raytrace import buffer_zone, count_unoccluded
+from detectors.raytrace import buffer_zone, count_unoccluded, expected_pd, expected_unoccluded
 from profiles.errors import DataError
 from profiles.schema import ClutterParams, HotellingParams, MeasurementNoise, PdTable
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    """Angles (any difference of two wrapped angles) wrapped to (-pi, pi]."""
+    a = np.where(a > np.pi, a - 2 * np.pi, a)
+    return np.where(a <= -np.pi, a + 2 * np.pi, a)
 
 
 @dataclass(frozen=True, eq=False)
@@ -36,6 +58,14 @@ class DetectionModel:
 
     ``k_sigma`` is the occlusion tolerance of the ray tracer (in sigma_r);
     ``buffer_samples`` the number of lateral positions of the buffer-zone rule.
+
+    Filter options (``slam_runtime.config.DetectionOptions``): ``constant_pd``
+    replaces the profile's P_D by a constant inside the field of view (for
+    comparison); ``buffer`` turns the buffer zone on; ``buffer_sigmas`` is its
+    half-width in standard deviations; ``landmark_radius`` the radius the ray
+    tracer gives map features (default: the typical true radius);
+    ``phase_average`` takes n_p averaged over where the beams fall
+    (:func:`detectors.raytrace.expected_unoccluded`) instead of the integer count.
     """
 
     pd_table: PdTable
@@ -45,6 +75,11 @@ class DetectionModel:
     noise: MeasurementNoise | None = None
     k_sigma: float = 3.0
     buffer_samples: int = 5
+    constant_pd: float | None = None
+    buffer: bool = True
+    buffer_sigmas: float = 2.0
+    landmark_radius: float | None = None
+    phase_average: bool = True
 
     def __post_init__(self) -> None:
         if self.pd_table.covariate == "n_p" and self.sensor.n_beams is None:
@@ -53,17 +88,31 @@ class DetectionModel:
             raise DataError("an n_p P_D table needs the sensor's range_sigma (for the occlusion test)")
 
     @classmethod
-    def from_profile(cls, profile) -> DetectionModel:
-        """The runtime model of a :class:`profiles.profile.DetectorProfile`."""
+    def from_profile(cls, profile, sensor: SensorModel | None = None, **options) -> DetectionModel:
+        """The runtime model of a :class:`profiles.profile.DetectorProfile`.
+
+        sensor: the log's sensor model when it differs from the profile's in what
+        the profile does not fix (e.g. a detection-level log's mount); ``options``
+        are the filter options of the class docstring.
+        """
         return cls(
             pd_table=profile.pd,
             clutter=profile.clutter,
-            sensor=profile.sensor,
+            sensor=sensor if sensor is not None else profile.sensor,
             hotelling=profile.hotelling,
             noise=profile.noise,
             k_sigma=profile.detector.k_sigma,
             buffer_samples=profile.detector.buffer_samples,
+            **options,
         )
+
+    @property
+    def noise_sigmas(self) -> tuple[float, float]:
+        """(range [m], bearing [rad]) standard deviations of a detection: the profile's measured
+        noise, else the sensor's range sigma (and no bearing term)."""
+        if self.noise is not None:
+            return float(self.noise.range_sigma), float(self.noise.bearing_sigma)
+        return float(self.sensor.range_sigma or 0.0), 0.0
 
     # ------------------------------------------------------------------ P_D
     def radius_quantile(self, z: float, default: float) -> float:
@@ -124,6 +173,124 @@ class DetectionModel:
             samples=self.buffer_samples, range_sigma=float(s.range_sigma), k_sigma=self.k_sigma, range_max=s.range_max,
         )
 
+    def pd_at(self, z: np.ndarray) -> np.ndarray:
+        """P_D (...) of features predicted at range-bearing z (..., 2) (sensor frame): the profile's
+        range table or range x bearing grid inside the field of view, 0 outside; a constant in
+        constant mode. An n_p table needs the scan (:meth:`pd_points`)."""
+        z = np.asarray(z, dtype=np.float64)
+        if z.shape[-1:] != (2,):
+            raise DataError(f"pd_at: z must have shape (..., 2) = (range, bearing), got {z.shape}")
+        inside = self.in_fov(z)
+        if self.constant_pd is not None:
+            return np.where(inside, self.constant_pd, 0.0)
+        return np.where(inside, self._table_at(z), 0.0)
+
+    def _table_at(self, z: np.ndarray) -> np.ndarray:
+        """The table's P_D at z (..., 2) as if inside the field of view: a grid's bearing is held to its
+        edges, so a feature in the buffer band beyond an edge gets the edge cell's value."""
+        t = self.pd_table
+        if t.covariate == "n_p":
+            raise DataError(f"P_D of a {t.covariate} table needs the scan (pd_points), not a predicted measurement")
+        if t.two_d:
+            return t.lookup_rb(z[..., 0], np.clip(z[..., 1], t.bearing_edges[0], t.bearing_edges[-1]))
+        return t.lookup(z[..., 0])
+
+    def _edge_band(self, z: np.ndarray, s_rad: np.ndarray, s_lat: np.ndarray, pd_in: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """P_D and buffer flags at the edges of the field of view and the range limits.
+
+        A feature within ``buffer_sigmas`` standard deviations (sensor noise and its own
+        spread combined) of an edge is in the buffer zone; it is given the P_D it would
+        have inside (pd_in), so a detection can still update it, and the filter keeps
+        its weight when it is missed (eq. 3.21).
+        """
+        inside = self.in_fov(z)
+        if not self.buffer:
+            return np.where(inside, pd_in, 0.0), np.zeros(inside.shape, dtype=bool)
+        sr, sb = self.noise_sigmas
+        k = self.buffer_sigmas
+        r = np.maximum(z[..., 0], 1e-9)
+        band_r = k * np.sqrt(sr * sr + s_rad * s_rad)
+        band_b = k * np.sqrt(sb * sb + (s_lat / r) ** 2)
+        near = np.zeros(inside.shape, dtype=bool)
+        for dr, db in ((band_r, 0.0), (-band_r, 0.0), (0.0, band_b), (0.0, -band_b)):
+            q = np.stack([z[..., 0] + dr, _wrap(z[..., 1] + db)], axis=-1)
+            near |= self.in_fov(q) != inside
+        pd = np.where(inside | near, pd_in, 0.0)
+        return pd, near
+
+    def pd_features(self, sensor_poses: np.ndarray, mu: np.ndarray, cov: np.ndarray, meas) -> tuple[np.ndarray, np.ndarray]:
+        """What a map filter calls: P_D (P, J) and buffer flags (P, J) of the map features mu (P, J, dx)
+        with covariances cov (P, J, dx, dx) seen from sensor poses (P, 3), given the frame's measurements
+        ``meas`` (:class:`slam_runtime.mapfilter.Measurements`: its scan and beam angles for n_p profiles).
+        Detection models of other feature kinds (planes) offer the same method."""
+        return self.pd_points(sensor_poses, mu, cov, getattr(meas, "scan", None), getattr(meas, "angles", None))
+
+    def pd_points(
+        self,
+        sensor_poses: np.ndarray,
+        mu: np.ndarray,
+        cov: np.ndarray,
+        scan: np.ndarray | None = None,
+        angles: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """P_D (P, J) and buffer-zone flags (P, J) of point features of P maps.
+
+        sensor_poses (P, 3) world; mu (P, J, 2) world positions; cov (P, J, 2, 2) their
+        covariances; scan (B,) the current scan's ranges and angles (B,) its beam angles
+        (sensor frame; default: the sensor model's), needed by n_p profiles.
+        """
+        p, j = mu.shape[:2]
+        sp = np.asarray(sensor_poses, dtype=np.float64)
+        los = mu - sp[:, None, :2]
+        rr = np.maximum(np.hypot(los[..., 0], los[..., 1]), 1e-9)
+        z = np.stack([rr, _wrap(np.arctan2(los[..., 1], los[..., 0]) - sp[:, None, 2])], axis=-1)
+        if j == 0:
+            return np.zeros((p, 0)), np.zeros((p, 0), dtype=bool)
+        # position std along and across the line of sight
+        u = los / rr[..., None]
+        s_rad = np.sqrt(np.maximum(u[..., 0] ** 2 * cov[..., 0, 0] + 2 * u[..., 0] * u[..., 1] * cov[..., 0, 1] + u[..., 1] ** 2 * cov[..., 1, 1], 0.0))
+        s_lat = np.sqrt(np.maximum(u[..., 1] ** 2 * cov[..., 0, 0] - 2 * u[..., 0] * u[..., 1] * cov[..., 0, 1] + u[..., 0] ** 2 * cov[..., 1, 1], 0.0))
+        if self.constant_pd is not None or self.pd_table.covariate != "n_p":
+            full = np.full((p, j), self.constant_pd) if self.constant_pd is not None else self._table_at(z)
+            return self._edge_band(z, s_rad, s_lat, full)
+        return self._pd_np(sp, mu, z, s_lat, scan, angles)
+
+    def _pd_np(self, sp, mu, z, s_lat, scan, angles) -> tuple[np.ndarray, np.ndarray]:
+        """n_p profiles: ray-trace only what can be seen (each particle's in-view features)."""
+        if scan is None:
+            raise DataError("an n_p profile needs the current scan to compute P_D")
+        p, j = mu.shape[:2]
+        inside = self.in_fov(z)
+        pd_full = np.zeros((p, j))
+        buf_full = np.zeros((p, j), dtype=bool)
+        jf = int(inside.sum(axis=1).max())
+        if jf == 0:
+            return pd_full, buf_full
+        sel = np.argsort(~inside, axis=1, kind="stable")[:, :jf]
+        rows = np.arange(p)[:, None]
+        mu_v, in_v = mu[rows, sel], inside[rows, sel]
+        s = self.sensor
+        ang = s.angles() if angles is None else np.asarray(angles, dtype=np.float64)
+        radius = self.landmark_radius if self.landmark_radius is not None else self.typical_radius()
+        occ = max(radius, self.large_radius()) if self.phase_average else None
+        common = {"range_sigma": float(s.range_sigma), "k_sigma": self.k_sigma, "range_max": s.range_max}
+        if self.buffer:
+            # sec. 6.1: samples across the line of sight, spread by the position std
+            lat = self.buffer_sigmas * s_lat[rows, sel]
+            pd_v, buf_v = buffer_zone(
+                sp, ang, scan, mu_v, radius, lat, self.pd_table.lookup, samples=self.buffer_samples,
+                phase_average=self.phase_average, occlusion_radius=occ, **common,
+            )
+        elif self.phase_average:
+            n_bar = expected_unoccluded(sp, ang, scan, mu_v, radius, occlusion_radius=occ, **common)
+            pd_v, buf_v = expected_pd(n_bar, self.pd_table.lookup), np.zeros((p, jf), dtype=bool)
+        else:
+            n_p, _ = count_unoccluded(sp, ang, scan, mu_v, radius, **common)
+            pd_v, buf_v = self.pd_table.lookup(n_p), np.zeros((p, jf), dtype=bool)
+        pd_full[rows, sel] = np.where(in_v, pd_v, 0.0)
+        buf_full[rows, sel] = buf_v & in_v
+        return pd_full, buf_full
+
     # ------------------------------------------------------------------ clutter
     def in_fov(self, z: np.ndarray) -> np.ndarray:
         """(...) whether range-bearing points z (..., 2) lie in the field of view."""
@@ -140,9 +307,18 @@ class DetectionModel:
         return ok
 
     def clutter_intensity(self, z: np.ndarray) -> np.ndarray:
-        """kappa(z) (M,) for range-bearing measurements z (M, 2), per unit of the clutter space."""
+        """kappa(z) (M,) for range-bearing measurements z (M, 2) in the sensor frame.
+
+        Per unit of range x bearing [1 / (m rad)]: lambda x density(z) when the
+        profile has a clutter density (it integrates to lambda over the field of
+        view), else the uniform lambda / |FoV| of the thesis (sec. 4.2); 0 outside
+        the field of view. For an ``xy`` profile the uniform density per m^2 times
+        the Jacobian r.
+        """
         z = np.atleast_2d(np.asarray(z, dtype=np.float64))
         k = self.clutter.kappa
+        if self.clutter.density is not None:
+            return np.where(self.in_fov(z), self.clutter.rate * self.clutter.density.at(z[:, 0], z[:, 1]), 0.0)
         if self.clutter.space == "xy":
             # a uniform density in x-y is r times a density in (r, bearing)
             return np.where(self.in_fov(z), k * z[:, 0], 0.0)

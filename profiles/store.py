@@ -25,7 +25,7 @@ from pydantic import ValidationError
 
 from profiles.atomic import atomic_output
 from profiles.errors import DataError, DetcalError, UsageError
-from profiles.profile import SCHEMA_VERSION, DetectorProfile, semver_key
+from profiles.profile import SCHEMA_VERSION, SUPPORTED_SCHEMAS, V2_FIELDS, DetectorProfile, semver_key
 
 BUILTIN = Path(__file__).resolve().parent / "builtin"
 
@@ -66,18 +66,22 @@ def _check_parameters(prof: DetectorProfile, where: str) -> None:
 
 
 def parse_profile(data: object, where: str) -> DetectorProfile:
-    """Validate a loaded document; migrate or refuse other schema versions by name."""
+    """Validate a loaded document; refuse other schema versions by name.
+
+    Schema 1 documents load as they are: every field schema 2 added is optional
+    with a default meaning the schema-1 behaviour (see :mod:`profiles.profile`).
+    """
     if not isinstance(data, dict):
         raise DataError(f"{where}: a profile is a mapping at the top level")
     version = data.get("schema_version")
-    if version != SCHEMA_VERSION:
-        if isinstance(version, int) and version > SCHEMA_VERSION:
+    if version not in SUPPORTED_SCHEMAS or isinstance(version, bool):
+        if isinstance(version, int) and not isinstance(version, bool) and version > SCHEMA_VERSION:
             raise DataError(
                 f"{where}: schema_version {version} is newer than this detcal reads ({SCHEMA_VERSION}); upgrade detcal"
             )
         raise DataError(
-            f"{where}: schema_version {version!r} is not supported; this detcal reads schema {SCHEMA_VERSION} "
-            "and has no migration from it"
+            f"{where}: schema_version {version!r} is not supported; this detcal reads schemas "
+            f"{', '.join(map(str, SUPPORTED_SCHEMAS))} and has no migration from it"
         )
     try:
         prof = DetectorProfile.model_validate(data)
@@ -126,10 +130,15 @@ def looks_like_profile(path: Path) -> bool:
 
 
 def dump_profile(profile: DetectorProfile, fmt: str = "yaml") -> str:
-    """Deterministic text: schema order, floats written exactly (round trip is lossless)."""
-    data = profile.model_dump(mode="json")
-    if data.get("noise") is None:  # optional section: absent rather than null, so older profiles keep their bytes
-        data.pop("noise", None)
+    """Deterministic text: schema order, floats written exactly (round trip is lossless).
+
+    A schema-1 profile is written without the fields schema 2 added (it cannot
+    use them), so it keeps its bytes.
+    """
+    data = profile.model_dump(mode="json", exclude=V2_FIELDS if profile.schema_version == 1 else None)
+    for section in ("noise", "sensors"):  # optional sections: absent rather than null, so older profiles keep their bytes
+        if data.get(section) is None:
+            data.pop(section, None)
     if fmt == "json":
         return json.dumps(data, indent=2) + "\n"
     if fmt != "yaml":
@@ -175,11 +184,13 @@ class Request:
     parameters: dict
     detcal_version: str
     seed: int | None
+    derived: tuple[str, ...] = ()  # parameters the work derives from inputs and config (compared as the content, later)
 
     @classmethod
-    def of(cls, p: DetectorProfile) -> Request:
+    def of(cls, p: DetectorProfile, derived: tuple[str, ...] = ()) -> Request:
         v = p.provenance
-        return cls(p.name, p.version, p.description, list(v.inputs), dict(v.parameters), v.detcal_version, v.seed)
+        params = {k: x for k, x in v.parameters.items() if k not in derived}
+        return cls(p.name, p.version, p.description, list(v.inputs), params, v.detcal_version, v.seed, tuple(derived))
 
     @property
     def ref(self) -> str:
@@ -198,7 +209,7 @@ def check_save(request: Request, folder: str | Path | None = None, *, force: boo
     builtin = bundled(request.name, request.version)
     if builtin is not None and folder.resolve() != BUILTIN.resolve():
         old = _load_or_none(builtin)
-        if old is not None and same_request(Request.of(old), request):
+        if old is not None and same_request(Request.of(old, request.derived), request):
             return builtin, "bundled"
         raise UsageError(
             f"profile {request.ref} is bundled with detcal with other content; a user profile of that name and version "
@@ -207,7 +218,7 @@ def check_save(request: Request, folder: str | Path | None = None, *, force: boo
     if not path.exists():
         return path, "write"
     old = _load_or_none(path)
-    if old is not None and same_request(Request.of(old), request) and not force:
+    if old is not None and same_request(Request.of(old, request.derived), request) and not force:
         return path, "unchanged"
     if not force:
         raise UsageError(f"{path}: profile {request.ref} exists with other content; bump the version (--version) or use --force")
@@ -246,9 +257,9 @@ def write_profile_text(profile: DetectorProfile, path: Path) -> None:
         os.fsync(fh.fileno())
 
 
-def final_status(profile: DetectorProfile, folder: str | Path | None, force: bool) -> tuple[Path, str]:
+def final_status(profile: DetectorProfile, folder: str | Path | None, force: bool, derived: tuple[str, ...] = ()) -> tuple[Path, str]:
     """(path, ``"written"``, ``"replaced"``, ``"unchanged"`` or ``"unchanged (bundled)"``) for a finished profile."""
-    path, plan = check_save(Request.of(profile), folder, force=force)
+    path, plan = check_save(Request.of(profile, derived), folder, force=force)
     if plan == "bundled":
         if not same_content(load_profile_file(path), profile):
             raise UsageError(f"profile {profile.ref} is bundled with detcal with other content; choose another --name or --version")

@@ -2,9 +2,20 @@
 
 Must never import ``calib``: a filter takes arrays and a detection model.
 
-Done: motion models (odometry increments, unicycle, Ackermann), the
-range-bearing measurement model, OSPA/GOSPA and trajectory metrics, and
-RB-PHD-SLAM (``rbphd``) with its log runner (``run``), settings (``config``),
-run folders (``report``) and Monte Carlo sweeps (``sweep``). Not yet:
-delta-GLMB-SLAM and planar 3D features.
+The seam every filter shares (see the README's architecture section):
+
+* ``particles`` -- resamplers (free functions taking a Generator) and the
+  particle history (states and an ancestry; resampling cost independent of the
+  log's length);
+* ``vehicle`` -- vehicle models (odometry increments with a constant noise
+  term, unicycle, Ackermann with a steering offset), sampled over particles;
+* ``features`` -- feature models (range-bearing point landmarks): predict z and
+  H, inverse for birth, innovation with angle wrapping;
+* ``mapfilter`` -- the map-filter interface ``update(maps, poses, measurements)
+  -> (maps, log-likelihood per particle)``; ``rbphd`` is its RB-PHD
+  implementation on Gaussian mixtures of all particles (``gm``);
+* ``slam`` -- the Rao-Blackwellised particle loop; ``sources`` -- measurement
+  sources per kind of log and the controls; ``config`` -- settings and the
+  factory; ``run`` -- run and evaluate; ``report`` -- run folders; ``sweep`` --
+  Monte Carlo sweeps; ``metrics`` -- OSPA/GOSPA and trajectory RMSE.
 """

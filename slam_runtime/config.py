@@ -1,16 +1,22 @@
-"""Settings of a SLAM run: the filter, the motion-model noise and the map metric.
+"""Settings of a SLAM run, and the factory that turns them into models and a filter.
 
 One pydantic model with ``extra="forbid"`` at every level, so a misspelt key
-in a YAML override is refused with its path. ``detcal slam run --config F``
-reads it; the run folder keeps a copy of the settings actually used.
+in a YAML override is refused with its path. The map filter is a
+discriminated union on ``filter.kind``; the particle settings, the motion
+noise, the detection options and the measurement noise are shared by every
+filter. ``detcal slam run --config F`` reads it; the run folder keeps a copy
+of the settings actually used. Overrides go through :func:`override`, which
+validates them (``particles: 0`` is refused, not copied in).
 """
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from profiles.errors import DataError, UsageError
 from slam_runtime.rbphd import RBPHDConfig
 
 
@@ -19,12 +25,15 @@ class _Strict(BaseModel):
 
 
 class IncrementNoise(_Strict):
-    """Pose-increment odometry: std a_trans |d| along, lateral |d| across, a_rot |dtheta| + a_rot_trans |d| in heading."""
+    """Pose-increment odometry (see :class:`slam_runtime.vehicle.OdometryIncrement`)."""
 
-    a_trans: float = Field(default=0.05, ge=0.0)
-    a_rot: float = Field(default=0.05, ge=0.0)
-    a_rot_trans: float = Field(default=0.01, ge=0.0, description="rad per m")
-    lateral: float = Field(default=0.02, ge=0.0)
+    a_trans: float = Field(default=0.05, ge=0.0, description="std along per metre travelled")
+    a_rot: float = Field(default=0.05, ge=0.0, description="heading std per radian turned")
+    a_rot_trans: float = Field(default=0.01, ge=0.0, description="heading std per metre travelled [rad/m]")
+    lateral: float = Field(default=0.02, ge=0.0, description="std across per metre travelled")
+    s_x: float = Field(default=0.0, ge=0.0, description="constant std along [m / sqrt(s)]")
+    s_y: float = Field(default=0.0, ge=0.0, description="constant std across [m / sqrt(s)]")
+    s_theta: float = Field(default=0.0, ge=0.0, description="constant heading std [rad / sqrt(s)]")
 
 
 class VelocityNoise(_Strict):
@@ -39,6 +48,8 @@ class AckermannNoise(_Strict):
 
     sigma_speed: float = Field(default=0.1, ge=0.0, description="m/s")
     sigma_steer: float = Field(default=0.02, ge=0.0, description="rad")
+    steer_offset: float = Field(default=0.0, ge=-0.2, le=0.2, description="steering bias removed from every reading [rad]")
+    speed_scale: float = Field(default=1.0, gt=0.5, lt=2.0, description="factor on every speed reading")
 
 
 class MotionNoise(_Strict):
@@ -47,13 +58,124 @@ class MotionNoise(_Strict):
     ackermann: AckermannNoise = AckermannNoise()
 
 
+class MeasurementNoiseConfig(_Strict):
+    """The filter's measurement noise floor; default: the profile's measured noise, else 0.1 m / 0.01 rad."""
+
+    sigma_range: float | None = Field(default=None, gt=0.0, description="[m]")
+    sigma_bearing: float | None = Field(default=None, gt=0.0, description="[rad]")
+
+
+class DetectionOptions(_Strict):
+    """How the filter uses the profile's detection statistics."""
+
+    pd_mode: Literal["profile", "constant"] = "profile"
+    constant_pd: float = Field(default=0.9, gt=0.0, le=1.0, description="P_D inside the field of view in constant mode")
+    buffer_zone: bool = True
+    buffer_sigmas: float = Field(default=2.0, gt=0.0, description="buffer-zone half-width in standard deviations")
+    landmark_radius: float | None = Field(
+        default=None, gt=0.0, description="radius the n_p ray tracer gives map features [m]; default: the profile's typical true radius"
+    )
+    phase_average: bool = Field(default=True, description="n_p averaged over where the beams fall, not the integer count")
+    descriptor_likelihood: bool = Field(
+        default=True, description="weigh each detection by g_x(d) / g_FA(d) of its descriptors (eqs. 2.26, 5.6) when the profile has a Hotelling model"
+    )
+    landmarks_only: bool = Field(
+        default=True, description="detection-level logs that label their detections (UTIAS `target`): feed only the landmark ones to the filter"
+    )
+
+
 class MetricConfig(_Strict):
     ospa_c: float = Field(default=1.0, gt=0.0, description="OSPA / GOSPA cut-off [m]")
     ospa_p: float = Field(default=1.0, ge=1.0, description="OSPA / GOSPA order")
 
 
+FilterConfig = Annotated[RBPHDConfig, Field(discriminator="kind")]
+
+
 class SlamConfig(_Strict):
-    filter: Literal["rbphd"] = "rbphd"
-    rbphd: RBPHDConfig = RBPHDConfig()
+    particles: int = Field(default=20, ge=1, le=100_000)
+    resampler: Literal["systematic", "stratified", "multinomial", "residual"] = "systematic"
+    resample_ess: float = Field(default=0.5, gt=0.0, le=1.0, description="resample when ESS < this x particles")
+    resample_every: int = Field(default=1, ge=1, description="updates at least between two resamplings")
+    proposal: Literal["prior", "optimal"] = Field(
+        default="prior", description="draw poses from the motion model, or from its Gaussian updated by the measurements the map explains"
+    )
+    filter: FilterConfig = RBPHDConfig()
+    measurement: MeasurementNoiseConfig = MeasurementNoiseConfig()
     motion: MotionNoise = MotionNoise()
+    detection: DetectionOptions = DetectionOptions()
     metric: MetricConfig = MetricConfig()
+
+
+FILTER_KINDS = ("rbphd",)
+
+
+def override(cfg: SlamConfig, **changes) -> SlamConfig:
+    """A validated copy of ``cfg`` with dotted-path changes, e.g. ``override(cfg, particles=50, **{"detection.pd_mode": "constant"})``;
+    a bad value raises a UsageError naming the field."""
+    data = cfg.model_dump()
+    for key, value in changes.items():
+        if value is None:
+            continue
+        node = data
+        *path, last = key.split(".")
+        for part in path:
+            node = node[part]
+        if last == "kind" and path == ["filter"] and node.get("kind") != value:
+            node.clear()  # another filter: its own defaults
+        node[last] = value
+    try:
+        return SlamConfig.model_validate(data)
+    except ValidationError as exc:
+        e = exc.errors()[0]
+        raise UsageError(f"{'.'.join(str(x) for x in e['loc'])}: {e['msg']}") from None
+
+
+# ---------------------------------------------------------------------- factory
+def vehicle_model(kind: str, noise: MotionNoise, vehicle=None):
+    """The vehicle model that odometry of ``kind`` drives."""
+    from slam_runtime.vehicle import Ackermann, OdometryIncrement, Unicycle
+
+    if kind in ("pose", "increment"):
+        return OdometryIncrement(**noise.increment.model_dump())
+    if kind == "velocity":
+        return Unicycle(**noise.velocity.model_dump())
+    if kind == "ackermann":
+        if vehicle is None:
+            raise DataError("Ackermann odometry needs the vehicle geometry (wheelbase)")
+        return Ackermann(vehicle.wheelbase, vehicle.encoder_offset, **noise.ackermann.model_dump())
+    raise DataError(f"odometry of kind {kind!r} cannot drive the filter")
+
+
+def detection_model(profile, opts: DetectionOptions, sensor=None):
+    """The profile's runtime detection model with the filter's options."""
+    from detectors.model import DetectionModel
+
+    return DetectionModel.from_profile(
+        profile,
+        sensor,
+        constant_pd=opts.constant_pd if opts.pd_mode == "constant" else None,
+        buffer=opts.buffer_zone,
+        buffer_sigmas=opts.buffer_sigmas,
+        landmark_radius=opts.landmark_radius,
+        phase_average=opts.phase_average,
+    )
+
+
+def feature_model(detection, noise: MeasurementNoiseConfig, mount: np.ndarray):
+    """The range-bearing point feature with its noise floor (settings, else the profile's measured noise, else 0.1 m / 0.01 rad)."""
+    from slam_runtime.features import RangeBearing
+
+    sr, sb = detection.noise_sigmas if detection.noise is not None else (0.1, 0.01)
+    sr = noise.sigma_range if noise.sigma_range is not None else sr
+    sb = noise.sigma_bearing if noise.sigma_bearing is not None else sb
+    return RangeBearing(np.diag([sr**2, sb**2]), mount)
+
+
+def map_filter(cfg: SlamConfig, feature, detection):
+    from slam_runtime.rbphd import RBPHD
+
+    f = cfg.filter
+    if f.kind == "rbphd":
+        return RBPHD(feature, detection, f)
+    raise UsageError(f"filter.kind: {f.kind!r} is not available")

@@ -1,134 +1,221 @@
-"""Gaussian-mixture maps of many particles at once: padded struct-of-arrays.
+"""Gaussian-mixture maps of many particles at once: padded struct-of-arrays in d dimensions.
 
 A batch of P maps with capacity J holds weights w (P, J) (0 = empty slot),
-means mu (P, J, 2) and covariances cov (P, J, 2, 2), all in the world frame.
+means mu (P, J, d) and covariances cov (P, J, d, d), in the world frame. The
+linear algebra has explicit closed forms for d = 2 (point landmarks, the hot
+path: no LAPACK call per 2x2 matrix) and falls back to numpy's batched
+routines for other d (planes: d = 3).
+
 Pruning and merging follow Vo & Ma (2006): drop components under a weight
 threshold, then repeatedly take the heaviest remaining component and merge
-every remaining one within a Mahalanobis distance of it. The merge loop runs
-once per output component, each round vectorised over all particles and
-components.
+every remaining one within a Mahalanobis distance of it (measured with the
+head's covariance).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
+
+
+def det(c: np.ndarray) -> np.ndarray:
+    """Determinants of (..., d, d)."""
+    if c.shape[-1] == 2:
+        return c[..., 0, 0] * c[..., 1, 1] - c[..., 0, 1] * c[..., 1, 0]
+    return np.linalg.det(c)
+
+
+def inv(c: np.ndarray) -> np.ndarray:
+    """Inverses of (..., d, d) (near-singular 2x2 matrices get a floored determinant, not a NaN)."""
+    if c.shape[-1] != 2:
+        return np.linalg.inv(c)
+    dt = det(c)
+    out = np.empty_like(c)
+    out[..., 0, 0] = c[..., 1, 1]
+    out[..., 1, 1] = c[..., 0, 0]
+    out[..., 0, 1] = -c[..., 0, 1]
+    out[..., 1, 0] = -c[..., 1, 0]
+    return out / np.where(np.abs(dt) > 1e-300, dt, 1e-300)[..., None, None]
+
+
+def quad(a: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """v^T A v for symmetric A (..., d, d) and v (..., d), written out for d = 2."""
+    if v.shape[-1] == 2:
+        x, y = v[..., 0], v[..., 1]
+        return a[..., 0, 0] * x * x + 2.0 * a[..., 0, 1] * x * y + a[..., 1, 1] * y * y
+    return np.einsum("...i,...ij,...j->...", v, a, v)
+
+
+def matmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a @ b for stacks of small matrices, written out for 2x2 (numpy's matmul is slow on tiny matrices)."""
+    if a.shape[-2:] == (2, 2) and b.shape[-2:] == (2, 2):
+        out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+        out[..., 0, 0] = a[..., 0, 0] * b[..., 0, 0] + a[..., 0, 1] * b[..., 1, 0]
+        out[..., 0, 1] = a[..., 0, 0] * b[..., 0, 1] + a[..., 0, 1] * b[..., 1, 1]
+        out[..., 1, 0] = a[..., 1, 0] * b[..., 0, 0] + a[..., 1, 1] * b[..., 1, 0]
+        out[..., 1, 1] = a[..., 1, 0] * b[..., 0, 1] + a[..., 1, 1] * b[..., 1, 1]
+        return out
+    return a @ b
+
+
+def matvec(a: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """a @ v for (..., d, d) and (..., d)."""
+    if v.shape[-1] == 2 and a.shape[-2:] == (2, 2):
+        return np.stack([a[..., 0, 0] * v[..., 0] + a[..., 0, 1] * v[..., 1], a[..., 1, 0] * v[..., 0] + a[..., 1, 1] * v[..., 1]], axis=-1)
+    return (a @ v[..., None])[..., 0]
+
+
+def transpose(a: np.ndarray) -> np.ndarray:
+    return np.swapaxes(a, -1, -2)
+
+
+def gaussian(m2: np.ndarray, detc: np.ndarray, d: int) -> np.ndarray:
+    """Normal density from the squared Mahalanobis distance and the covariance determinant."""
+    return np.exp(-0.5 * m2) / np.sqrt((2 * np.pi) ** d * np.maximum(detc, 1e-300))
 
 
 @dataclass
 class GMBatch:
     w: np.ndarray  # (P, J)
-    mu: np.ndarray  # (P, J, 2)
-    cov: np.ndarray  # (P, J, 2, 2)
+    mu: np.ndarray  # (P, J, d)
+    cov: np.ndarray  # (P, J, d, d)
 
     @classmethod
-    def empty(cls, p: int, j: int = 0) -> GMBatch:
-        return cls(np.zeros((p, j)), np.zeros((p, j, 2)), np.tile(np.eye(2), (p, j, 1, 1)))
+    def empty(cls, p: int, j: int = 0, d: int = 2) -> GMBatch:
+        return cls(np.zeros((p, j)), np.zeros((p, j, d)), np.tile(np.eye(d), (p, j, 1, 1)))
 
     @property
     def shape(self) -> tuple[int, int]:
         return self.w.shape  # type: ignore[return-value]
 
+    @property
+    def dim(self) -> int:
+        return self.mu.shape[-1]
+
     def take(self, idx: np.ndarray) -> GMBatch:
         """The maps of particles ``idx`` (resampling)."""
-        return GMBatch(self.w[idx].copy(), self.mu[idx].copy(), self.cov[idx].copy())
+        return GMBatch(self.w[idx], self.mu[idx], self.cov[idx])
 
     def concat(self, other: GMBatch) -> GMBatch:
+        if other.shape[1] == 0:
+            return self
+        if self.shape[1] == 0:
+            return other
         return GMBatch(
-            np.concatenate([self.w, other.w], axis=1),
-            np.concatenate([self.mu, other.mu], axis=1),
-            np.concatenate([self.cov, other.cov], axis=1),
+            np.concatenate([self.w, other.w], axis=1), np.concatenate([self.mu, other.mu], axis=1), np.concatenate([self.cov, other.cov], axis=1)
         )
 
     def total(self) -> np.ndarray:
         """(P,) expected number of features of each map."""
         return self.w.sum(axis=1)
 
-    def density(self, pts: np.ndarray) -> np.ndarray:
-        """Intensity of each map at its own points pts (P, K, 2) -> (P, K)."""
-        d = pts[:, :, None, :] - self.mu[:, None, :, :]  # (P, K, J, 2)
-        inv = _inv2(self.cov)[:, None]  # (P, 1, J, 2, 2)
-        m2 = _quad(inv, d[..., 0], d[..., 1])
-        det = _det2(self.cov)
-        g = np.exp(-0.5 * m2) / (2 * np.pi * np.sqrt(np.maximum(det, 1e-300)))[:, None, :]
+    def count(self) -> np.ndarray:
+        """(P,) occupied slots of each map."""
+        return (self.w > 0).sum(axis=1)
+
+    def density(self, pts: np.ndarray, gate: float | None = None) -> np.ndarray:
+        """Intensity of each map at its own points pts (P, K, d) -> (P, K).
+
+        gate: squared Mahalanobis distance beyond which a component's contribution
+        is taken as 0 (``None``: exact).
+        """
+        d = pts[:, :, None, :] - self.mu[:, None, :, :]  # (P, K, J, d)
+        m2 = quad(inv(self.cov)[:, None], d)
+        g = gaussian(m2, det(self.cov)[:, None, :], self.dim)
+        if gate is not None:
+            g = np.where(m2 <= gate, g, 0.0)
         return (g * self.w[:, None, :]).sum(axis=2)
 
 
-def _quad(inv: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
-    """d^T A d for symmetric 2x2 A (..., 2, 2) and d = (dx, dy), written out (einsum is slow here)."""
-    return inv[..., 0, 0] * dx * dx + 2.0 * inv[..., 0, 1] * dx * dy + inv[..., 1, 1] * dy * dy
-
-
-def _det2(c: np.ndarray) -> np.ndarray:
-    return c[..., 0, 0] * c[..., 1, 1] - c[..., 0, 1] * c[..., 1, 0]
-
-
-def _inv2(c: np.ndarray) -> np.ndarray:
-    det = _det2(c)
-    inv = np.empty_like(c)
-    inv[..., 0, 0] = c[..., 1, 1]
-    inv[..., 1, 1] = c[..., 0, 0]
-    inv[..., 0, 1] = -c[..., 0, 1]
-    inv[..., 1, 0] = -c[..., 1, 0]
-    return inv / np.where(np.abs(det) > 1e-300, det, 1e-300)[..., None, None]
-
-
-def prune_merge(gm: GMBatch, *, prune: float = 1e-4, merge: float = 4.0, cap: int = 200) -> GMBatch:
+def prune_merge(gm: GMBatch, *, prune: float = 1e-4, merge: float = 4.0, cap: int = 200, inflate: float = 1.0) -> tuple[GMBatch, bool]:
     """Vo & Ma pruning and merging for every particle; at most ``cap`` components each.
 
     merge: squared Mahalanobis distance under which components merge.
+    inflate: factor on the covariance of a merged group of two or more (the
+    C++ RFS-SLAM library's ``covInflationFactor``); 1 = the moment match.
+    Returns the mixture and whether the cap bound (a particle had more merged
+    components than ``cap``; its lightest were dropped, as Vo & Ma do).
 
     The greedy grouping (heaviest remaining component takes every remaining one
-    inside its gate) runs on a precomputed adjacency, one cheap boolean round per
-    output component for all particles at once; the merged moments are then
-    summed in one pass with ``bincount``.
+    inside its gate) is sequential by nature: it runs compiled (:func:`_group`,
+    numba), O(groups x components) per particle; the merged moments are then
+    summed for all particles in one pass with ``bincount``.
     """
     p, j = gm.shape
+    d = gm.dim
     if j == 0:
-        return GMBatch.empty(p, 0)
+        return GMBatch.empty(p, 0, d), False
     alive = gm.w > prune
-    # keep the heaviest min(j, 4 cap) live components, heaviest first
-    k = int(min(j, 4 * cap, max(1, alive.sum(axis=1).max())))
+    n_alive = alive.sum(axis=1)
+    # the live components, heaviest first (at most 10 cap: a bound on the cost in pathological cases)
+    k = int(min(j, 10 * cap, max(1, n_alive.max())))
     order = np.argsort(-np.where(alive, gm.w, -1.0), axis=1, kind="stable")[:, :k]
     w = np.take_along_axis(gm.w, order, axis=1)
     mu = np.take_along_axis(gm.mu, order[..., None], axis=1)
     cov = np.take_along_axis(gm.cov, order[..., None, None], axis=1)
-    alive = w > prune
-    inv = _inv2(cov)
-    # adj[p, i, l]: component l lies inside the gate of component i (Vo & Ma use the head's covariance)
-    adj = np.empty((p, k, k), dtype=bool)
-    step = max(1, 2_000_000 // (k * k))
-    for a in range(0, p, step):
-        sl = slice(a, a + step)
-        d = mu[sl, None, :, :] - mu[sl, :, None, :]  # (p', K, K, 2): l - i
-        adj[sl] = _quad(inv[sl, :, None], d[..., 0], d[..., 1]) <= merge
-    label = np.full((p, k), -1, dtype=np.int64)
-    rows = np.arange(p)
-    filled = 0
-    for slot in range(cap):  # one output component per round; components are sorted, so the head is the first alive
-        if not alive.any():
-            break
-        filled = slot + 1
-        has = alive.any(axis=1)
-        head = np.argmax(alive, axis=1)
-        grp = adj[rows, head] & alive & has[:, None]
-        label[grp] = slot
-        alive &= ~grp
+    label, filled, _ = _group(w, mu, inv(cov), prune, merge, k)
+    capped = bool(k < n_alive.max())
     if filled == 0:
-        return GMBatch.empty(p, 0)
+        return GMBatch.empty(p, 0, d), capped
     # moments of each group (weights, means, covariances with the spread of the means)
     ok = label >= 0
-    idx = (rows[:, None] * filled + label)[ok]
+    idx = (np.arange(p)[:, None] * filled + label)[ok]
     wt = w[ok]
     n = p * filled
     tot = np.bincount(idx, weights=wt, minlength=n)
+    size = np.bincount(idx, minlength=n)
     safe = np.where(tot > 0, tot, 1.0)
-    m = np.stack([np.bincount(idx, weights=wt * mu[ok][:, c], minlength=n) for c in range(2)], axis=-1) / safe[:, None]
+    m = np.stack([np.bincount(idx, weights=wt * mu[ok][:, c], minlength=n) for c in range(d)], axis=-1) / safe[:, None]
     dm = mu[ok] - m[idx]
     second = cov[ok] + dm[:, :, None] * dm[:, None, :]
-    c = np.stack([np.bincount(idx, weights=wt * second[:, a, b], minlength=n) for a in range(2) for b in range(2)], axis=-1)
-    c = c.reshape(n, 2, 2) / safe[:, None, None]
-    empty = tot == 0
-    c[empty] = np.eye(2)
-    return GMBatch(tot.reshape(p, filled), m.reshape(p, filled, 2), c.reshape(p, filled, 2, 2))
+    c = np.stack([np.bincount(idx, weights=wt * second[:, a, b], minlength=n) for a in range(d) for b in range(d)], axis=-1)
+    c = c.reshape(n, d, d) / safe[:, None, None]
+    if inflate != 1.0:
+        c = np.where((size > 1)[:, None, None], c * inflate, c)
+    c[tot == 0] = np.eye(d)
+    out = GMBatch(tot.reshape(p, filled), m.reshape(p, filled, d), c.reshape(p, filled, d, d))
+    if filled > cap:  # Vo & Ma: keep the cap heaviest merged components
+        capped = capped or bool((out.w > 0).sum(axis=1).max() > cap)
+        keep = np.argsort(-out.w, axis=1, kind="stable")[:, :cap]
+        out = GMBatch(np.take_along_axis(out.w, keep, 1), np.take_along_axis(out.mu, keep[..., None], 1), np.take_along_axis(out.cov, keep[..., None, None], 1))
+    return out, capped
+
+
+@numba.njit(cache=True, nogil=True)
+def _group(w, mu, icov, prune, merge, cap):  # pragma: no cover - compiled
+    """Vo & Ma grouping of components sorted by weight (heaviest first) in every particle.
+
+    w (P, K), mu (P, K, d), icov (P, K, d, d) the inverse covariances. Returns
+    label (P, K) (the output slot of each component, -1 for pruned or dropped
+    ones), the number of slots used and whether the cap dropped any group.
+    """
+    p, k = w.shape
+    d = mu.shape[2]
+    label = np.full((p, k), -1, dtype=np.int64)
+    filled = 0
+    capped = False
+    for a in range(p):
+        slot = 0
+        for i in range(k):
+            if w[a, i] <= prune or label[a, i] >= 0:
+                continue
+            if slot == cap:
+                capped = True
+                break
+            label[a, i] = slot
+            for j in range(i + 1, k):  # every lighter live component inside the head's gate joins it
+                if label[a, j] >= 0 or w[a, j] <= prune:
+                    continue
+                m2 = 0.0
+                for r in range(d):
+                    dr = mu[a, j, r] - mu[a, i, r]
+                    for c in range(d):
+                        m2 += dr * icov[a, i, r, c] * (mu[a, j, c] - mu[a, i, c])
+                if m2 <= merge:
+                    label[a, j] = slot
+            slot += 1
+        if slot > filled:
+            filled = slot
+    return label, filled, capped

@@ -6,7 +6,7 @@ Layout::
     metrics.yaml      trajectory RMSE (filter, weighted mean, dead reckoning), map OSPA/GOSPA, timings
     trajectory.csv    stamp_ns, best particle x/y/theta, weighted mean x/y/theta, dead reckoning x/y/theta
     map.csv           x, y, weight of the map estimate (components of weight >= map_threshold)
-    steps.csv         stamp_ns, ms, measurements, ess, resampled, components, map_ospa
+    steps.csv         stamp_ns, ms, measurements, ess, resampled, components, and what the hooks recorded (map_ospa)
     trajectory_map.png, ospa.png, timing.png
 
 Everything is written into a temporary folder that is renamed into place, so a
@@ -53,11 +53,12 @@ def write_slam_run(log: SensorLog, res: SlamResult, out: Path, config: dict, *, 
             ["%d"] + ["%.6f"] * 9,
         )
         _table(tmp / "map.csv", ["x", "y", "weight"], [*res.map_xy.T, res.map_w], ["%.6f", "%.6f", "%.6f"])
+        hooks = sorted(res.per_step)
         _table(
             tmp / "steps.csv",
-            ["stamp_ns", "ms", "measurements", "ess", "resampled", "components", "map_ospa"],
-            [res.stamps, res.step_ms, res.n_measurements, res.ess, res.resampled.astype(int), res.components, res.map_ospa],
-            ["%d", "%.3f", "%d", "%.4f", "%d", "%.2f", "%.6f"],
+            ["stamp_ns", "ms", "measurements", "ess", "resampled", "components", *hooks],
+            [res.stamps, res.step_ms, res.n_measurements, res.ess, res.resampled.astype(int), res.components, *(res.per_step[h] for h in hooks)],
+            ["%d", "%.3f", "%d", "%.4f", "%d", "%.2f"] + ["%.6f"] * len(hooks),
         )
         figures = _figures(log, res, odo, tmp)
     return figures
@@ -99,7 +100,7 @@ def _figures(log: SensorLog, res: SlamResult, odo: np.ndarray, folder: Path) -> 
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    title = f"{log.name}: RB-PHD-SLAM"
+    title = f"{log.name}: {res.filter}-SLAM"
     m = res.metrics
     for key in ("ground_truth", "gps"):
         if f"trajectory_rmse_vs_{key}_m" in m:
@@ -112,9 +113,11 @@ def _figures(log: SensorLog, res: SlamResult, odo: np.ndarray, folder: Path) -> 
     names.append("trajectory_map.png")
 
     t = (res.stamps - res.stamps[0]) / 1e9
-    if np.isfinite(res.map_ospa).any():
+    osp = res.per_step.get("map_ospa")
+    if osp is not None and np.isfinite(osp).any():
         fig, ax = plt.subplots(figsize=(7, 3.5))
-        ax.plot(t, res.map_ospa, "b-")
+        ok = np.isfinite(osp)
+        ax.plot(t[ok], osp[ok], "b-")
         ax.set_xlabel("time [s]")
         ax.set_ylabel(f"map OSPA (c = {m.get('ospa_c_m', 1.0)} m, p = {m.get('ospa_p', 1.0)})")
         ax.set_ylim(0, m.get("ospa_c_m", 1.0) * 1.05)
@@ -127,8 +130,9 @@ def _figures(log: SensorLog, res: SlamResult, odo: np.ndarray, folder: Path) -> 
     fig, ax = plt.subplots(figsize=(7, 3.5))
     ax.plot(t, res.step_ms, "k-", lw=0.5)
     ax.set_xlabel("time [s]")
-    ax.set_ylabel("ms per step")
-    ax.set_title(f"mean {res.step_ms.mean():.1f} ms, median {np.median(res.step_ms):.1f} ms per step", fontsize=9)
+    ax.set_ylabel("filter ms per step")
+    split = ", ".join(f"{k} {v / max(res.stamps.size, 1):.2f}" for k, v in res.stage_ms.items())
+    ax.set_title(f"mean {res.step_ms.mean():.1f} ms, median {np.median(res.step_ms):.1f} ms per step\nper stage [ms/step]: {split}", fontsize=8)
     ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(folder / "timing.png", dpi=110)

@@ -1,8 +1,14 @@
-"""Drive RB-PHD-SLAM over a log: motion per odometry row, the profile's detector per scan.
+"""Run a SLAM filter over a log, then evaluate it: run -> evaluate -> write (the CLI writes).
 
 Takes a :class:`detectors.logs.SensorLog` in memory and a profile object; no
-file paths (the CLI reads them). The start pose is the log's first reference
-pose when it has one (so the map and the truth share a frame), else the origin.
+file paths. :func:`build` turns the settings into a vehicle model, a feature
+model, the profile's detection model, a map filter and a measurement source;
+:func:`run_slam` drives the particle loop (:class:`slam_runtime.slam.RBSlam`)
+frame by frame and records what happened; :func:`evaluate` compares the
+result with the log's truth (trajectory RMSE beside dead reckoning, map
+OSPA/GOSPA); per-step figures that need the truth come from hooks the caller
+passes (:class:`MapOSPA`). The start pose is the log's first ground-truth pose
+when it has one (so the map and the truth share a frame), else the origin.
 """
 
 from __future__ import annotations
@@ -12,77 +18,39 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from detectors.circle import detect_circles
 from detectors.geometry import compose, interpolate_poses, relative
 from detectors.logs import SensorLog
-from detectors.model import DetectionModel
 from profiles.errors import DataError, UsageError
-from profiles.schema import HotellingParams
+from slam_runtime.config import SlamConfig, detection_model, feature_model, map_filter, vehicle_model
 from slam_runtime.metrics import gospa, ospa, trajectory_rmse
-from slam_runtime.motion import ackermann, odometry_increment, unicycle
-from slam_runtime.config import SlamConfig
-from slam_runtime.rbphd import RBPHDConfig, RBPHDSlam
+from slam_runtime.slam import RBSlam
+from slam_runtime.sources import LoggedDetections, ScanCircles, control_rows, frames
 
 
 @dataclass
 class SlamResult:
     """What one run produced; every per-step array has one row per frame (T)."""
 
+    filter: str
     stamps: np.ndarray  # (T,) frame stamps [ns]
     trajectory: np.ndarray  # (T, 3) the best particle's vehicle poses (its whole history), world frame
     mean_trajectory: np.ndarray  # (T, 3) the weighted mean of the particles at each step
-    map_xy: np.ndarray  # (K, 2) the best particle's components of weight >= map_threshold
+    map_xy: np.ndarray  # (K, 2) the best particle's map estimate
     map_w: np.ndarray  # (K,)
-    step_ms: np.ndarray  # (T,) wall time per frame (motion, detection and update)
+    step_ms: np.ndarray  # (T,) wall time of the filter per frame (motion and update; the detector's time is stage_ms['detect'])
     n_measurements: np.ndarray  # (T,)
     ess: np.ndarray  # (T,) effective sample size after the update
     resampled: np.ndarray  # (T,) bool
     components: np.ndarray  # (T,) mean components per particle
-    map_ospa: np.ndarray  # (T,) OSPA of the map estimate at each step (NaN without landmark truth)
-    start: np.ndarray = field(default_factory=lambda: np.zeros(3))  # (3,) the pose the filter started from
+    start: np.ndarray  # (3,) the pose the filter started from
+    resample_ms: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (T,) the resampling stage's time per frame
+    stage_ms: dict = field(default_factory=dict)  # total ms per stage (detect, predict, pd, update, weight, merge, resample)
+    capped_steps: int = 0  # steps at which the component cap bound
+    per_step: dict = field(default_factory=dict)  # what hooks recorded, name -> (T,)
+    map_all_xy: np.ndarray | None = None  # (K', 2) every component of the best particle's map, however light
+    map_all_w: np.ndarray | None = None  # (K',)
     odometry: np.ndarray | None = None  # (T, 3) dead reckoning through the same frames (set by evaluate)
     metrics: dict = field(default_factory=dict)
-
-
-def _mover(log: SensorLog, rows: slice, motion: dict):
-    """Motion over the odometry rows ``rows`` (those up to a frame): ``move(poses, rng) -> poses``.
-
-    A velocity or Ackermann command holds until the next row, so the interval
-    from the previous row of the whole log (not of the frame) to row k is
-    driven by that previous row. Pose odometry (CARMEN ODOM) moves by the
-    increment from the previous row's pose.
-    """
-    o = log.odometry
-    start = rows.start or 0
-    vals, stamps = o.values[rows], o.stamp[rows]
-    before = o.stamp[start - 1] if start > 0 else (stamps[0] if stamps.size else 0)
-    prev = np.concatenate([[before], stamps[:-1]])
-    # a velocity or Ackermann command holds until the next row: the interval ending at row k
-    # is driven by row k - 1 (the first row of the log has no interval before it)
-    held = np.vstack([o.values[start - 1][None] if start > 0 else vals[:1], vals[:-1]]) if len(vals) else vals
-    if o.kind == "pose":
-        base = o.values[start - 1] if start > 0 else (vals[0] if len(vals) else np.zeros(3))
-        chain = np.vstack([base[None], vals])
-        incs = relative(chain[:-1], chain[1:])
-
-    def move(poses, rng):
-        for k in range(vals.shape[0]):  # rows of one frame (a handful); each vectorised over particles
-            if o.kind == "pose":
-                poses = odometry_increment(poses, incs[k], rng, **motion.get("increment", {}))
-            elif o.kind == "increment":
-                poses = odometry_increment(poses, vals[k], rng, **motion.get("increment", {}))
-            elif o.kind == "velocity":
-                dt = (stamps[k] - prev[k]) / 1e9
-                poses = unicycle(poses, held[k, 0], held[k, 1], dt, rng, **motion.get("velocity", {}))
-            elif o.kind == "ackermann":
-                dt = (stamps[k] - prev[k]) / 1e9
-                veh = log.vehicle
-                poses = ackermann(poses, held[k, 0], held[k, 1], dt, veh.wheelbase, veh.encoder_offset, rng, **motion.get("ackermann", {}))
-            else:
-                raise DataError(f"odometry of kind {o.kind!r} cannot drive the filter")
-        return poses
-
-    return move
 
 
 def check_inputs(log: SensorLog, profile) -> None:
@@ -112,123 +80,138 @@ def _same_beams(profile, sensor) -> None:
         )
 
 
-def run_slam(log: SensorLog, profile, cfg: SlamConfig, seed: int, *, progress=None, max_frames: int | None = None) -> SlamResult:
-    """Run the filter ``cfg.filter`` over ``log`` (see :func:`run_rbphd`)."""
-    return run_rbphd(
-        log, profile, cfg.rbphd, seed, motion=cfg.motion.model_dump(), progress=progress,
-        ospa_c=cfg.metric.ospa_c, ospa_p=cfg.metric.ospa_p, max_frames=max_frames,
+@dataclass
+class Built:
+    vehicle: object
+    mapfilter: object
+    measure: object
+    mount: np.ndarray
+
+
+def build(log: SensorLog, profile, cfg: SlamConfig) -> Built:
+    """The models, the map filter and the measurement source of a run (the factory of the settings)."""
+    sensor = log.sensor if log.sensor is not None else profile.sensor
+    mount = np.array([sensor.mount.x, sensor.mount.y, sensor.mount.theta])
+    det = detection_model(profile, cfg.detection, None)
+    feat = feature_model(det, cfg.measurement, mount)
+    mf = map_filter(cfg, feat, det)
+    veh = vehicle_model(log.odometry.kind, cfg.motion, log.vehicle)
+    if log.scans is not None and profile.detector.kind == "circle2d":
+        measure = ScanCircles(log, profile, det, descriptor_likelihood=cfg.detection.descriptor_likelihood)
+    else:
+        measure = LoggedDetections(log, landmarks_only=cfg.detection.landmarks_only)
+    return Built(veh, mf, measure, mount)
+
+
+def start_pose(log: SensorLog, stamp: int) -> np.ndarray:
+    """The true pose at ``stamp`` when the log has ground truth there, else the origin (GPS gives no heading)."""
+    ref = log.reference.get("ground_truth")
+    if ref is not None and ref.stamp[0] <= stamp <= ref.stamp[-1]:
+        return interpolate_poses(ref.stamp, ref.poses, np.array([stamp]))[0]
+    return np.zeros(3)
+
+
+class MapOSPA:
+    """Hook: OSPA of the best particle's map against the truth after every step (evaluation, not filtering)."""
+
+    name = "map_ospa"
+
+    def __init__(self, truth_xy: np.ndarray, c: float = 1.0, p: float = 1.0, every: int = 1) -> None:
+        self.truth, self.c, self.p, self.every = truth_xy, c, p, every
+
+    def __call__(self, k: int, slam: RBSlam) -> float:
+        if k % self.every:
+            return np.nan
+        return ospa(slam.mf.feature.position(slam.map_estimate()[0]), self.truth, self.c, self.p)
+
+
+def run_slam(
+    log: SensorLog, profile, cfg: SlamConfig, seed: int, *, progress=None, max_frames: int | None = None, hooks: tuple = ()
+) -> SlamResult:
+    """Run the filter ``cfg.filter`` over every frame (or the first ``max_frames``) of ``log``.
+
+    hooks: callables ``hook(k, slam) -> float`` called after every step, recorded
+    under ``hook.name`` in ``per_step`` (e.g. :class:`MapOSPA`).
+    """
+    check_inputs(log, profile)
+    b = build(log, profile, cfg)
+    n = sum(1 for _ in log.frames()) if max_frames is None else min(max_frames, sum(1 for _ in log.frames()))
+    if n == 0:
+        raise DataError(f"log {log.name!r}: no scans or detections to run on")
+    stamps = np.array([fr.stamp for fr in log.frames()][:n], dtype=np.int64)
+    start = start_pose(log, int(stamps[0]))
+    slam = RBSlam(
+        b.vehicle, b.mapfilter, cfg.particles, start, np.random.default_rng(seed),
+        resampler=cfg.resampler, resample_ess=cfg.resample_ess, resample_every=cfg.resample_every, proposal=cfg.proposal,
+    )
+    times, counts, ess_, res_, comp, rs_ms = np.zeros(n), np.zeros(n, np.int64), np.zeros(n), np.zeros(n, bool), np.zeros(n), np.zeros(n)
+    mean_traj = np.zeros((n, 3))
+    per_step = {h.name: np.full(n, np.nan) for h in hooks}
+    detect_s = 0.0
+    it = frames(log, b.measure, n)
+    if progress is not None:
+        it = progress(it, n, b.mapfilter.name + "-SLAM")
+    t_prev = time.perf_counter()
+    for fi in it:  # the source detects (laser) while the loop advances: that time is the "detect" stage
+        k = fi.index
+        t0 = time.perf_counter()
+        detect_s += t0 - t_prev
+        if fi.controls.shape[0]:
+            slam.predict(fi.controls, fi.dts)
+        info = slam.update(fi.meas)
+        times[k] = (time.perf_counter() - t0) * 1e3
+        counts[k], ess_[k], res_[k], comp[k], rs_ms[k] = info.n_measurements, info.ess, info.resampled, info.components, info.resample_ms
+        mean_traj[k] = slam.mean_pose()
+        for h in hooks:
+            per_step[h.name][k] = h(k, slam)
+        t_prev = time.perf_counter()
+    traj = b.vehicle.pose(slam.trajectory())[1:]
+    est_x, est_w = slam.map_estimate()
+    all_x, all_w = b.mapfilter.components(slam.maps, slam.best())
+    stage = {"detect": detect_s * 1e3, **{k: v * 1e3 for k, v in slam.time.items()}, **{k: v * 1e3 for k, v in b.mapfilter.timers.total.items()}}
+    return SlamResult(
+        b.mapfilter.name, stamps, traj, mean_traj, b.mapfilter.feature.position(est_x), est_w, times, counts, ess_, res_, comp, start,
+        resample_ms=rs_ms, stage_ms=stage, capped_steps=b.mapfilter.capped_steps, per_step=per_step,
+        map_all_xy=b.mapfilter.feature.position(all_x), map_all_w=all_w,
     )
 
 
-def run_rbphd(
-    log: SensorLog,
-    profile,
-    cfg: RBPHDConfig,
-    seed: int,
-    *,
-    motion: dict | None = None,
-    progress=None,
-    ospa_c: float = 1.0,
-    ospa_p: float = 1.0,
-    max_frames: int | None = None,
-) -> SlamResult:
-    """Run the filter over every frame (or the first ``max_frames``) of ``log`` with the statistics of ``profile``.
-
-    Laser logs: the profile's circle detector runs on each scan (with its
-    Hotelling gate) and the scan is ray-traced for P_D. Detection-level logs
-    (Victoria Park, UTIAS): the log's detections are the measurements and P_D
-    comes from the profile's covariate (range). ``motion`` overrides the
-    motion-model noise, e.g. ``{"increment": {"a_trans": 0.1}}``.
-    """
-    check_inputs(log, profile)
-    model = DetectionModel.from_profile(profile)
-    sensor = log.sensor if log.sensor is not None else profile.sensor
-    mount = np.array([sensor.mount.x, sensor.mount.y, sensor.mount.theta])
-    frames = list(log.frames())[:max_frames]
-    if not frames:
-        raise DataError(f"log {log.name!r}: no scans or detections to run on")
-    # start at the true first pose when the log has one (map and truth then share a frame);
-    # GPS has no heading, so a GPS-only log starts at the origin and is scored after a rigid fit
-    start = np.zeros(3)
-    ref = log.reference.get("ground_truth")
-    if ref is not None and ref.stamp[0] <= frames[0].stamp <= ref.stamp[-1]:
-        start = interpolate_poses(ref.stamp, ref.poses, np.array([frames[0].stamp]))[0]
-    rng = np.random.default_rng(seed)
-    slam = RBPHDSlam(model, mount, cfg, rng, start)
-    hot = None
-    if profile.hotelling is not None and profile.detector.kind == "circle2d":
-        hot = HotellingParams.model_validate(profile.hotelling.model_dump(include=set(HotellingParams.model_fields)))
-    ang = sensor.angles() if log.scans is not None else None
-    truth_xy = log.landmarks.xy if log.landmarks is not None else None
-    n = len(frames)
-    times, counts, ess, res_, comp, osp = (np.zeros(n), np.zeros(n, np.int64), np.zeros(n), np.zeros(n, bool), np.zeros(n), np.full(n, np.nan))
-    mean_traj = np.zeros((n, 3))
-    it = range(n) if progress is None else progress(range(n), n, "RB-PHD-SLAM")
-    for k in it:
-        fr = frames[k]
-        t0 = time.perf_counter()
-        if k > 0 and fr.odometry.stop > fr.odometry.start:  # the start pose is the first frame's
-            slam.predict(_mover(log, fr.odometry, motion or {}))
-        if fr.kind == "scan":
-            scan = log.scans.ranges[fr.rows]
-            det = detect_circles(scan, ang, profile.detector.circle, hot, sensor.range_sigma)
-            z = np.column_stack([det.range, det.bearing])
-            ratio = None
-            if cfg.descriptor_likelihood and hot is not None:
-                desc = det.descriptors(tuple(hot.names))
-                ratio = model.g_true(desc) / np.maximum(model.g_false(desc), 1e-300)
-            info = slam.update(z, scan, det.cov, ratio)
-        else:
-            d = log.detections
-            z = np.column_stack([d.range[fr.rows], d.bearing[fr.rows]])
-            info = slam.update(z)
-        times[k] = (time.perf_counter() - t0) * 1e3
-        counts[k], ess[k], res_[k], comp[k] = info.n_measurements, info.ess, info.resampled, info.components
-        mean_traj[k] = slam.mean_pose()
-        if truth_xy is not None:
-            osp[k] = ospa(slam.map_estimate()[0], truth_xy, ospa_c, ospa_p)
-    traj = slam.trajectory()[1:]
-    map_xy, map_w = slam.map_estimate()
-    res = SlamResult(np.array([f.stamp for f in frames]), traj, mean_traj, map_xy, map_w, times, counts, ess, res_, comp, osp, start)
-    res.metrics = evaluate(log, res, ospa_c, ospa_p)
-    return res
-
-
-def odometry_trajectory(log: SensorLog, stamps: np.ndarray, start: np.ndarray) -> np.ndarray:
-    """Dead reckoning at ``stamps`` (T,) from ``start``: the motion model without noise."""
+def dead_reckoning(log: SensorLog, stamps: np.ndarray, start: np.ndarray, cfg: SlamConfig | None = None) -> np.ndarray:
+    """(T, 3) the odometry alone at ``stamps`` (T,) from ``start``: the vehicle model without noise."""
+    veh = vehicle_model(log.odometry.kind, (cfg or SlamConfig()).motion, log.vehicle)
     out = np.zeros((stamps.size, 3))
-    pose = np.asarray(start, dtype=np.float64)[None].copy()
+    x = veh.initial(np.zeros(3), 1)
     o = log.odometry
     j = 0
     for k, t in enumerate(stamps):
         stop = int(np.searchsorted(o.stamp, t, side="right"))
         if stop > j:
-            pose = _mover(log, slice(j, stop), {"increment": {"noise": False}, "velocity": {"noise": False}, "ackermann": {"noise": False}})(pose, None)
+            u, dt = control_rows(log, slice(j, stop))
+            if k > 0:  # the motion before the first frame is not the filter's either
+                for uu, d in zip(u, dt, strict=True):
+                    x = veh.mean(x, uu, float(d))
             j = stop
-        out[k] = pose[0]
-    return out
+        out[k] = veh.pose(x)[0]
+    return compose(start, relative(out[0], out))
 
 
-def dead_reckoning(log: SensorLog, res: SlamResult) -> np.ndarray:
-    """(T, 3) the odometry alone through the run's frames, from the filter's start pose."""
-    odo = odometry_trajectory(log, res.stamps, np.zeros(3))
-    return compose(res.start, relative(odo[0], odo))
-
-
-def evaluate(log: SensorLog, res: SlamResult, c: float = 1.0, p: float = 1.0) -> dict:
+def evaluate(log: SensorLog, res: SlamResult, c: float = 1.0, p: float = 1.0, cfg: SlamConfig | None = None) -> dict:
     """Trajectory RMSE and map OSPA / GOSPA, each beside dead reckoning from the same start.
 
-    No rigid alignment is applied: the filter starts at the reference's first
-    pose, so map and truth share a frame. Where the reference is GPS (no
-    heading), the comparison is over the GPS fixes inside the run.
+    No rigid alignment is applied where the log has ground truth: the filter
+    starts at its first pose, so map and truth share a frame. Where the
+    reference is GPS (no heading), the comparison is over the GPS fixes inside
+    the run, after the best rigid fit (said in the metrics).
     """
     out: dict = {
+        "filter": res.filter,
         "frames": int(res.stamps.size),
         "ms_per_step_mean": float(res.step_ms.mean()),
         "ms_per_step_median": float(np.median(res.step_ms)),
         "resampled_steps": int(res.resampled.sum()),
+        "cap_bound_steps": int(res.capped_steps),
     }
-    odo = res.odometry = dead_reckoning(log, res)
+    odo = res.odometry = dead_reckoning(log, res.stamps, res.start, cfg)
     for key in ("ground_truth", "gps"):
         ref = log.reference.get(key)
         if ref is None:
@@ -236,8 +219,7 @@ def evaluate(log: SensorLog, res: SlamResult, c: float = 1.0, p: float = 1.0) ->
         align = key == "gps" and "ground_truth" not in log.reference
         out[f"alignment_vs_{key}"] = "rigid (best fit; GPS gives no heading)" if align else "none (started at the true pose)"
         at = res.stamps if key == "ground_truth" else ref.stamp[(ref.stamp >= res.stamps[0]) & (ref.stamp <= res.stamps[-1])]
-        inside = (at >= ref.stamp[0]) & (at <= ref.stamp[-1])
-        at = at[inside]
+        at = at[(at >= ref.stamp[0]) & (at <= ref.stamp[-1])]
         if at.size == 0:
             continue
         truth = interpolate_poses(ref.stamp, ref.poses, at)
@@ -246,11 +228,16 @@ def evaluate(log: SensorLog, res: SlamResult, c: float = 1.0, p: float = 1.0) ->
         out[f"trajectory_rmse_vs_{key}_m"] = trajectory_rmse(est, truth, align)
         out[f"mean_trajectory_rmse_vs_{key}_m"] = trajectory_rmse(interpolate_poses(res.stamps, res.mean_trajectory, at), truth, align)
         out[f"odometry_rmse_vs_{key}_m"] = trajectory_rmse(dr, truth, align)
+        out[f"final_position_error_vs_{key}_m"] = float(np.hypot(*(est[-1, :2] - truth[-1, :2]))) if not align else float("nan")
         out[f"points_vs_{key}"] = int(at.size)
     if log.landmarks is not None:
-        out["map_ospa"] = ospa(res.map_xy, log.landmarks.xy, c, p)
-        out["map_gospa"] = gospa(res.map_xy, log.landmarks.xy, c, p)["gospa"]
+        truth_xy = log.landmarks.xy
+        out["map_ospa"] = ospa(res.map_xy, truth_xy, c, p)
+        g = gospa(res.map_xy, truth_xy, c, p)
+        out["map_gospa"] = g["gospa"]
         out["map_features"] = int(res.map_xy.shape[0])
-        out["landmarks_true"] = int(log.landmarks.xy.shape[0])
+        out["landmarks_true"] = int(truth_xy.shape[0])
+        out["landmarks_mapped"] = int(truth_xy.shape[0] - g["n_missed"])
         out["ospa_c_m"], out["ospa_p"] = c, p
+    out["stage_ms_per_step"] = {k: round(v / max(res.stamps.size, 1), 4) for k, v in res.stage_ms.items()}
     return out

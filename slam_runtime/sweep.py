@@ -34,9 +34,12 @@ class SweepJob:
 def run_job(job: SweepJob, folder: Path) -> dict:
     """One run: filter, run folder, and the row for the sweep table."""
     from slam_runtime.report import write_slam_run
-    from slam_runtime.run import run_slam
+    from slam_runtime.run import MapOSPA, evaluate, run_slam
 
-    res = run_slam(job.log, job.profile, job.config, job.seed, max_frames=job.max_frames)
+    m = job.config.metric
+    hooks = (MapOSPA(job.log.landmarks.xy, m.ospa_c, m.ospa_p),) if job.log.landmarks is not None else ()
+    res = run_slam(job.log, job.profile, job.config, job.seed, max_frames=job.max_frames, hooks=hooks)
+    res.metrics = evaluate(job.log, res, m.ospa_c, m.ospa_p, job.config)
     cfg = {
         "log": job.labels.get("log"),
         "profile": job.profile.ref,
@@ -45,7 +48,7 @@ def run_job(job: SweepJob, folder: Path) -> dict:
         "settings": job.config.model_dump(mode="json"),
     }
     write_slam_run(job.log, res, folder / job.name, cfg, overwrite=False)
-    return {**job.labels, **{k: v for k, v in res.metrics.items() if not isinstance(v, str)}}
+    return {**job.labels, **{k: v for k, v in res.metrics.items() if not isinstance(v, str | dict)}}
 
 
 def _work(args):

@@ -13,22 +13,21 @@ from profiles.errors import UsageError
 
 app = typer.Typer(help="Run SLAM filters with a detector profile.", no_args_is_help=True, rich_markup_mode=None)
 
-FILTERS = ("rbphd",)
 PD_MODES = ("profile", "constant")
 
 
-def slam_config(config: Path | None, filter_: str, particles: int | None, pd_mode: str | None):
+def slam_config(config: Path | None, filter_: str | None, particles: int | None, pd_mode: str | None):
+    """The settings file (or the defaults) with the command-line overrides, validated."""
     from calib.config import load_yaml_model
-    from slam_runtime.config import SlamConfig
+    from slam_runtime.config import FILTER_KINDS, SlamConfig, override
 
-    if filter_ not in FILTERS:
-        raise UsageError(f"--filter: expected one of {', '.join(FILTERS)}, got {filter_!r} (delta-GLMB-SLAM is not available yet)")
+    if filter_ is not None and filter_ not in FILTER_KINDS:
+        raise UsageError(f"--filter: expected one of {', '.join(FILTER_KINDS)}, got {filter_!r}")
     positive("--particles", particles)
     if pd_mode is not None and pd_mode not in PD_MODES:
         raise UsageError(f"--pd-mode: expected one of {', '.join(PD_MODES)}, got {pd_mode!r}")
     cfg = load_yaml_model(SlamConfig, config)
-    upd = {k: v for k, v in (("particles", particles), ("pd_mode", pd_mode)) if v is not None}
-    return cfg.model_copy(update={"rbphd": cfg.rbphd.model_copy(update=upd)}) if upd else cfg
+    return override(cfg, particles=particles, **{"filter.kind": filter_, "detection.pd_mode": pd_mode})
 
 
 @app.command("run")
@@ -37,7 +36,7 @@ def slam_run_cmd(
     log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A log with odometry and scans (or detections).")],
     reader: ReaderArgs,
     profile_ref: Annotated[str, typer.Option("--profile", help="Detector profile: name or name@version, or a file.")],
-    filter_: Annotated[str, typer.Option("--filter", help="Filter: rbphd.")] = "rbphd",
+    filter_: Annotated[str | None, typer.Option("--filter", help="Map filter: rbphd (default: the config's).")] = None,
     particles: Annotated[int | None, typer.Option(help="Particles (default: the config's, 20).")] = None,
     seed: Annotated[int, typer.Option(help="Random seed; same log, profile, settings and seed give the same run.")] = 0,
     pd_mode: Annotated[str | None, typer.Option(help="P_D from the profile, or `constant` inside the sensor range (for comparison).")] = None,
@@ -46,11 +45,11 @@ def slam_run_cmd(
     out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/slam_<log>_<profile>_<seed>).")] = None,
     force: Annotated[bool, typer.Option(help="Replace the run folder if it exists.")] = False,
 ) -> None:
-    """RB-PHD-SLAM over a log with a detector profile's P_D and clutter: trajectory, map, metrics, figures."""
+    """SLAM over a log with a detector profile's P_D and clutter: trajectory, map, metrics, figures."""
     from calib.progress import progress
     from profiles.store import resolve
     from slam_runtime.report import write_slam_run
-    from slam_runtime.run import check_inputs, run_slam
+    from slam_runtime.run import MapOSPA, check_inputs, evaluate, run_slam
 
     cfg = slam_config(config, filter_, particles, pd_mode)
     positive("--frames", frames)
@@ -62,7 +61,10 @@ def slam_run_cmd(
     check_inputs(log, prof)
     target = out_dir or Path("runs") / f"slam_{log.name}_{prof.ref}_{seed}"
     fresh(target, force)
-    res = run_slam(log, prof, cfg, seed, progress=progress, max_frames=frames)
+    m = cfg.metric
+    hooks = (MapOSPA(log.landmarks.xy, m.ospa_c, m.ospa_p),) if log.landmarks is not None else ()
+    res = run_slam(log, prof, cfg, seed, progress=progress, max_frames=frames, hooks=hooks)
+    res.metrics = evaluate(log, res, m.ospa_c, m.ospa_p, cfg)
     settings = {
         "log": log_path.name,
         "inputs": [r.model_dump() for r in input_refs(log_path, log)],
@@ -72,7 +74,8 @@ def slam_run_cmd(
         "settings": cfg.model_dump(mode="json"),
     }
     write_slam_run(log, res, target, settings, overwrite=force)
-    out.print(summary_table(f"RB-PHD-SLAM on {log.name} with {prof.ref} -> {target}", res.metrics))
+    shown = {k: v for k, v in res.metrics.items() if not isinstance(v, dict)}
+    out.print(summary_table(f"{res.filter}-SLAM on {log.name} with {prof.ref} -> {target}", shown))
 
 
 def one_beam_layout(log, prof) -> None:
@@ -127,8 +130,10 @@ def slam_sweep_cmd(
     for m in modes:
         if m not in PD_MODES:
             raise UsageError(f"--pd-mode: expected one of {', '.join(PD_MODES)}, got {m!r}")
-    base = slam_config(config, "rbphd", None, None)
-    counts = list(dict.fromkeys(particles or [base.rbphd.particles]))
+    from slam_runtime.config import override
+
+    base = slam_config(config, None, None, None)
+    counts = list(dict.fromkeys(particles or [base.particles]))
     if min(counts) < 1:
         raise UsageError(f"--particles: expected positive integers, got {counts}")
     positive("--frames", frames)
@@ -148,7 +153,7 @@ def slam_sweep_cmd(
         for prof in profs:
             for m in modes:
                 for n in counts:
-                    cfg = base.model_copy(update={"rbphd": base.rbphd.model_copy(update={"particles": n, "pd_mode": m})})
+                    cfg = override(base, particles=n, **{"detection.pd_mode": m})
                     for sd in seeds_:
                         name = f"{i:02d}_{log.name}_{prof.ref}_{m}_p{n}_s{sd}"
                         labels = {"log": log.name, "profile": prof.ref, "pd_mode": m, "particles": n, "seed": sd}

@@ -104,3 +104,22 @@ def simulate_to(out: Path, seed: int, cfg: ParkConfig | None = None, *, overwrit
 
 
 __all__ = ["load_world", "plot_overview", "simulate_to", "write_simulation"]
+
+
+def write_rfs_simulation(cfg, seed: int, out: Path, *, overwrite: bool = False) -> dict:
+    """The rfs-sim run folder: log.dlog, profile.yaml (the simulator's true statistics), config.yaml,
+    summary.yaml, overview.png."""
+    from calib.sim.rfs import plot_overview as plot_rfs
+    from calib.sim.rfs import simulate_rfs, summary, truth_profile
+    from profiles.store import dump_profile
+
+    log = simulate_rfs(cfg, seed)
+    info = {"seed": seed, **summary(log, cfg)}
+    with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
+        tmp.mkdir()
+        write_native(log, tmp / "log.dlog")
+        (tmp / "profile.yaml").write_text(dump_profile(truth_profile(cfg)))
+        (tmp / "config.yaml").write_text(dump_yaml({"seed": seed, "rfs_sim": cfg.model_dump(mode="json")}))
+        (tmp / "summary.yaml").write_text(dump_yaml(info))
+        plot_rfs(log, tmp / "overview.png")
+    return info

@@ -32,7 +32,7 @@ def test_slam_run_writes_a_reproducible_run_folder(tmp_path, capsys, park_log):
     assert m["trajectory_rmse_vs_ground_truth_m"] < 1.0 and m["odometry_rmse_vs_ground_truth_m"] < 1.0
     assert 0.0 <= m["map_ospa"] <= 1.0
     cfg = yaml.safe_load((tmp_path / "a/config.yaml").read_text())
-    assert cfg["profile"] == "sim-park-laser@1.0.0" and cfg["seed"] == 3 and cfg["settings"]["rbphd"]["particles"] == 20
+    assert cfg["profile"] == "sim-park-laser@1.0.0" and cfg["seed"] == 3 and cfg["settings"]["particles"] == 20 and cfg["settings"]["filter"]["kind"] == "rbphd"
     # same inputs and seed: same trajectory and map, byte for byte
     code, _, err = run(capsys, *args, "--out", str(tmp_path / "b"))
     assert code == 0, err
@@ -48,17 +48,21 @@ def test_slam_run_writes_a_reproducible_run_folder(tmp_path, capsys, park_log):
 
 def test_slam_run_usage_and_data_errors(tmp_path, capsys, park_log):
     base = ["slam", "run", str(park_log), "--profile", "sim-park-laser", "--out", str(tmp_path / "x")]
-    code, _, err = run(capsys, *base, "--filter", "glmb")
+    code, _, err = run(capsys, *base, "--filter", "ekf")
     assert code == 2
     assert_one_line_error(err, "--filter: expected one of rbphd")
     code, _, err = run(capsys, *base, "--particles", "0")
     assert code == 2
     assert_one_line_error(err, "--particles: expected a positive integer")
     bad = tmp_path / "bad.yaml"
-    bad.write_text("rbphd:\n  particels: 10\n")
+    bad.write_text("filter:\n  kind: rbphd\n  prunne: 0.1\n")
     code, _, err = run(capsys, *base, "--config", str(bad))
     assert code == 2
-    assert_one_line_error(err, "rbphd.particels")
+    assert_one_line_error(err, "filter.rbphd.prunne: unknown key")
+    bad.write_text("particles: 0\n")
+    code, _, err = run(capsys, *base, "--config", str(bad))
+    assert code == 2
+    assert_one_line_error(err, "particles: Input should be greater than or equal to 1")
     code, _, err = run(capsys, *base, "--profile", "no-such-profile")
     assert code != 0
     assert_one_line_error(err, "no-such-profile")

@@ -14,9 +14,11 @@ import pytest
 
 from detectors.model import DetectionModel
 from profiles.schema import ClutterParams, PdTable, SensorModel
+from slam_runtime.features import RangeBearing
 from slam_runtime.gm import GMBatch
+from slam_runtime.mapfilter import Measurements
 from slam_runtime.metrics import ospa
-from slam_runtime.rbphd import RBPHDConfig, RBPHDSlam
+from slam_runtime.rbphd import RBPHD, PHDMaps, RBPHDConfig
 
 
 def test_one_gm_phd_update_agrees_with_stone_soup():
@@ -36,26 +38,25 @@ def test_one_gm_phd_update_agrees_with_stone_soup():
     rng = np.random.default_rng(4)
     sensor = SensorModel(kind="camera", fov=np.pi, range_max=30.0)
     rate, volume, pd = 2.0, 30.0 * np.pi, 0.8
-    model = DetectionModel(PdTable(covariate="range", edges=[0.0, 30.0], pd=[pd]), ClutterParams(rate=rate, volume=volume), sensor)
-    sr, sb = 0.15, 0.02
-    cfg = RBPHDConfig(
-        particles=1, sigma_range=sr, sigma_bearing=sb, pd_mode="constant", constant_pd=pd, buffer_zone=False,
-        prune=1e-300, merge=1e-12, cap=1000, weighting="empty_set",
+    model = DetectionModel(
+        PdTable(covariate="range", edges=[0.0, 30.0], pd=[pd]), ClutterParams(rate=rate, volume=volume), sensor, constant_pd=pd, buffer=False
     )
+    sr, sb = 0.15, 0.02
+    cfg = RBPHDConfig(prune=1e-300, merge=1e-12, cap=1000, weighting="empty_set", gate=1e300)
     pose = np.array([1.0, -2.0, 0.4])
-    slam = RBPHDSlam(model, np.zeros(3), cfg, rng, pose)
+    mf = RBPHD(RangeBearing(np.diag([sr**2, sb**2])), model, cfg)
     # a prior map in front of the sensor, and measurements near some of its components plus clutter
     j = 6
     mu = pose[:2] + np.column_stack([rng.uniform(4, 12, j), rng.uniform(-5, 5, j)])
     a = rng.normal(0, 0.3, (j, 2, 2))
     cov = a @ np.swapaxes(a, 1, 2) + np.eye(2) * 0.05
     w = rng.uniform(0.3, 1.2, j)
-    slam.map = GMBatch(w[None], mu[None], cov[None])
+    prior = PHDMaps(GMBatch(w[None], mu[None], cov[None]), GMBatch.empty(1, 0))
     rel = mu[:4] - pose[:2]
     z = np.column_stack([np.hypot(rel[:, 0], rel[:, 1]), np.arctan2(rel[:, 1], rel[:, 0]) - pose[2]])
     z = np.vstack([z + rng.normal(0, 1, z.shape) * [sr, sb], [[7.0, 0.3], [10.0, -0.5]]])
-    slam.update(z)
-    ours = sorted(zip(slam.map.w[0], slam.map.mu[0].tolist(), slam.map.cov[0].tolist(), strict=True), key=lambda t: -t[0])
+    post, _ = mf.update(prior, pose[None], Measurements(z))
+    ours = sorted(zip(post.gm.w[0], post.gm.mu[0].tolist(), post.gm.cov[0].tolist(), strict=True), key=lambda t: -t[0])
 
     t0 = datetime(2026, 1, 1)
     meas_model = CartesianToBearingRange(

@@ -1,0 +1,183 @@
+"""``rfs-sim``: the 2D range-bearing scenario of the open C++ RFS-SLAM library's RB-PHD-SLAM simulator.
+
+Reproduces its ``rbphdslam2dSim`` scenario (config ``rbphdslam2dSim.xml``) so
+detcal's filters can be compared with that reference on the same kind of data:
+
+* time steps of ``dt`` = 0.1 s; the vehicle stands still for the first 50
+  steps, then follows ``segments`` = 20 constant-velocity segments of equal
+  length: forward speed U(min_dx, max_dx) = U(0.1, 0.3) m/s, no sideways
+  motion, turn rate U(-0.5, 0.5) rad/s;
+* ``landmarks`` = 50 landmarks, placed one every steps / 50 steps at a uniform
+  range in [0, 2.5] m and a uniform bearing in [0, 2 pi) from the true pose of
+  that step (so they line the path);
+* odometry: the true increment plus Gaussian noise of variance
+  var_odometry * dt^2 per axis (dx, dy, dtheta), var_odometry = 2e-3 (s^-1 as the
+  library writes it: a velocity noise);
+* measurements at every step after the first: each landmark's (range, bearing)
+  with noise var_r = 5e-4 m^2, var_b = 5e-5 rad^2, kept when the noisy range
+  lies in [0.5, 2.5] m, with probability P_D = 0.99; bearing over the full
+  circle; Poisson clutter of intensity 1e-4 per m rad, uniform in range
+  [0.5, 2.5] m and bearing [-pi, pi).
+
+The sensor model is a detection-level sensor (kind ``detector``, full-circle
+field of view, 0.5-2.5 m); :func:`truth_profile` is the profile that states
+the simulator's own statistics (P_D, clutter, noise), the reference a
+calibration of these logs should recover. Same config and seed, same bytes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from detectors.geometry import compose
+from detectors.logs import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, wrap_angle
+
+
+class RfsSimConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    steps: int = Field(default=1000, ge=60, le=1_000_000)
+    dt: float = Field(default=0.1, gt=0.0)
+    segments: int = Field(default=20, ge=1)
+    still_steps: int = Field(default=50, ge=0, description="steps the vehicle stands still at the start")
+    max_dx: float = Field(default=0.30, gt=0.0, description="largest forward speed [m/s]")
+    min_dx: float = Field(default=0.10, ge=0.0, description="smallest forward speed [m/s]")
+    max_dy: float = Field(default=0.0, ge=0.0, description="largest sideways speed [m/s]")
+    max_dtheta: float = Field(default=0.50, ge=0.0, description="largest turn rate [rad/s]")
+    var_odometry: float = Field(default=2e-3, ge=0.0, description="odometry noise: variance x dt^2 per step and axis")
+    landmarks: int = Field(default=50, ge=1)
+    range_min: float = Field(default=0.5, ge=0.0)
+    range_max: float = Field(default=2.5, gt=0.0)
+    pd: float = Field(default=0.99, gt=0.0, le=1.0)
+    clutter_intensity: float = Field(default=1e-4, ge=0.0, description="false alarms per m rad per step")
+    var_range: float = Field(default=5e-4, gt=0.0, description="[m^2]")
+    var_bearing: float = Field(default=5e-5, gt=0.0, description="[rad^2]")
+
+
+def sensor_model(cfg: RfsSimConfig) -> SensorModel:
+    return SensorModel(kind="detector", range_min=cfg.range_min, range_max=cfg.range_max, fov=2 * np.pi, range_sigma=float(np.sqrt(cfg.var_range)))
+
+
+def simulate_rfs(cfg: RfsSimConfig, seed: int) -> SensorLog:
+    """One run of the scenario as a detection-level log with truth (poses at every step, landmarks)."""
+    if cfg.min_dx > cfg.max_dx:
+        raise ValueError("min_dx must not exceed max_dx")
+    rng = np.random.default_rng(seed)
+    n, dt = cfg.steps, cfg.dt
+    # the true increments: still, then piecewise constant
+    inc = np.zeros((n, 3))
+    seg_len = n // cfg.segments
+    current = np.zeros(3)
+    seg = 0
+    for k in range(1, n):
+        if k <= cfg.still_steps:
+            continue
+        if k >= seg_len * seg:
+            seg += 1
+            dx = rng.uniform(cfg.min_dx, cfg.max_dx) * dt
+            dy = rng.uniform(-cfg.max_dy, cfg.max_dy) * dt
+            dz = rng.uniform(-cfg.max_dtheta, cfg.max_dtheta) * dt
+            current = np.array([dx, dy, dz])
+        inc[k] = current
+    poses = np.zeros((n, 3))
+    for k in range(1, n):
+        poses[k] = compose(poses[k - 1], inc[k])
+    odo = inc + rng.standard_normal((n, 3)) * np.sqrt(cfg.var_odometry) * dt
+    odo[0] = 0.0
+    # landmarks along the path
+    at = (np.arange(cfg.landmarks) * (n // cfg.landmarks)).clip(1, n - 1)
+    r0 = rng.uniform(0.0, cfg.range_max, cfg.landmarks)
+    b0 = rng.uniform(0.0, 2 * np.pi, cfg.landmarks)
+    a = poses[at, 2] + b0
+    lm = np.column_stack([poses[at, 0] + r0 * np.cos(a), poses[at, 1] + r0 * np.sin(a)])
+    # measurements: every landmark from every pose, noisy, then range-limited and thinned by P_D
+    d = lm[None, :, :] - poses[:, None, :2]
+    rng_true = np.hypot(d[..., 0], d[..., 1])
+    brg_true = wrap_angle(np.arctan2(d[..., 1], d[..., 0]) - poses[:, None, 2])
+    zr = rng_true + rng.standard_normal(rng_true.shape) * np.sqrt(cfg.var_range)
+    zb = wrap_angle(brg_true + rng.standard_normal(rng_true.shape) * np.sqrt(cfg.var_bearing))
+    keep = (zr >= cfg.range_min) & (zr <= cfg.range_max) & (rng.uniform(size=zr.shape) <= cfg.pd)
+    keep[0] = False  # the library measures from step 1 on
+    lam = cfg.clutter_intensity * (cfg.range_max - cfg.range_min) * 2 * np.pi
+    n_clutter = rng.poisson(lam, n)
+    n_clutter[0] = 0
+    ck = np.repeat(np.arange(n), n_clutter)
+    cr = rng.uniform(cfg.range_min, cfg.range_max, ck.size)
+    cb = rng.uniform(-np.pi, np.pi, ck.size)
+    kk, _ = np.nonzero(keep)
+    frame = np.concatenate([kk, ck])
+    rr = np.concatenate([zr[keep], cr])
+    bb = np.concatenate([zb[keep], cb])
+    truth_label = np.concatenate([np.nonzero(keep)[1] + 1, np.zeros(ck.size, dtype=np.int64)])  # landmark id, 0 = clutter
+    order = np.argsort(frame, kind="stable")
+    stamps = (np.arange(n, dtype=np.int64) * int(round(dt * 1e9))).astype(np.int64)
+    det = Detections(stamps, frame[order].astype(np.int64), rr[order], bb[order], {"landmark": truth_label[order].astype(np.int64)})
+    return SensorLog(
+        name=f"rfs_sim_{seed}",
+        sensor=sensor_model(cfg),
+        odometry=Odometry("increment", stamps, odo),
+        reference={"ground_truth": ReferencePoses("ground_truth", stamps, poses)},
+        landmarks=Landmarks(np.arange(1, cfg.landmarks + 1, dtype=np.int64), lm),
+        detections=det,
+        source={"reader": "simulate rfs-sim", "seed": int(seed), "config": cfg.model_dump(mode="json")},
+    )
+
+
+def truth_profile(cfg: RfsSimConfig, *, name: str = "rfs-sim", version: str = "1.0.0"):
+    """The profile of the simulated detector's true statistics (P_D, clutter, noise)."""
+    from calib import __version__
+    from profiles.profile import DetectorProfile, DetectorSpec, Provenance
+    from profiles.schema import ClutterParams, MeasurementNoise, PdTable
+
+    vol = (cfg.range_max - cfg.range_min) * 2 * np.pi
+    return DetectorProfile(
+        name=name,
+        version=version,
+        description="The rfs-sim scenario's true detection statistics (the simulator's settings, not a calibration).",
+        detector=DetectorSpec(kind="external"),
+        sensor=sensor_model(cfg),
+        pd=PdTable(covariate="range", edges=[cfg.range_min, cfg.range_max], pd=[cfg.pd], clamping="none (simulator truth)"),
+        clutter=ClutterParams(rate=cfg.clutter_intensity * vol, volume=vol),
+        noise=MeasurementNoise(range_sigma=float(np.sqrt(cfg.var_range)), bearing_sigma=float(np.sqrt(cfg.var_bearing))),
+        provenance=Provenance(
+            detcal_version=__version__,
+            command="detcal simulate rfs-sim",
+            parameters=cfg.model_dump(mode="json"),
+            created="1970-01-01T00:00:00Z",  # a statement of the settings, not of a time: same config, same bytes
+        ),
+    )
+
+
+def summary(log: SensorLog, cfg: RfsSimConfig) -> dict:
+    d = log.detections
+    clutter = int((np.asarray(d.descriptors["landmark"]) == 0).sum())
+    poses = log.reference["ground_truth"].poses
+    return {
+        "steps": int(cfg.steps),
+        "duration_s": float(cfg.steps * cfg.dt),
+        "path_length_m": float(np.sum(np.hypot(*np.diff(poses[:, :2], axis=0).T))),
+        "landmarks": int(cfg.landmarks),
+        "detections": int(len(d)),
+        "false_alarms": clutter,
+        "measurements_per_step": float(len(d) / cfg.steps),
+    }
+
+
+def plot_overview(log: SensorLog, path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    poses = log.reference["ground_truth"].poses
+    fig, ax = plt.subplots(figsize=(7, 6))
+    ax.plot(poses[:, 0], poses[:, 1], "k-", lw=1, label="true path")
+    ax.plot(log.landmarks.xy[:, 0], log.landmarks.xy[:, 1], "g*", ms=8, label="landmarks")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"{log.name}: {len(log.detections)} detections over {log.detections.n_frames} steps", fontsize=9)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

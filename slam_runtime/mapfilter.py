@@ -1,0 +1,106 @@
+"""The map-filter seam: what every Rao-Blackwellised map filter (RB-PHD, LMB, delta-GLMB) offers.
+
+A map filter holds no particles of its own: it maps the map state of all P
+particles (an object with ``take(idx)``), their vehicle poses and one frame's
+measurements to the updated map state and the log-likelihood of the
+measurements per particle, which the particle loop adds to the log-weights::
+
+    maps = mf.empty(P)
+    maps = mf.predict(maps, dt)
+    maps, loglik = mf.update(maps, poses, measurements)   # poses (P, 3), loglik (P,)
+    maps = maps.take(parent_indices)                     # resampling
+    xs, ws = mf.estimate(maps, i)                        # particle i's map estimate
+
+The filter uses a feature model (:mod:`slam_runtime.features`: predict z and H,
+inverse for birth, innovation) and the detection model
+(:class:`detectors.model.DetectionModel`: P_D, buffer zone, clutter kappa(z),
+descriptor likelihoods); it never reads a profile or a file.
+"""
+
+from __future__ import annotations
+
+import time
+from abc import ABC, abstractmethod
+from collections import defaultdict
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from slam_runtime.features import FeatureModel
+
+
+@dataclass
+class Measurements:
+    """One frame's measurements, sensor frame.
+
+    z (M, dz); cov (M, dz, dz) each measurement's own covariance (e.g. a circle
+    fit's), added to the filter's noise floor, or None; ratio (M,) the
+    descriptor likelihood ratio g_x(d) / g_FA(d) of eq. 5.6, or None; scan (B,)
+    and angles (B,) the laser scan the measurements came from (ray-traced P_D),
+    or None; cloud (N, 4) the point cloud they came from (3D features), or None.
+    """
+
+    z: np.ndarray
+    cov: np.ndarray | None = None
+    ratio: np.ndarray | None = None
+    scan: np.ndarray | None = None
+    angles: np.ndarray | None = None
+    cloud: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return int(self.z.shape[0])
+
+
+class MapState(Protocol):
+    def take(self, idx: np.ndarray) -> MapState: ...
+
+
+class Timers:
+    """Wall time per stage, accumulated (seconds)."""
+
+    def __init__(self) -> None:
+        self.total: dict[str, float] = defaultdict(float)
+
+    @contextmanager
+    def __call__(self, stage: str):
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.total[stage] += time.perf_counter() - t0
+
+
+class MapFilter(ABC):
+    """Base of the map filters; ``timers`` splits their time by stage (P_D, update, weight, merge)."""
+
+    name: str = "map filter"
+
+    def __init__(self, feature: FeatureModel, detection) -> None:
+        self.feature = feature
+        self.detection = detection
+        self.timers = Timers()
+        #: steps at which a component cap bound (reported by the runner)
+        self.capped_steps = 0
+
+    @abstractmethod
+    def empty(self, n: int) -> MapState: ...
+
+    def predict(self, maps: MapState, dt: float) -> MapState:
+        return maps
+
+    @abstractmethod
+    def update(self, maps: MapState, poses: np.ndarray, meas: Measurements) -> tuple[MapState, np.ndarray]: ...
+
+    @abstractmethod
+    def estimate(self, maps: MapState, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Particle i's map: feature states (K, dx) and their weights or existence probabilities (K,)."""
+
+    def components(self, maps: MapState, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Particle i's whole map: every component's state (K, dx) and weight (K,), however light."""
+        return self.estimate(maps, i)
+
+    @abstractmethod
+    def size(self, maps: MapState) -> np.ndarray:
+        """(P,) components (or tracks) per particle."""

@@ -1,0 +1,51 @@
+"""Gaussian-mixture batches: Vo & Ma pruning and merging in 2 and 3 dimensions, the cap, densities."""
+
+import numpy as np
+import pytest
+from scipy.stats import multivariate_normal
+
+from slam_runtime.gm import GMBatch, det, inv, prune_merge
+
+
+def test_prune_merge_follows_vo_and_ma():
+    w = np.array([[0.6, 0.3, 0.05, 1e-6]])
+    mu = np.array([[[0.0, 0.0], [0.1, 0.0], [5.0, 5.0], [9.0, 9.0]]])
+    cov = np.tile(np.eye(2) * 0.04, (1, 4, 1, 1))
+    out, capped = prune_merge(GMBatch(w, mu, cov), prune=1e-4, merge=4.0, cap=10)
+    assert out.w.shape == (1, 2) and not capped
+    np.testing.assert_allclose(out.w[0], [0.9, 0.05])
+    np.testing.assert_allclose(out.mu[0, 0], [0.1 * 0.3 / 0.9, 0.0])  # weighted mean
+    # the merged covariance adds the spread of the means
+    spread = 0.6 * (0.1 * 0.3 / 0.9) ** 2 + 0.3 * (0.1 - 0.1 * 0.3 / 0.9) ** 2
+    assert out.cov[0, 0, 0, 0] == pytest.approx(0.04 + spread / 0.9)
+    inflated, _ = prune_merge(GMBatch(w, mu, cov), prune=1e-4, merge=4.0, cap=10, inflate=1.5)
+    np.testing.assert_allclose(inflated.cov[0, 0], 1.5 * out.cov[0, 0])
+    np.testing.assert_allclose(inflated.cov[0, 1], out.cov[0, 1])  # a group of one is not inflated
+
+
+def test_merging_in_three_dimensions_and_the_cap():
+    rng = np.random.default_rng(0)
+    centres = rng.uniform(-50, 50, (8, 3))
+    mu = np.repeat(centres, 3, axis=0) + rng.normal(0, 0.01, (24, 3))  # 8 clusters of 3
+    w = rng.uniform(0.2, 1.0, 24)
+    cov = np.tile(np.eye(3) * 0.1, (24, 1, 1))
+    gm = GMBatch(np.stack([w, w[::-1]]), np.stack([mu, mu[::-1]]), np.stack([cov, cov]))
+    out, capped = prune_merge(gm, prune=1e-3, merge=4.0, cap=50)
+    assert out.shape == (2, 8) and not capped
+    np.testing.assert_allclose(np.sort(out.w, axis=1), np.sort(np.add.reduceat(w, np.arange(0, 24, 3)))[None].repeat(2, 0))
+    few, capped = prune_merge(gm, prune=1e-3, merge=4.0, cap=5)
+    assert few.shape == (2, 5) and capped
+    # the cap drops the lightest groups
+    np.testing.assert_allclose(np.sort(few.w[0])[::-1], np.sort(out.w[0])[::-1][:5])
+
+
+def test_density_and_small_matrix_algebra():
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(5, 2, 2))
+    c = a @ np.swapaxes(a, 1, 2) + np.eye(2) * 0.1
+    np.testing.assert_allclose(inv(c), np.linalg.inv(c), rtol=1e-10)
+    np.testing.assert_allclose(det(c), np.linalg.det(c), rtol=1e-10)
+    gm = GMBatch(np.array([[0.5, 2.0]]), np.array([[[0.0, 0.0], [1.0, 1.0]]]), c[None, :2])
+    pts = np.array([[[0.3, -0.2], [1.0, 0.5]]])
+    want = [0.5 * multivariate_normal(gm.mu[0, 0], c[0]).pdf(q) + 2.0 * multivariate_normal(gm.mu[0, 1], c[1]).pdf(q) for q in pts[0]]
+    np.testing.assert_allclose(gm.density(pts)[0], want, rtol=1e-10)

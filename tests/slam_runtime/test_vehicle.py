@@ -1,0 +1,77 @@
+"""Vehicle models: closed-form motions, their noise against its stated model, Jacobians against finite differences."""
+
+import numpy as np
+import pytest
+
+from detectors.geometry import compose
+from slam_runtime.vehicle import Ackermann, OdometryIncrement, Unicycle
+
+
+def test_noise_free_increment_composes_and_its_noise_matches_the_model():
+    veh = OdometryIncrement(a_trans=0.05, a_rot=0.05, a_rot_trans=0.01, lateral=0.0)
+    p0 = np.array([[1.0, 2.0, 0.5]])
+    inc = np.array([0.4, 0.02, 0.1])
+    np.testing.assert_allclose(veh.mean(p0, inc, 0.1), compose(p0, inc), atol=1e-12)
+    out = veh.sample(np.zeros((40_000, 3)), inc, 0.1, np.random.default_rng(0))
+    d = np.hypot(inc[0], inc[1])
+    # from the origin the increment is the pose: x std a_trans |d|, theta std a_rot |dth| + a_rot_trans |d|
+    # (40,000 draws: a sample std within 3 % of the truth is > 4 standard errors)
+    assert out[:, 0].std() == pytest.approx(0.05 * d, rel=0.03)
+    assert out[:, 2].std() == pytest.approx(0.05 * 0.1 + 0.01 * d, rel=0.03)
+    assert out[:, 0].mean() == pytest.approx(inc[0], abs=3 * 0.05 * d / 200)
+
+
+def test_the_constant_noise_term_moves_a_robot_that_stands_still():
+    """A random walk of s^2 per second: after 100 steps of 0.1 s standing still, variance 10 s^2 per axis."""
+    veh = OdometryIncrement(a_trans=0.0, a_rot=0.0, a_rot_trans=0.0, lateral=0.0, s_x=0.02, s_y=0.01, s_theta=0.005)
+    rng = np.random.default_rng(1)
+    x = np.zeros((20_000, 3))
+    for _ in range(100):
+        x = veh.sample(x, np.zeros(3), 0.1, rng)
+    assert x[:, 2].std() == pytest.approx(0.005 * np.sqrt(10.0), rel=0.03)
+    # the position spreads at least by the along/across walks (the heading walk rotates them, so >=)
+    assert np.hypot(x[:, 0], x[:, 1]).std() > 0.3 * 0.02 * np.sqrt(10.0)
+    assert OdometryIncrement().mean(np.zeros((1, 3)), np.zeros(3), 1.0)[0] == pytest.approx(np.zeros(3))
+
+
+def test_unicycle_closes_a_full_circle_and_goes_straight():
+    veh = Unicycle()
+    p = np.array([[0.0, 0.0, 0.0]])
+    for _ in range(100):
+        p = veh.mean(p, np.array([np.pi, 2 * np.pi / 10]), 0.1)
+    np.testing.assert_allclose(p[0], [0.0, 0.0, 0.0], atol=1e-9)  # radius 5, once around
+    q = veh.mean(np.array([[1.0, 1.0, np.pi / 2]]), np.array([2.0, 0.0]), 0.5)
+    np.testing.assert_allclose(q[0], [1.0, 2.0, np.pi / 2], atol=1e-12)
+
+
+def test_ackermann_moves_the_encoder_speed_to_the_axle_and_removes_the_steering_offset():
+    L, H = 2.83, 0.76
+    veh = Ackermann(L, H)
+    np.testing.assert_allclose(veh.mean(np.zeros((1, 3)), np.array([3.0, 0.0]), 1.0)[0], [3.0, 0.0, 0.0], atol=1e-12)
+    steer = 0.2
+    vc = 3.0 / (1 - np.tan(steer) * H / L)
+    q = veh.mean(np.zeros((1, 3)), np.array([3.0, steer]), 0.1)
+    np.testing.assert_allclose(q[0], [0.1 * vc, 0.0, 0.1 * vc / L * np.tan(steer)], atol=1e-12)
+    biased = Ackermann(L, H, steer_offset=0.01)
+    np.testing.assert_allclose(biased.mean(np.zeros((1, 3)), np.array([3.0, steer + 0.01]), 0.1), q, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "veh,u",
+    [
+        (OdometryIncrement(), np.array([0.4, -0.1, 0.2])),
+        (Unicycle(), np.array([1.5, 0.7])),
+        (Unicycle(), np.array([1.5, 0.0])),
+        (Ackermann(2.83, 0.76), np.array([3.0, 0.15])),
+    ],
+)
+def test_state_jacobians_agree_with_finite_differences(veh, u):
+    rng = np.random.default_rng(2)
+    x = np.column_stack([rng.uniform(-5, 5, (8, 2)), rng.uniform(-3, 3, 8)])
+    f = veh.jacobian(x, u, 0.3)
+    eps = 1e-6
+    for k in range(3):
+        dx = np.zeros(3)
+        dx[k] = eps
+        num = (veh.mean(x + dx, u, 0.3) - veh.mean(x - dx, u, 0.3)) / (2 * eps)
+        np.testing.assert_allclose(f[:, :, k], num, atol=1e-7)
