@@ -44,7 +44,6 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial import cKDTree
 
-from detectors.geometry import compose
 from detectors.logs import SensorLog
 from profiles.errors import DataError
 
@@ -138,6 +137,21 @@ def range_residuals(log: SensorLog, sensor_poses: np.ndarray, cfg: RangeNoiseCon
     q_range = r[qmask]
     q_dir = np.column_stack([np.cos(a[qmask]), np.sin(a[qmask])])
     tree = cKDTree(cloud)
+    ranges, resid = [], []
+    for lo_ in range(0, qp.shape[0], _CHUNK):  # chunks of returns: memory stays flat on long logs
+        sl = slice(lo_, lo_ + _CHUNK)
+        r_, e_ = _residuals(tree, cloud, scan_of, qp[sl], q_scan[sl], q_dir[sl], q_range[sl], cfg)
+        ranges.append(r_)
+        resid.append(e_)
+    return np.concatenate(ranges), np.concatenate(resid), int(queries.size)
+
+
+#: Query returns per k-d tree call (bounds the neighbour arrays at ~100 MB).
+_CHUNK = 40_000
+
+
+def _residuals(tree, cloud, scan_of, qp, q_scan, q_dir, q_range, cfg: RangeNoiseConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(ranges, range residuals) of the query returns qp (Q, 2) that lie on a thin local surface of other scans."""
     k = cfg.neighbours + 8  # a few extra: the query scan's own returns (when it is a map scan) are dropped
     dist, idx = tree.query(qp, k=k, distance_upper_bound=cfg.radius)
     found = np.isfinite(dist)
@@ -165,7 +179,7 @@ def range_residuals(log: SensorLog, sensor_poses: np.ndarray, cfg: RangeNoiseCon
     steep = np.abs(cosi) >= cfg.min_incidence
     keep = thin & steep
     e = np.einsum("qj,qj->q", normal[keep], qp[enough][keep] - c[keep]) / cosi[keep]
-    return q_range[enough][keep], e, int(queries.size)
+    return q_range[enough][keep], e
 
 
 def map_scans(sensor_poses: np.ndarray, move: float, turn: float) -> np.ndarray:
@@ -207,9 +221,3 @@ def estimate_range_noise(logs: list[SensorLog], sensor_poses: list[np.ndarray], 
     if not total > 0:
         raise DataError("the range residuals have no spread (ranges quantised coarsely?); pass --range-sigma")
     return RangeNoise(edges, np.array(sigma), np.array(bias), np.array(samples, dtype=np.int64), total, int(res.size), scored)
-
-
-def sensor_poses_of(vehicle_poses: np.ndarray, log: SensorLog) -> np.ndarray:
-    """(S, 3) sensor poses from vehicle poses and the log's mount."""
-    m = log.sensor.mount
-    return compose(vehicle_poses, np.array([m.x, m.y, m.theta]))

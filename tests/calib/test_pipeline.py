@@ -122,3 +122,18 @@ def test_records_outside_the_truth_span(capsys, tmp_path):
     assert code == 0, err
     assert f"detcal: warning: log 'park_seed43': {first_kept} scans outside the ground truth's time span dropped" in err
     assert yaml.safe_load((tmp_path / "r/summary.yaml").read_text())["scans"] == len(log.scans) - first_kept
+
+
+def test_the_bundled_profile_is_reproduced_from_the_embedded_default(tmp_path, capsys):
+    """What `make demo` and `make builtin-profile` do, on this machine's freshly simulated default log.
+
+    The default log is simulated anew into a private cache; its content digest and the calibration's
+    parameters must be the bundled profile's, and so must every field of the result but `created`
+    and `command`: the store reports the bundled file as the profile (nothing is written beside it).
+    """
+    from profiles.store import BUILTIN, load_profile_file, same_content
+
+    code, out, err = run(capsys, "calibrate", "--out", str(tmp_path / "demo"), "--profiles-dir", str(tmp_path / "p"))
+    assert code == 0, err
+    assert "(bundled)" in out and not (tmp_path / "p").exists()
+    assert same_content(load_profile_file(tmp_path / "demo/profile.yaml"), load_profile_file(BUILTIN / "sim-park-laser@1.0.0.yaml"))
