@@ -137,3 +137,22 @@ def test_the_bundled_profile_is_reproduced_from_the_embedded_default(tmp_path, c
     assert code == 0, err
     assert "(bundled)" in out and not (tmp_path / "p").exists()
     assert same_content(load_profile_file(tmp_path / "demo/profile.yaml"), load_profile_file(BUILTIN / "sim-park-laser@1.0.0.yaml"))
+
+
+def test_detection_frames_before_the_first_truth_pose():
+    """A camera log whose truth starts late: the library refuses it, the trimmed log keeps only frames with a pose."""
+    from calib.detlevel import DetectionCalibConfig, calibrate_detections
+    from calib.io.registry import read_log
+    from tests.conftest import VENDORED
+
+    log = read_log(VENDORED / "utias_dataset1")
+    ref = log.reference["ground_truth"]
+    start = int(np.searchsorted(ref.stamp, log.detections.frame_stamp[10]))
+    late = dataclasses.replace(log, reference={"ground_truth": ReferencePoses("ground_truth", ref.stamp[start:], ref.poses[start:])})
+    with pytest.raises(DataError, match=r"detection frames lie outside the ground truth's time span"):
+        calibrate_detections([late], DetectionCalibConfig(), name="x", version="1.0.0")
+    trimmed, dropped = trim_to_truth(late)
+    first = int(np.searchsorted(log.detections.frame_stamp, ref.stamp[start]))
+    assert dropped == {"detection frames": first} and trimmed.detections.n_frames == log.detections.n_frames - first
+    assert trimmed.detections.frame_stamp[0] >= ref.stamp[start] and len(trimmed.detections) < len(log.detections)
+    check_within_truth(trimmed)

@@ -134,6 +134,15 @@ def test_native_to_ros2_to_native_is_lossless_on_a_simulated_log(tmp_path, small
     assert_logs_equal(log, read_log(tmp_path / "back.dlog"))
 
 
+def test_ros2_bag_metadata_names_only_the_final_folder(tmp_path, small_sim):
+    """The bag is written under its final name inside a temporary folder: no temporary name leaks into it."""
+    write_log(small_sim.log, tmp_path / "mybag")
+    meta = (tmp_path / "mybag/metadata.yaml").read_text()
+    assert "mybag.db3" in meta and ".part" not in meta
+    assert sorted(p.name for p in (tmp_path / "mybag").iterdir()) == [".detcal-output", "metadata.yaml", "mybag.db3"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mybag"]
+
+
 def test_ros2_round_trip_of_detection_logs(tmp_path):
     from tests.calib.io.test_native import full_log
 
