@@ -157,6 +157,7 @@ CASES = [
     ("opt-range-sigma-camera", "--range-sigma for a log without a laser", lambda t: ["log", "info", str(VENDORED / "utias_dataset1"), "--range-sigma", "0.01"], 2, "--range-sigma: "),
     ("opt-seed-sim", "negative --seed (simulate)", lambda t: ["simulate", "park", "--out", str(t / "s"), "--seed", "-1"], 2, "--seed: expected a non-negative integer, got -1"),
     ("opt-seed-slam", "negative --seed (slam run)", lambda t: ["slam", "run", small_log(t), "--profile", "sim-park-laser", "--seed", "-1"], 2, "--seed: expected a non-negative integer, got -1"),
+    ("opt-seed-selfcal", "negative --seed (selfcal)", lambda t: ["selfcal", small_log(t), "--profile", "sim-park-laser", "--seed", "-1"], 2, "--seed: expected a non-negative integer, got -1"),
     ("opt-version", "--version that is not MAJOR.MINOR.PATCH", lambda t: ["calibrate", "--version", "one", small_log(t)], 2, "--version: 'one' is not MAJOR.MINOR.PATCH"),
     ("opt-name", "--name with a slash", lambda t: ["calibrate", small_log(t), "--name", "a/b"], 2, "--name: 'a/b' must match [a-z0-9][a-z0-9._-]*"),
     ("opt-poses", "--poses foo", lambda t: ["calibrate", small_log(t), "--poses", "foo"], 2, "--poses: expected auto, reference, icp, got 'foo'"),
