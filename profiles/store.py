@@ -42,27 +42,34 @@ def _field_path(loc: tuple) -> str:
     return ".".join(str(p) for p in loc) or "(top level)"
 
 
-#: How the parameters a calibration records (``provenance.parameters``) are validated, per detector
-#: kind: (detcal version whose records it knows, factory of a pydantic model refusing unknown keys).
-#: The calibrating package registers them (``calib`` does on import); ``profiles`` cannot import it.
-PARAMETER_MODELS: dict[str, tuple[str, Callable[[], type]]] = {}
+#: How the parameters recorded in ``provenance.parameters`` are validated, per detector kind: the
+#: detcal version whose records they describe, and factories of pydantic models refusing unknown
+#: keys -- one per way this detcal makes profiles of that kind (calibration, self-calibration, a
+#: simulator's truth). The calibrating package registers them (``calib`` does on import);
+#: ``profiles`` cannot import it.
+PARAMETER_MODELS: dict[str, tuple[str, list[Callable[[], type]]]] = {}
 
 
-def register_parameters(kind: str, detcal_version: str, model: Callable[[], type]) -> None:
-    """Validate the recorded parameters of ``kind`` profiles made by ``detcal_version`` with ``model()``."""
-    PARAMETER_MODELS[kind] = (detcal_version, model)
+def register_parameters(kind: str, detcal_version: str, *models: Callable[[], type]) -> None:
+    """Validate the recorded parameters of ``kind`` profiles made by ``detcal_version``: they must fit one of ``models``."""
+    PARAMETER_MODELS[kind] = (detcal_version, list(models))
 
 
 def _check_parameters(prof: DetectorProfile, where: str) -> None:
     known = PARAMETER_MODELS.get(prof.detector.kind)
     if known is None or known[0] != prof.provenance.detcal_version or not prof.provenance.parameters:
         return  # none recorded (a profile written by hand), or by another detcal version: kept as recorded
-    try:
-        known[1]().model_validate(prof.provenance.parameters)
-    except ValidationError as exc:
-        e = exc.errors()[0]
-        msg = "unknown key" if e["type"] == "extra_forbidden" else e["msg"]
-        raise DataError(f"{where}: provenance.parameters.{_field_path(e['loc'])}: {msg}") from None
+    closest = None
+    for factory in known[1]:
+        try:
+            factory().model_validate(prof.provenance.parameters)
+            return
+        except ValidationError as exc:
+            if closest is None or exc.error_count() < closest.error_count():
+                closest = exc
+    e = closest.errors()[0]
+    msg = "unknown key" if e["type"] == "extra_forbidden" else e["msg"]
+    raise DataError(f"{where}: provenance.parameters.{_field_path(e['loc'])}: {msg}") from None
 
 
 def parse_profile(data: object, where: str) -> DetectorProfile:
