@@ -30,8 +30,10 @@ def info_table(log, path: Path) -> Table:
     span = log.time_span()
     if log.scans is not None:
         s = log.scans
-        finite = np.isfinite(s.ranges)
-        t.add_row("scans", f"{len(s):,}", f"{s.n_beams} beams, {finite.mean() * 100:.1f} % returning")
+        ang = log.scan_angles()
+        beams = np.isfinite(np.broadcast_to(ang, s.ranges.shape))  # a scan's own beams (not the padding of a shorter layout)
+        share = np.isfinite(s.ranges).sum() / max(1, int(beams.sum()))
+        t.add_row("scans", f"{len(s):,}", f"{s.n_beams} beams, {share * 100:.1f} % returning")
     if log.odometry is not None:
         t.add_row("odometry", f"{len(log.odometry):,}", f"{log.odometry.kind}: {', '.join(log.odometry.columns)}")
     for k, r in log.reference.items():
