@@ -140,7 +140,7 @@ class RBPHD(MapFilter):
         w, mu, cov = prior.w, prior.mu, prior.cov
         p, j = w.shape
         with tm("pd"):
-            pd, buf = self.detection.pd_features(sp, mu, cov, meas)
+            pd, buf = self.detection.pd_features(sp, mu, cov, meas, w)
             buf[:, n_map:] = False  # the rule protects map features, not this step's birth hypotheses
         kappa = self.detection.clutter_intensity(z) if m else np.zeros(0)
         if meas.ratio is not None and m:
@@ -227,7 +227,7 @@ class RBPHD(MapFilter):
             return xbar, q, np.zeros(p, dtype=np.int64)
         rz = np.broadcast_to(self.r, (m, dz, dz)) if meas.cov is None else np.asarray(meas.cov).reshape(m, dz, dz) + self.r
         sp = fm.sensor_pose(xbar)
-        pd, _ = self.detection.pd_features(sp, gm.mu, gm.cov, meas)
+        pd, _ = self.detection.pd_features(sp, gm.mu, gm.cov, meas, gm.w)
         seen = (pd > 0) & (gm.w > 0)
         js = int(seen.sum(axis=1).max())
         if js == 0:
