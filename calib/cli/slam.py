@@ -57,7 +57,6 @@ def slam_run_cmd(
         raise UsageError(f"--seed: expected a non-negative integer, got {seed}")
     prof = resolve(profile_ref)
     log = reader.read(log_path)
-    one_beam_layout(log, prof)
     check_inputs(log, prof)
     target = out_dir or Path("runs") / f"slam_{log.name}_{prof.ref}_{seed}"
     fresh(target, force)
@@ -76,13 +75,6 @@ def slam_run_cmd(
     write_slam_run(log, res, target, settings, overwrite=force)
     shown = {k: v for k, v in res.metrics.items() if not isinstance(v, dict)}
     out.print(summary_table(f"{res.filter}-SLAM on {log.name} with {prof.ref} -> {target}", shown))
-
-
-def one_beam_layout(log, prof) -> None:
-    """The SLAM runner takes a laser of one beam layout; refuse per-scan geometry plainly until it takes that too."""
-    for what, sensor in (("log " + repr(log.name), log.sensor), ("profile " + prof.ref, prof.sensor)):
-        if sensor is not None and sensor.geometries is not None:
-            raise UsageError(f"{what}: the laser has {len(sensor.geometries)} beam geometries; slam does not take per-scan beam geometry yet")
 
 
 def seed_list(text: str) -> list[int]:
@@ -144,7 +136,6 @@ def slam_sweep_cmd(
     for p in logs:
         log = reader.read(p)
         for prof in profs:
-            one_beam_layout(log, prof)
             check_inputs(log, prof)
         loaded.append((p, log))
     fresh(out_dir, force)

@@ -174,7 +174,7 @@ CASES = [
     ("input-missing", "log that does not exist", lambda t: ["calibrate", str(t / "missing.dlog")], 2, "missing.dlog: no such file"),
     ("input-folder", "a folder that holds no log", lambda t: ["log", "info", str(t)], 2, "cannot tell the log format from the path"),
     ("input-brackets", "file name with brackets and console markup", lambda t: ["log", "info", _bracketed(t)], 1, "run[v2]/line 100 :100: [b]a[/b].dlog: not a detcal log or truncated"),
-    ("slam-geometry", "slam run on a laser of two beam layouts", lambda t: ["slam", "run", interlaced_log(t), "--profile", "sim-park-laser"], 2, "the laser has 2 beam geometries; slam does not take per-scan beam geometry yet"),
+    ("slam-geometry", "slam run on a laser of two beam layouts the profile was not calibrated for", lambda t: ["slam", "run", interlaced_log(t), "--profile", "sim-park-laser"], 2, "was calibrated for 361 beams from -90.00 deg every 0.5000 deg; this log's laser has 180"),
     # ---- outputs
     ("out-exists", "existing output without --force", lambda t: ["log", "convert", small_log(t), small_log(t)], 2, "ok.dlog: already exists (use --force to replace it)"),
     ("out-foreign-dir", "--force over a folder detcal did not write", lambda t: ["simulate", "park", "--out", _foreign_dir(t), "--force"], 2, "mine: was not written by detcal (no .detcal-output inside); --force does not replace it"),

@@ -134,6 +134,16 @@ def test_calibration_on_an_interlaced_laser(interlaced):
     dr = ref.labelled.detections
     assert d.loc[d.landmark >= 0, "distance"].median() == pytest.approx(dr.loc[dr.landmark >= 0, "distance"].median(), rel=0.25)
     assert cal.labelled.pairs["n_expected"].mean() == pytest.approx(ref.labelled.pairs["n_expected"].mean(), rel=0.05)
+    # and SLAM runs on it with each scan's own layout (detection and ray-traced P_D): over the first 80
+    # scans its map of the trees is as good as the one-layout laser's (OSPA within 0.1), its path as close
+    from slam_runtime.config import SlamConfig, override
+    from slam_runtime.run import evaluate, run_slam
+
+    cfg_s = override(SlamConfig(), particles=10)
+    m = evaluate(log, run_slam(log, p, cfg_s, 0, max_frames=80))
+    m_ref = evaluate(even_beams(full), run_slam(even_beams(full), ref.profile, cfg_s, 0, max_frames=80))
+    assert m["map_ospa"] < m_ref["map_ospa"] + 0.1
+    assert m["trajectory_rmse_vs_ground_truth_m"] < max(1.5 * m_ref["trajectory_rmse_vs_ground_truth_m"], 0.1)
 
 
 def test_carmen_interlaced_flaser_and_robotlaser(tmp_path):
