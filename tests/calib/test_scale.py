@@ -15,8 +15,9 @@ generous; nothing here is timed.
 from __future__ import annotations
 
 import csv
-import logging
+import io
 import os
+import sys
 from pathlib import Path
 
 import pytest
@@ -75,14 +76,12 @@ def serial(park_log, tmp_path_factory) -> Path:
 def cluster():
     """A 2-worker local Dask cluster of the test's own (commands reach it with --scheduler), loopback only."""
     import dask
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
-    from calib.engine import LOCAL_CONFIG
+    from calib.engine import LOCAL_CONFIG, local_cluster
 
     with dask.config.set(LOCAL_CONFIG):
-        c = LocalCluster(
-            n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None, silence_logs=logging.CRITICAL
-        )
+        c = local_cluster(2)
         try:
             with Client(c, set_as_default=False) as client:
                 yield c, client
@@ -266,3 +265,48 @@ def test_a_calibration_of_several_logs_on_workers_gives_the_serial_bytes(tmp_pat
     assert results(outs["dask"]) == results(outs["serial"])
     assert "--scheduler" not in (outs["dask"] / "profiles/two-parks@1.0.0.yaml").read_text()
     assert os.listdir(outs["dask"] / "profiles") == ["two-parks@1.0.0.yaml"]
+
+
+def _http_sockets(dask_scheduler=None, dask_worker=None):
+    server = (dask_scheduler or dask_worker).http_server
+    return sorted(sock.getsockname()[0] for sock in server._sockets.values())  # noqa: SLF001
+
+
+def test_the_local_cluster_listens_on_loopback_only():
+    from calib.engine import open_engine
+
+    with open_engine(1, None, 3) as engine:
+        client = engine.client
+        assert client.scheduler.address.startswith("tcp://127.0.0.1:")
+        assert list(client.nthreads().values()) == [1] and all(a.startswith("tcp://127.0.0.1:") for a in client.nthreads())
+        # Dask's HTTP endpoints (health, metrics) too, on a free port: never 8787, which another cluster may hold
+        assert client.run_on_scheduler(_http_sockets) == ["127.0.0.1"]
+        assert list(client.run(_http_sockets).values()) == [["127.0.0.1"]]
+        env = client.run(lambda: {k: os.environ.get(k) for k in ("MALLOC_TRIM_THRESHOLD_", "OPENBLAS_NUM_THREADS")})
+        assert list(env.values()) == [{"MALLOC_TRIM_THRESHOLD_": None, "OPENBLAS_NUM_THREADS": "1"}]
+
+
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_a_bar_counts_tasks_on_a_terminal_and_nothing_is_drawn_in_ci_or_a_pipe(monkeypatch, capsys):
+    from calib.progress import progress
+
+    term = _Terminal()
+    monkeypatch.setattr(sys, "stderr", term)
+    monkeypatch.delenv("CI", raising=False)
+    monkeypatch.setenv("TERM", "xterm")
+    assert list(progress(iter(range(3)), 3, "sweep on 2 local workers")) == [0, 1, 2]
+    drawn = term.getvalue()
+    assert "sweep on 2 local workers" in drawn and "3/3" in drawn  # the last frame: every task counted
+    assert capsys.readouterr().out == ""  # on stderr: results on stdout stay clean
+    for ci, stream in (("true", _Terminal()), (None, io.StringIO())):  # CI on a terminal; a pipe
+        monkeypatch.setattr(sys, "stderr", stream)
+        if ci:
+            monkeypatch.setenv("CI", ci)
+        else:
+            monkeypatch.delenv("CI", raising=False)
+        assert list(progress(iter(range(3)), 3, "sweep")) == [0, 1, 2]
+        assert stream.getvalue() == ""
