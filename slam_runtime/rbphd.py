@@ -48,6 +48,9 @@ class RBPHDConfig(BaseModel):
     adaptive_birth: bool = Field(default=True, description="scale each birth by the share of its measurement the map left unexplained")
     prune: float = Field(default=1e-3, gt=0.0)
     merge: float = Field(default=4.0, gt=0.0, description="squared Mahalanobis distance for merging")
+    merge_rule: Literal["head", "mutual"] = Field(
+        default="head", description="merge a component into the heaviest one when it lies in the head's gate (Vo & Ma), or in both gates"
+    )
     merge_inflation: float = Field(default=1.0, ge=1.0, description="factor on the covariance of a merged group")
     cap: int = Field(default=150, ge=1, description="components per particle at most")
     gate: float = Field(default=16.0, gt=0.0, description="squared Mahalanobis distance beyond which a measurement does not update a component")
@@ -201,7 +204,7 @@ class RBPHD(MapFilter):
             else:
                 loglik = self._log_weight(prior, upd, pd_upd, sp, z, kappa, rz)
         with tm("merge"):
-            gm, capped = prune_merge(upd, prune=cfg.prune, merge=cfg.merge, cap=cfg.cap, inflate=cfg.merge_inflation)
+            gm, capped = prune_merge(upd, prune=cfg.prune, merge=cfg.merge, cap=cfg.cap, inflate=cfg.merge_inflation, mutual=cfg.merge_rule == "mutual")
             self.capped_steps += int(capped)
         # adaptive birth: a measurement the map already explains gives birth to little
         birth = self._birth(sp, z, rz, 1.0 - np.clip(w_det.sum(axis=1), 0.0, 1.0) if cfg.adaptive_birth else None)
