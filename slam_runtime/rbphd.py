@@ -218,6 +218,9 @@ class RBPHD(MapFilter):
         updated by the frame's measurements that the particle's map explains, each by its likeliest
         feature when that feature takes at least ``share`` of it (the share of the PHD update,
         P_D w q / (kappa + sum)), with an iterated EKF (re-linearised ``iterations`` times).
+        The association (gate and shares) uses the innovation covariance with the motion prior's
+        uncertainty in it, R + H_m P H_m^T + H_x q H_x^T (FastSLAM 2.0, Montemerlo et al. 2003:
+        the data-association covariance); the update itself uses R + H_m P H_m^T.
         Returns the mean (P, 3), covariance (P, 3, 3) and the number of measurements used (P,)."""
         fm = self.feature
         gm = maps.gm
@@ -243,8 +246,12 @@ class RBPHD(MapFilter):
         hph = matmul(hl, matmul(cov_s, transpose(hl)))
         s_pair = hph[:, :, None] + rz[None, None]  # (P, Js, M, dz, dz)
         nu = fm.innovation(z[None, None], zhat[:, :, None])
-        m2 = quad(inv(s_pair), nu)
-        lik = np.where(m2 <= self.cfg.gate, gaussian(m2, det(s_pair), dz), 0.0) * w_s[..., None]
+        # association under the motion prior's uncertainty too (FastSLAM 2.0: Q = R + H_m P H_m^T + H_x Q_x H_x^T),
+        # or a particle whose predicted heading is a few bearing sigmas off finds no feature for its measurements
+        hx0 = fm.pose_jacobian(xbar[:, None, :], mu_s)  # (P, Js, dz, 3)
+        s_assoc = s_pair + matmul(hx0, matmul(q[:, None], transpose(hx0)))[:, :, None]
+        m2 = quad(inv(s_assoc), nu)
+        lik = np.where(m2 <= self.cfg.gate, gaussian(m2, det(s_assoc), dz), 0.0) * w_s[..., None]
         kappa = self.detection.clutter_intensity(z)
         if meas.ratio is not None:
             kappa = kappa / np.maximum(np.asarray(meas.ratio, dtype=np.float64), 1e-300)
