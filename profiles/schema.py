@@ -9,7 +9,7 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_serializer, model_validator
 
 from profiles.errors import DataError
 
@@ -39,12 +39,27 @@ class Vehicle(Strict):
     encoder_offset: float = Field(default=0.0, ge=0.0)
 
 
+class LidarGeometry(Strict):
+    """Beam layout of a spinning multi-beam lidar (kind ``lidar3d``, e.g. a Velodyne HDL-64E).
+
+    One ring per vertical angle, columns every ``azimuth_increment_deg`` around the
+    full circle; ``height`` is the sensor's height above the vehicle frame's origin
+    (the ground under the vehicle), so planes in the sensor frame can be placed in 3D.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    vertical_angles_deg: list[float] = Field(min_length=1, description="elevation of each ring [deg], sensor frame")
+    azimuth_increment_deg: float = Field(gt=0.0, le=10.0, description="azimuth step between columns [deg]")
+    height: float = Field(default=0.0, description="sensor height above the vehicle frame origin [m]")
+
+
 class SensorModel(Strict):
     """What the sensor is and how it is mounted.
 
     For a 2D laser, beam ``i`` points at ``angle_min + i * angle_increment``
     (sensor frame, radians). Detection-only sensors (a camera, a vendor's tree
-    extractor) give ``fov`` instead of a beam geometry.
+    extractor) give ``fov`` instead of a beam geometry. A 3D lidar gives its
+    ring and column layout in ``lidar`` (written only when present).
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -57,6 +72,14 @@ class SensorModel(Strict):
     range_sigma: float | None = Field(default=None, ge=0.0)
     fov: float | None = Field(default=None, gt=0.0, le=2 * np.pi + 1e-9)
     mount: Mount = Mount()
+    lidar: LidarGeometry | None = None
+
+    @model_serializer(mode="wrap")
+    def _drop_absent_lidar(self, handler):
+        data = handler(self)
+        if isinstance(data, dict) and data.get("lidar", 0) is None:
+            data.pop("lidar")  # absent rather than null: sensor models without it keep their bytes
+        return data
 
     def angles(self) -> np.ndarray:
         """Beam angles in the sensor frame, (B,) float64 radians."""

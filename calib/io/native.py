@@ -10,7 +10,8 @@ order and dates, so the same log gives the same bytes):
   ``scan/{stamp,ranges,intensities,odom_pose}``, ``odometry/{stamp,values}``,
   ``reference/<source>/{stamp,poses}``, ``landmarks/{ids,xy,radius,sigma}``,
   ``detections/{frame_stamp,frame,range,bearing}`` and
-  ``detections/descriptors/<name>``, ``clouds/{stamp,offsets,points}``.
+  ``detections/descriptors/<name>``, ``clouds/{stamp,offsets,points}``,
+  ``planes/{ids,normal,offset,vertices,offsets,kind}``.
 
 Arrays keep their dtypes exactly (stamps int64 ns, ranges float32 with NaN for
 no return), so a round trip is lossless bit for bit.
@@ -32,6 +33,7 @@ from detectors.logs import (
     Detections,
     Landmarks,
     Odometry,
+    PlaneLandmarks,
     PointClouds,
     ReferencePoses,
     ScanBatch,
@@ -84,6 +86,15 @@ def _arrays(log: SensorLog) -> tuple[dict, dict[str, np.ndarray]]:
         c = log.clouds
         streams["clouds"] = {"n": len(c), "points": int(c.points.shape[0])}
         arrays.update({"clouds/stamp": c.stamp, "clouds/offsets": c.offsets, "clouds/points": c.points})
+    if log.planes is not None:
+        pl = log.planes
+        streams["planes"] = {"n": len(pl)}
+        arrays.update(
+            {
+                "planes/ids": pl.ids, "planes/normal": pl.normal, "planes/offset": pl.offset,
+                "planes/vertices": pl.vertices, "planes/offsets": pl.offsets, "planes/kind": pl.kind,
+            }
+        )
     return streams, arrays
 
 
@@ -182,7 +193,7 @@ def read_native(path: str | Path) -> SensorLog:
 
 
 def _build(meta: dict, sensor: SensorModel | None, vehicle: Vehicle | None, streams: dict, load) -> SensorLog:
-    scans = odometry = landmarks = detections = clouds = None
+    scans = odometry = landmarks = detections = clouds = planes = None
     if "scan" in streams:
         s = streams["scan"]
         scans = ScanBatch(
@@ -210,6 +221,10 @@ def _build(meta: dict, sensor: SensorModel | None, vehicle: Vehicle | None, stre
         )
     if "clouds" in streams:
         clouds = PointClouds(load("clouds/stamp"), load("clouds/offsets"), load("clouds/points"))
+    if "planes" in streams:
+        planes = PlaneLandmarks(
+            load("planes/ids"), load("planes/normal"), load("planes/offset"), load("planes/vertices"), load("planes/offsets"), load("planes/kind")
+        )
     return SensorLog(
         name=str(meta.get("name", "")),
         sensor=sensor,
@@ -221,4 +236,5 @@ def _build(meta: dict, sensor: SensorModel | None, vehicle: Vehicle | None, stre
         landmarks=landmarks,
         detections=detections,
         source=meta.get("source", {}),
+        planes=planes,
     )
