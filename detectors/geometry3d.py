@@ -130,6 +130,8 @@ def world_to_sensor(x: np.ndarray, sensor: np.ndarray, height: float = 0.0) -> t
     """
     x = np.asarray(x, dtype=np.float64)
     s = np.asarray(sensor, dtype=np.float64)
+    shape = np.broadcast_shapes(x.shape[:-1], s.shape[:-1]) + (3,)
+    x, s = np.broadcast_to(x, shape), np.broadcast_to(s, shape)
     n, d = normal_from_chart(x)
     t0, t1 = s[..., 0], s[..., 1]
     off = d - (n[..., 0] * t0 + n[..., 1] * t1 + n[..., 2] * height)
@@ -148,6 +150,8 @@ def sensor_to_world(z: np.ndarray, sensor: np.ndarray, height: float = 0.0) -> t
     """The inverse of :func:`world_to_sensor`: world chart x (..., 3) of sensor-frame planes z and G = dx/dz (..., 3, 3)."""
     z = np.asarray(z, dtype=np.float64)
     s = np.asarray(sensor, dtype=np.float64)
+    shape = np.broadcast_shapes(z.shape[:-1], s.shape[:-1]) + (3,)
+    z, s = np.broadcast_to(z, shape), np.broadcast_to(s, shape)
     x_ang = np.stack([wrap(z[..., 0] + s[..., 2]), z[..., 1]], axis=-1)
     xa = np.concatenate([x_ang, np.zeros(z.shape[:-1] + (1,))], axis=-1)
     n, _ = normal_from_chart(xa)

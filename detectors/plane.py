@@ -81,6 +81,15 @@ class PlaneDetections:
     def __len__(self) -> int:
         return int(self.offset.size)
 
+    @property
+    def width(self) -> np.ndarray:
+        """(M,) the shorter side of each plane's enclosing rectangle [m]."""
+        if len(self) == 0:
+            return np.zeros(0)
+        a = np.linalg.norm(self.rect[:, 1] - self.rect[:, 0], axis=-1)
+        b = np.linalg.norm(self.rect[:, 2] - self.rect[:, 1], axis=-1)
+        return np.minimum(a, b)
+
     def polygon(self, m: int) -> np.ndarray:
         """(V_m, 3) convex outline of plane m."""
         return self.outline[self.outline_offsets[m] : self.outline_offsets[m + 1]]
@@ -254,8 +263,9 @@ def detect_planes(points: np.ndarray, params: PlaneDetectorParams | None = None,
     if p.shape[0] < prm.min_points:
         return (PlaneDetections.empty(), labels_out) if return_labels else PlaneDetections.empty()
     sig = prm.range_sigma
-    # 1. spherical cells and their local planes; nearer than ``near_range`` the angular size grows
-    # as 1 / range (nested integer multiples), so a cell is never much smaller than at near_range
+    # 1. spherical cells and their local planes; near the sensor the angular size grows by whole
+    # multiples (nested grids) so that a cell is at least min_cell_size wide: a cell only a few
+    # noise sigmas wide has no usable normal
     daz, del_ = np.radians(prm.cell_azimuth_deg), np.radians(prm.cell_elevation_deg)
     na = int(np.ceil(2 * np.pi / daz))
     ne = int(np.ceil(np.pi / del_)) + 1
@@ -264,8 +274,8 @@ def detect_planes(points: np.ndarray, params: PlaneDetectorParams | None = None,
     ie = ((np.arcsin(np.clip(p[:, 2] / r, -1, 1)) + np.pi / 2) // del_).astype(np.int64)
     ir = (np.log(r / prm.range_min) // lr).astype(np.int64)
     n_rb = int(ir.max()) + 2
-    r_mid = prm.range_min * np.exp((np.arange(n_rb) + 0.5) * lr)
-    fac = np.clip(np.rint(prm.near_range / r_mid), 1, 16).astype(np.int64)  # (range bins,)
+    r_lo = prm.range_min * np.exp(np.arange(n_rb) * lr)
+    fac = np.clip(np.ceil(prm.min_cell_size / (r_lo * daz)), 1, 32).astype(np.int64)  # (range bins,)
     f = fac[ir]
     key = (ir * ne + ie // f) * na + ia // f
     ukeys, cell = np.unique(key, return_inverse=True)
@@ -350,8 +360,8 @@ def detect_planes(points: np.ndarray, params: PlaneDetectorParams | None = None,
         c_, s_, ss_ = _moments(li, p, nreg + 1)
         rn, rd, rmean, rlam, rvec = _fit(c_[:nreg], s_[:nreg], ss_[:nreg])
         rcount = c_[:nreg]
-        if it == 0 and prm.coplanar_offset > 0 and nreg > 1:
-            lab, nreg, rn, rd = _merge_coplanar(lab, rn, rd, rcount, prm)
+        if it == 0 and nreg > 1:
+            lab, nreg, rn, rd = _merge_coplanar(lab, rn, rd, rcount, rlam, s_[:nreg], ss_[:nreg], prm)
     rsig2 = rlam[:, 0] / np.maximum(rcount - 3, 1)
     ok = (rcount >= prm.min_points) & (np.sqrt(rsig2) <= prm.max_sigma)
     # orient away from the sensor: d > 0
@@ -378,13 +388,22 @@ def detect_planes(points: np.ndarray, params: PlaneDetectorParams | None = None,
     return det
 
 
-def _merge_coplanar(lab, rn, rd, rcount, prm):
-    """Regions with the same plane (normal within coplanar_angle_deg, offsets within coplanar_offset) become one."""
+def _merge_coplanar(lab, rn, rd, rcount, rlam, s_, ss_, prm):
+    """Regions that are one plane become one: region j joins region i when j's inliers fit i's plane (their rms
+    residual to it, from j's moments, is within ``msse_t`` times i's residual sigma) -- fragments at a plane's
+    edges whose own normal is poorly determined -- or when both planes agree within coplanar_angle_deg and
+    coplanar_offset (parts of one plane cut apart by an occluder)."""
     nreg = rn.shape[0]
     live = rcount >= 3
-    c = rn @ rn.T
-    sgn = np.where(c < 0, -1.0, 1.0)
-    same = (np.abs(c) >= np.cos(np.radians(prm.coplanar_angle_deg))) & (np.abs(rd[:, None] - sgn * rd[None, :]) <= prm.coplanar_offset)
+    # sum over j's inliers of (n_i . p - d_i)^2 = n_i^T SS_j n_i - 2 d_i n_i . S_j + N_j d_i^2, for every (i, j)
+    q = np.einsum("ia,jab,ib->ij", rn, ss_, rn) - 2 * rd[:, None] * (rn @ s_.T) + rd[:, None] ** 2 * rcount[None, :]
+    rms = np.sqrt(np.maximum(q, 0.0) / np.maximum(rcount, 1)[None, :])
+    sig_i = np.maximum(np.sqrt(rlam[:, 0] / np.maximum(rcount - 3, 1)), prm.range_sigma)
+    same = rms <= prm.msse_t * sig_i[:, None]
+    if prm.coplanar_offset > 0:
+        c = rn @ rn.T
+        sgn = np.where(c < 0, -1.0, 1.0)
+        same |= (np.abs(c) >= np.cos(np.radians(prm.coplanar_angle_deg))) & (np.abs(rd[:, None] - sgn * rd[None, :]) <= prm.coplanar_offset)
     same &= live[:, None] & live[None, :]
     _, comp = connected_components(coo_matrix(same), directed=False)
     if comp.max() + 1 == nreg:

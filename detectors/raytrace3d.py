@@ -123,6 +123,16 @@ class Scene:
         return self._poly[1]
 
 
+def polygon_scene(planes) -> Scene:
+    """A scene of the polygons of a :class:`detectors.logs.PlaneLandmarks` (no other primitives)."""
+    counts = np.diff(planes.offsets)
+    v = np.zeros((len(planes), int(counts.max()) if counts.size else 3, 3))
+    for i in range(len(planes)):
+        v[i, : counts[i]] = planes.polygon(i)
+    z = np.zeros
+    return Scene(v, counts, z((0, 2)), z(0), z((0, 2)), z((0, 3)), z(0))
+
+
 def _polygon_frames(v: np.ndarray, cnt: np.ndarray):
     """Per polygon: unit normal, offset, origin, in-plane basis, 2D vertices (CCW), bounding sphere."""
     k = cnt.size

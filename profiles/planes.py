@@ -34,7 +34,7 @@ class PlaneDetectorParams(Strict):
     cell_elevation_deg: float = Field(default=1.2, gt=0.0, le=20.0, description="cell height in elevation [deg]")
     cell_range_ratio: float = Field(default=1.25, gt=1.0, le=2.0, description="ratio of a cell's far and near range")
     range_min: float = Field(default=1.0, gt=0.0, description="returns closer than this are ignored [m]")
-    near_range: float = Field(default=10.0, gt=0.0, description="closer than this, cells keep about the size they have here [m]")
+    min_cell_size: float = Field(default=0.3, gt=0.0, description="cells near the sensor grow (by whole multiples) to at least this width [m]")
     min_cell_points: int = Field(default=6, ge=4, description="fewest returns in a cell for a local plane")
     range_sigma: float = Field(default=0.02, gt=0.0, description="the sensor's range noise [m] (sets the thickness tests)")
     merge_angle_deg: float = Field(default=6.0, gt=0.0, le=45.0, description="largest normal angle between neighbouring cells of one plane")
@@ -111,6 +111,7 @@ class PlaneStats(Strict):
     noise: PlaneNoise | None = None
     max_elevation_deg: float = Field(default=45.0, gt=0.0, le=90.0, description="planes whose normal is within this of horizontal are landmarks")
     min_points: int = Field(default=40, ge=1, description="detections with fewer inliers are not used")
+    min_width: float = Field(default=0.0, ge=0.0, description="detections narrower than this (shorter side of the enclosing rectangle) are not used [m]")
     offset_max: float = Field(gt=0.0, description="largest sensor-frame offset of a landmark plane [m] (the clutter space)")
     slab_k_sigma: float = Field(default=3.0, gt=0.0, description="half-width of the runtime's slab of a plane, in noise sigmas")
     slab_ratio: float | None = Field(

@@ -144,7 +144,7 @@ class PdTable(Strict):
     ``n_p`` the edges are integers, one bin per count.
     """
 
-    covariate: Literal["n_p", "range"] = "n_p"
+    covariate: Literal["n_p", "range", "points"] = "n_p"
     edges: list[float] = Field(min_length=2)
     pd: list[float]
     counts: list[int] | None = None
@@ -193,11 +193,12 @@ class MeasurementNoise(Strict):
 class ClutterParams(Strict):
     """Poisson clutter: ``rate`` false alarms per scan spread uniformly over ``volume``.
 
-    space: ``range_bearing`` (volume in m*rad) or ``xy`` (area in m^2).
+    space: ``range_bearing`` (volume in m*rad), ``xy`` (area in m^2) or ``plane``
+    (the chart of landmark planes: azimuth x elevation x offset, in rad^2 m).
     """
 
     rate: float = Field(ge=0.0, description="lambda: mean false alarms per scan")
-    space: Literal["range_bearing", "xy"] = "range_bearing"
+    space: Literal["range_bearing", "xy", "plane"] = "range_bearing"
     volume: float = Field(gt=0.0, description="size of the field of view in the measurement space")
     kappa: float | None = Field(default=None, ge=0.0, description="clutter intensity rate / volume (filled in when omitted)")
     chi2: float | None = None

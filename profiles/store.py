@@ -82,8 +82,11 @@ def load_profile_file(path: str | Path) -> DetectorProfile:
 def dump_profile(profile: DetectorProfile, fmt: str = "yaml") -> str:
     """Deterministic text: schema order, floats written exactly (round trip is lossless)."""
     data = profile.model_dump(mode="json")
-    if data.get("noise") is None:  # optional section: absent rather than null, so older profiles keep their bytes
-        data.pop("noise", None)
+    for key in ("noise", "planes"):  # optional sections: absent rather than null, so older profiles keep their bytes
+        if data.get(key) is None:
+            data.pop(key, None)
+    if data.get("detector", {}).get("plane", 0) is None:
+        data["detector"].pop("plane")
     if fmt == "json":
         return json.dumps(data, indent=2) + "\n"
     if fmt != "yaml":

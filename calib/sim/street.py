@@ -338,8 +338,9 @@ def build_world(cfg: StreetConfig, rng: np.random.Generator, route: Route) -> Wo
                 return xs[keep]
 
             for x in along(o.cars, 5.5):
-                c = p0 + x * ax + side * (hw - 4.5) * lat
-                fp = _rect(c, hd, float(rng.uniform(4.2, 4.8)), float(rng.uniform(1.7, 1.9)))
+                # parked at their own distance from the curb and a little askew: no two share a plane
+                c = p0 + x * ax + side * (hw - 4.5 + float(rng.uniform(-0.3, 0.3))) * lat
+                fp = _rect(c, hd + float(np.radians(rng.uniform(-3.0, 3.0))), float(rng.uniform(4.2, 4.8)), float(rng.uniform(1.7, 1.9)))
                 h = float(rng.uniform(1.4, 1.6))
                 if _clear_of_route(fp, route, 2.5):
                     for f in _box_faces(fp, 0.3, h, top=True):
