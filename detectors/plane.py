@@ -226,7 +226,7 @@ def _msse(lab: np.ndarray, res: np.ndarray, t: float, frac: float, p: int = 3) -
         return keep
     ar = np.abs(res[idx])
     # one argsort on a combined key (group, then residual within the group) instead of a lexsort
-    order = idx[np.argsort(lab[idx] + ar / (2.0 * ar.max() + 1e-300), kind="stable")]
+    order = idx[np.argsort(lab[idx] + ar / (2.0 * ar.max() + 1e-300))]
     ls, rs = lab[order], np.abs(res[order])
     starts, first = _segments(ls)
     rank = np.arange(ls.size) - first + 1  # 1-based rank in the group
@@ -349,6 +349,31 @@ def detect_planes(points: np.ndarray, params: PlaneDetectorParams | None = None,
         j = np.argmin(dist, axis=1)
         best = reg_nb[np.arange(free.size), j]
         region[free] = np.where(np.isfinite(dist[np.arange(free.size), j]), best, -1)
+    # then further out, cell by cell, while a good share of a cell's returns lie on the region's plane
+    # (a plane seen through a bush or behind a pole's cells keeps its returns there)
+    tol = 3.0 * sig
+    for _ in range(prm.grow_steps):
+        free = np.flatnonzero(region < 0)
+        if free.size == 0:
+            break
+        nbf = neighbours(free)
+        reg_nb = np.where(nbf >= 0, region[np.maximum(nbf, 0)], -1)
+        dist = np.where(reg_nb >= 0, np.abs((rn[np.maximum(reg_nb, 0)] * mean[free, None, :]).sum(-1) - rd[np.maximum(reg_nb, 0)]), np.inf)
+        j = np.argmin(dist, axis=1)
+        cand = np.where(np.isfinite(dist[np.arange(free.size), j]), reg_nb[np.arange(free.size), j], -1)
+        if not (cand >= 0).any():
+            break
+        cand_of = np.full(k, -1)
+        cand_of[free] = cand
+        pc = cand_of[cell]
+        m_ = np.flatnonzero(pc >= 0)
+        near = np.zeros(p.shape[0])
+        near[m_] = np.abs((rn[pc[m_]] * p[m_]).sum(1) - rd[pc[m_]]) <= tol
+        share = np.bincount(cell, weights=near, minlength=k) / np.maximum(cnt, 1.0)
+        adopt = free[(cand >= 0) & (share[free] >= prm.grow_share)]
+        if adopt.size == 0:
+            break
+        region[adopt] = cand_of[adopt]
     lab_all = region[cell]
     sub = np.flatnonzero(lab_all >= 0)  # only returns that some region may take
     p, lab, use = p[sub], lab_all[sub], use[sub]
@@ -389,31 +414,39 @@ def detect_planes(points: np.ndarray, params: PlaneDetectorParams | None = None,
 
 
 def _merge_coplanar(lab, rn, rd, rcount, rlam, s_, ss_, prm):
-    """Regions that are one plane become one: region j joins region i when j's inliers fit i's plane (their rms
-    residual to it, from j's moments, is within ``msse_t`` times i's residual sigma) -- fragments at a plane's
-    edges whose own normal is poorly determined -- or when both planes agree within coplanar_angle_deg and
-    coplanar_offset (parts of one plane cut apart by an occluder)."""
+    """Regions that are one plane become one: region j joins a larger region i when j's inliers fit i's plane
+    (their rms residual to it, from j's moments, is within ``msse_t`` sensor sigmas, and the normals agree within
+    ``merge_angle_deg``) -- fragments at a plane's edges whose own normal is poorly determined -- or when the two
+    planes agree within ``coplanar_angle_deg`` and ``coplanar_offset`` (parts of one plane cut apart by an
+    occluder). Greedy from the largest region down, and only into regions that stay themselves, so no chain of
+    small regions can join two different planes."""
     nreg = rn.shape[0]
-    live = rcount >= 3
     # sum over j's inliers of (n_i . p - d_i)^2 = n_i^T SS_j n_i - 2 d_i n_i . S_j + N_j d_i^2, for every (i, j)
     q = np.einsum("ia,jab,ib->ij", rn, ss_, rn) - 2 * rd[:, None] * (rn @ s_.T) + rd[:, None] ** 2 * rcount[None, :]
     rms = np.sqrt(np.maximum(q, 0.0) / np.maximum(rcount, 1)[None, :])
-    sig_i = np.maximum(np.sqrt(rlam[:, 0] / np.maximum(rcount - 3, 1)), prm.range_sigma)
-    same = rms <= prm.msse_t * sig_i[:, None]
+    c = rn @ rn.T
+    same = (rms <= prm.msse_t * prm.range_sigma) & (np.abs(c) >= np.cos(np.radians(prm.merge_angle_deg)))
     if prm.coplanar_offset > 0:
-        c = rn @ rn.T
         sgn = np.where(c < 0, -1.0, 1.0)
         same |= (np.abs(c) >= np.cos(np.radians(prm.coplanar_angle_deg))) & (np.abs(rd[:, None] - sgn * rd[None, :]) <= prm.coplanar_offset)
+    live = rcount >= 3
     same &= live[:, None] & live[None, :]
-    _, comp = connected_components(coo_matrix(same), directed=False)
-    if comp.max() + 1 == nreg:
+    np.fill_diagonal(same, False)
+    if not same.any():
         return lab, nreg, rn, rd
-    # the merged plane starts from its largest member
-    big = np.zeros(comp.max() + 1, dtype=np.int64)
-    order = np.argsort(rcount, kind="stable")
-    big[comp[order]] = order
+    target = np.arange(nreg)
+    root = np.ones(nreg, dtype=bool)
+    for j in np.argsort(-rcount, kind="stable"):  # at most a few hundred regions
+        cand = np.flatnonzero(same[:, j] & root & (rcount > rcount[j]))
+        if cand.size:
+            target[j] = cand[np.argmax(rcount[cand])]
+            root[j] = False
+    keep = np.flatnonzero(root)
+    new = np.full(nreg, -1)
+    new[keep] = np.arange(keep.size)
+    comp = new[target]
     lab = np.where(lab >= 0, comp[np.maximum(lab, 0)], -1)
-    return lab, int(comp.max()) + 1, rn[big], rd[big]
+    return lab, int(keep.size), rn[keep], rd[keep]
 
 
 def _outlines(p, plab, normal, d, cen, m):

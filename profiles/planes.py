@@ -39,6 +39,8 @@ class PlaneDetectorParams(Strict):
     range_sigma: float = Field(default=0.02, gt=0.0, description="the sensor's range noise [m] (sets the thickness tests)")
     merge_angle_deg: float = Field(default=6.0, gt=0.0, le=45.0, description="largest normal angle between neighbouring cells of one plane")
     merge_offset: float = Field(default=0.10, gt=0.0, description="largest offset between neighbouring cells of one plane [m]")
+    grow_steps: int = Field(default=4, ge=0, le=50, description="cells beyond a region's border it may take, step by step ...")
+    grow_share: float = Field(default=0.3, gt=0.0, le=1.0, description="... when at least this share of a cell's returns lie on its plane")
     coplanar_angle_deg: float = Field(default=2.0, ge=0.0, le=20.0, description="regions this close in normal ...")
     coplanar_offset: float = Field(default=0.10, ge=0.0, description="... and offset [m] are one plane (0: never merge apart regions)")
     msse_t: float = Field(default=2.5, gt=0.0, description="MSSE threshold in scale units (Bab-Hadiashar & Suter: 2.5)")

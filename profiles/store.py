@@ -85,8 +85,11 @@ def dump_profile(profile: DetectorProfile, fmt: str = "yaml") -> str:
     for key in ("noise", "planes"):  # optional sections: absent rather than null, so older profiles keep their bytes
         if data.get(key) is None:
             data.pop(key, None)
-    if data.get("detector", {}).get("plane", 0) is None:
-        data["detector"].pop("plane")
+    det = data.get("detector", {})
+    if det.get("plane", 0) is None:
+        det.pop("plane")
+    if det.get("kind") == "plane3d" and det.get("circle", 0) is None:
+        det.pop("circle")
     if fmt == "json":
         return json.dumps(data, indent=2) + "\n"
     if fmt != "yaml":

@@ -1,9 +1,10 @@
 """Map metrics of planar landmarks against a log's plane truth.
 
 The truth a plane map is scored against is the set of landmark planes the
-sensor could see during the run: every true plane (the log's ``planes``
+sensor saw well during the run: every true plane (the log's ``planes``
 stream) steep enough to be a landmark (|elevation of its normal| <= ``max
-elevation``) that had at least ``min_points`` unoccluded lidar returns
+elevation``) that had at least ``min_points`` (200: where the calibrated
+P_D passes 0.9) unoccluded lidar returns
 (ray-traced from the true sensor pose against the measured cloud,
 :func:`detectors.raytrace3d.visible_planes`) in at least one of the sampled
 frames; coplanar truth planes (two facades on one line) are one map landmark,
@@ -52,7 +53,7 @@ def visible_counts(log: SensorLog, every: int = 5) -> np.ndarray:
 
 
 def landmark_truth(
-    log: SensorLog, *, min_points: int = 40, max_elevation_deg: float = 45.0, length: float = 10.0, every: int = 5, merge: float = 0.05
+    log: SensorLog, *, min_points: int = 200, max_elevation_deg: float = 45.0, length: float = 10.0, every: int = 5, merge: float = 0.05
 ) -> tuple[np.ndarray, np.ndarray]:
     """(embeddings (K, 4), ids (K,)) of the planes that were landmarks during the run (module docstring)."""
     key = (min_points, max_elevation_deg, length, every, merge)

@@ -50,6 +50,8 @@ def calibrate_cmd(
 
     Laser logs: the circle detector, P_D against n_p, Hotelling ellipsoid, Poisson clutter.
     Detection-level logs (UTIAS): P_D against range, clutter from non-landmark detections.
+    3D lidar logs with plane truth (detcal simulate street): the plane detector, P_D against the
+    ray-traced visible points and incidence angle, clutter planes (profile kind lidar3d-planes).
     """
     from calib.calibrate import CalibrateConfig, calibrate
     from calib.config import load_yaml_model
@@ -77,7 +79,13 @@ def calibrate_cmd(
     fresh(target, force)
     command = typed_command("calibrate")
     # the logs decide which calibration (and so which config schema) applies
-    if all(lg.scans is None and lg.detections is not None for lg in loaded):
+    if all(lg.scans is None and lg.detections is None and lg.clouds is not None for lg in loaded):
+        from calib.planes import PlaneCalibConfig, calibrate_planes, write_plane_calibration_run
+
+        pcfg = load_yaml_model(PlaneCalibConfig, config)
+        cal = calibrate_planes(loaded, pcfg, name=prof_name, version=version, description=description, input_refs=refs, command=command)
+        figures = write_plane_calibration_run(cal, target, overwrite=force)
+    elif all(lg.scans is None and lg.detections is not None for lg in loaded):
         from calib.detlevel import DetectionCalibConfig, calibrate_detections, input_refs_for, write_detection_run
 
         dcfg = load_yaml_model(DetectionCalibConfig, config)
@@ -124,7 +132,13 @@ def validate_cmd(
     log = loaded[0]
     target = out_dir or Path("runs") / f"validate_{prof.ref}_{log.name}"
     fresh(target, force)
-    if prof.detector.kind == "external":
+    if prof.detector.kind == "plane3d":
+        from calib.planes import validate_planes
+
+        if len(loaded) > 1:
+            raise UsageError("validate one lidar log at a time")
+        v = validate_planes(prof, log)
+    elif prof.detector.kind == "external":
         from calib.detlevel import validate_detections
 
         v = validate_detections(prof, loaded)

@@ -1,4 +1,4 @@
-"""``detcal detect``: the circle detector over every scan of a log."""
+"""``detcal detect``: the circle detector over every scan of a log, or the plane detector over every cloud."""
 
 from __future__ import annotations
 
@@ -13,18 +13,41 @@ from profiles.errors import UsageError
 
 @reader_options("fmt", "max_backstep", "laser", "range_max", "scan_topic")
 def detect_cmd(
-    log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A log with laser scans.")],
+    log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A log with laser scans, or with 3D point clouds (planes).")],
     reader: ReaderArgs,
     out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/detect_<log name>).")] = None,
     profile: Annotated[str | None, typer.Option(help="Use a profile's detector, Hotelling gate and P_D table (name or name@version, or a file).")] = None,
     config: Annotated[Path | None, typer.Option(help="YAML with `detector:` parameters and an optional `hotelling:` gate.")] = None,
-    plot: Annotated[int | None, typer.Option("--plot", metavar="SCAN", help="Also draw this scan: clusters, circles, P_D field.")] = None,
+    plot: Annotated[
+        int | None,
+        typer.Option("--plot", metavar="SCAN", help="Also draw this scan (clusters, circles, P_D field) or cloud (planes; predicted vs segmented)."),
+    ] = None,
     force: Annotated[bool, typer.Option(help="Replace the run folder if it exists.")] = False,
 ) -> None:
-    """Run the circle (tree) detector over every scan and write a detections table."""
+    """Run the circle (tree) detector over every scan, or the plane detector over every point cloud, and write a table."""
     from calib.config import load_yaml_model
     from calib.detect import DetectConfig, write_detect_run
 
+    if profile is not None and config is not None:
+        raise UsageError("--profile and --config both set the detector; give one")
+    log = reader.read(log_path)
+    if log.scans is None and log.clouds is not None:
+        from calib.plane_detect import PlaneDetectConfig, write_plane_detect_run
+
+        if profile is not None:
+            from profiles.store import resolve
+
+            prof = resolve(profile)
+            if prof.detector.kind != "plane3d":
+                raise UsageError(f"profile {prof.ref} is a {prof.kind} profile; point clouds need a lidar3d-planes one")
+            pcfg = PlaneDetectConfig(detector=prof.detector.plane)
+        else:
+            pcfg = load_yaml_model(PlaneDetectConfig, config)
+        target = out_dir or Path("runs") / f"detect_{log.name}"
+        fresh(target, force)
+        summary = write_plane_detect_run(log, pcfg, target, plot_frame=plot, overwrite=force)
+        out.print(summary_table(f"planes -> {target}", summary))
+        return
     pd_table = None
     if profile is not None:
         if config is not None:
@@ -40,7 +63,6 @@ def detect_cmd(
         pd_table = prof.pd if prof.pd.covariate == "n_p" else None
     else:
         cfg = load_yaml_model(DetectConfig, config)
-    log = reader.read(log_path)
     target = out_dir or Path("runs") / f"detect_{log.name}"
     fresh(target, force)
     summary = write_detect_run(log, cfg, target, plot_scan=plot, pd_table=pd_table, overwrite=force)

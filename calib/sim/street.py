@@ -514,3 +514,92 @@ def simulate_street(cfg: StreetConfig, seed: int, *, progress=None) -> StreetSim
         source={"reader": "simulator", "simulator": "street", "seed": seed},
     )
     return StreetSimulation(cfg, seed, world, log, np.concatenate(labels), fposes)
+
+
+# ---------------------------------------------------------------------------- the run folder
+
+
+def street_summary(sim: StreetSimulation) -> dict:
+    log = sim.log
+    pts = np.diff(log.clouds.offsets)
+    gt = log.reference["ground_truth"].poses
+    kinds, counts = np.unique(log.planes.kind, return_counts=True)
+    return {
+        "seed": sim.seed,
+        "frames": len(log.clouds),
+        "points_per_frame_mean": float(pts.mean()),
+        "points_per_frame_min": int(pts.min()),
+        "points_per_frame_max": int(pts.max()),
+        "odometry_rows": len(log.odometry),
+        "duration_s": float((log.clouds.stamp[-1] - log.clouds.stamp[0]) / 1e9),
+        "path_length_m": float(np.sum(np.hypot(*np.diff(gt[:, :2], axis=0).T))),
+        "planes": {str(k): int(c) for k, c in zip(kinds, counts, strict=True)},
+        "cylinders": len(sim.world.cyl),
+        "spheres": len(sim.world.sph),
+    }
+
+
+def write_street_simulation(cfg: StreetConfig, seed: int, out, *, overwrite: bool = False) -> dict:
+    """The run folder: log.dlog (clouds, odometry, true poses, plane truth, sensor model), world.yaml,
+    labels.npy (the primitive id of every return), config.yaml, summary.yaml, overview.png."""
+    import io
+
+    from calib.config import dump_yaml
+    from calib.io.atomic import atomic_output
+    from calib.io.native import write_native
+    from calib.progress import progress
+
+    sim = simulate_street(cfg, seed, progress=progress)
+    summary = street_summary(sim)
+    with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
+        tmp.mkdir()
+        write_native(sim.log, tmp / "log.dlog")
+        (tmp / "world.yaml").write_text(dump_yaml(sim.world.to_dict()))
+        buf = io.BytesIO()
+        np.lib.format.write_array(buf, sim.labels, allow_pickle=False)
+        (tmp / "labels.npy").write_bytes(buf.getvalue())
+        (tmp / "config.yaml").write_text(dump_yaml({"seed": seed, "street": cfg.model_dump(mode="json")}))
+        (tmp / "summary.yaml").write_text(dump_yaml(summary))
+        plot_street(sim, tmp / "overview.png")
+    return summary
+
+
+def plot_street(sim: StreetSimulation, path) -> None:
+    """Top view of the world, the path, and one frame's cloud coloured by height."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Circle
+
+    w, log = sim.world, sim.log
+    fig, ax = plt.subplots(figsize=(10, 9), dpi=100)
+    colours = {"facade": "k", "wall": "tab:brown", "board": "tab:red", "car": "tab:blue"}
+    for p, k in zip(w.polygons, w.poly_kind, strict=True):
+        if k in colours:
+            ax.plot(p[:, 0], p[:, 1], "-", color=colours[k], lw=1.0)
+    for c, k in zip(w.cyl, w.cyl_kind, strict=True):
+        ax.add_patch(Circle(c[:2], max(c[2], 0.3), color="saddlebrown" if k == "trunk" else "0.3"))
+    for s, k in zip(w.sph, w.sph_kind, strict=True):
+        ax.add_patch(Circle(s[:2], s[3], color="tab:green", alpha=0.25 if k == "crown" else 0.5, lw=0))
+    k = len(log.clouds) // 2
+    cloud = log.clouds.frame(k).astype(np.float64)
+    li = sim.config.lidar
+    sp = compose(sim.frame_poses[k], np.array([li.mount.x, li.mount.y, li.mount.theta]))
+    c, s = np.cos(sp[2]), np.sin(sp[2])
+    sel = cloud[::3]
+    ax.scatter(sp[0] + c * sel[:, 0] - s * sel[:, 1], sp[1] + s * sel[:, 0] + c * sel[:, 1], s=0.2, c=sel[:, 2], cmap="viridis", alpha=0.6)
+    gt = log.reference["ground_truth"].poses
+    ax.plot(gt[:, 0], gt[:, 1], "m-", lw=1.5, label="true path")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(
+        f"simulated street, seed {sim.seed}: {len(log.planes)} planes, {len(w.cyl)} cylinders, {len(w.sph)} spheres; "
+        f"cloud of frame {k} ({cloud.shape[0]:,} returns)",
+        fontsize=9,
+    )
+    ax.legend(loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, metadata={"Software": None})
+    plt.close(fig)
