@@ -9,11 +9,14 @@ P_D tables, the buffer bands and the clutter:
   against the current scan for a laser profile (eqs. 4.1, 6.1, 6.2), through the
   predicted measurement for a detection-level profile (:meth:`pd_at`), or a
   constant inside the field of view (for comparison);
-* :meth:`DetectionModel.pd_at` -- P_D of a feature predicted at range-bearing z;
+* :meth:`DetectionModel.pd_at` -- P_D of a feature predicted at range-bearing z
+  (sensor frame) for detection-level profiles: a range table or a range x
+  bearing grid, 0 outside the field of view;
 * :meth:`DetectionModel.pd_landmarks` -- P_D of L landmarks from one sensor pose
   given the current scan, with the buffer-zone flag of sec. 6.1 (for eq. 3.21);
-* :meth:`DetectionModel.clutter_intensity` -- kappa(z) = lambda / |FoV| inside
-  the field of view, 0 outside (sec. 4.2);
+* :meth:`DetectionModel.clutter_intensity` -- kappa(z): lambda / |FoV| inside
+  the field of view (sec. 4.2), or lambda x the profile's clutter density over
+  (range, bearing) when it has one; 0 outside;
 * :meth:`DetectionModel.g_true` / :meth:`DetectionModel.g_false` -- the
   descriptor likelihoods of eq. 5.6 for the amplitude-feature update (eq. 2.26).
 
@@ -167,15 +170,26 @@ class DetectionModel:
         )
 
     def pd_at(self, z: np.ndarray) -> np.ndarray:
-        """P_D (...) of features predicted at range-bearing z (..., 2) (sensor frame): the covariate
-        table (range) inside the field of view, 0 outside; a constant in constant mode."""
+        """P_D (...) of features predicted at range-bearing z (..., 2) (sensor frame): the profile's
+        range table or range x bearing grid inside the field of view, 0 outside; a constant in
+        constant mode. An n_p table needs the scan (:meth:`pd_points`)."""
         z = np.asarray(z, dtype=np.float64)
+        if z.shape[-1:] != (2,):
+            raise DataError(f"pd_at: z must have shape (..., 2) = (range, bearing), got {z.shape}")
         inside = self.in_fov(z)
         if self.constant_pd is not None:
             return np.where(inside, self.constant_pd, 0.0)
-        if self.pd_table.covariate != "range":
-            raise DataError(f"P_D of a {self.pd_table.covariate} table needs the scan (pd_points), not a predicted measurement")
-        return np.where(inside, self.pd_table.lookup(z[..., 0]), 0.0)
+        return np.where(inside, self._table_at(z), 0.0)
+
+    def _table_at(self, z: np.ndarray) -> np.ndarray:
+        """The table's P_D at z (..., 2) as if inside the field of view: a grid's bearing is held to its
+        edges, so a feature in the buffer band beyond an edge gets the edge cell's value."""
+        t = self.pd_table
+        if t.covariate == "n_p":
+            raise DataError(f"P_D of a {t.covariate} table needs the scan (pd_points), not a predicted measurement")
+        if t.two_d:
+            return t.lookup_rb(z[..., 0], np.clip(z[..., 1], t.bearing_edges[0], t.bearing_edges[-1]))
+        return t.lookup(z[..., 0])
 
     def _edge_band(self, z: np.ndarray, s_rad: np.ndarray, s_lat: np.ndarray, pd_in: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """P_D and buffer flags at the edges of the field of view and the range limits.
@@ -232,8 +246,8 @@ class DetectionModel:
         u = los / rr[..., None]
         s_rad = np.sqrt(np.maximum(u[..., 0] ** 2 * cov[..., 0, 0] + 2 * u[..., 0] * u[..., 1] * cov[..., 0, 1] + u[..., 1] ** 2 * cov[..., 1, 1], 0.0))
         s_lat = np.sqrt(np.maximum(u[..., 1] ** 2 * cov[..., 0, 0] - 2 * u[..., 0] * u[..., 1] * cov[..., 0, 1] + u[..., 0] ** 2 * cov[..., 1, 1], 0.0))
-        if self.constant_pd is not None or self.pd_table.covariate == "range":
-            full = np.full((p, j), self.constant_pd) if self.constant_pd is not None else self.pd_table.lookup(rr)
+        if self.constant_pd is not None or self.pd_table.covariate != "n_p":
+            full = np.full((p, j), self.constant_pd) if self.constant_pd is not None else self._table_at(z)
             return self._edge_band(z, s_rad, s_lat, full)
         return self._pd_np(sp, mu, z, s_lat, scan, angles)
 
@@ -291,9 +305,18 @@ class DetectionModel:
         return ok
 
     def clutter_intensity(self, z: np.ndarray) -> np.ndarray:
-        """kappa(z) (M,) for range-bearing measurements z (M, 2), per unit of the clutter space."""
+        """kappa(z) (M,) for range-bearing measurements z (M, 2) in the sensor frame.
+
+        Per unit of range x bearing [1 / (m rad)]: lambda x density(z) when the
+        profile has a clutter density (it integrates to lambda over the field of
+        view), else the uniform lambda / |FoV| of the thesis (sec. 4.2); 0 outside
+        the field of view. For an ``xy`` profile the uniform density per m^2 times
+        the Jacobian r.
+        """
         z = np.atleast_2d(np.asarray(z, dtype=np.float64))
         k = self.clutter.kappa
+        if self.clutter.density is not None:
+            return np.where(self.in_fov(z), self.clutter.rate * self.clutter.density.at(z[:, 0], z[:, 1]), 0.0)
         if self.clutter.space == "xy":
             # a uniform density in x-y is r times a density in (r, bearing)
             return np.where(self.in_fov(z), k * z[:, 0], 0.0)

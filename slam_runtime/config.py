@@ -49,6 +49,7 @@ class AckermannNoise(_Strict):
     sigma_speed: float = Field(default=0.1, ge=0.0, description="m/s")
     sigma_steer: float = Field(default=0.02, ge=0.0, description="rad")
     steer_offset: float = Field(default=0.0, ge=-0.2, le=0.2, description="steering bias removed from every reading [rad]")
+    speed_scale: float = Field(default=1.0, gt=0.5, lt=2.0, description="factor on every speed reading")
 
 
 class ECTNoise(_Strict):
@@ -115,6 +116,9 @@ class SlamConfig(_Strict):
     resampler: Literal["systematic", "stratified", "multinomial", "residual"] = "systematic"
     resample_ess: float = Field(default=0.5, gt=0.0, le=1.0, description="resample when ESS < this x particles")
     resample_every: int = Field(default=1, ge=1, description="updates at least between two resamplings")
+    proposal: Literal["prior", "optimal"] = Field(
+        default="prior", description="draw poses from the motion model, or from its Gaussian updated by the measurements the map explains"
+    )
     filter: FilterConfig = RBPHDConfig()
     measurement: MeasurementNoiseConfig = MeasurementNoiseConfig()
     motion: MotionNoise = MotionNoise()

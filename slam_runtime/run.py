@@ -43,9 +43,12 @@ class SlamResult:
     resampled: np.ndarray  # (T,) bool
     components: np.ndarray  # (T,) mean components per particle
     start: np.ndarray  # (3,) the pose the filter started from
+    resample_ms: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (T,) the resampling stage's time per frame
     stage_ms: dict = field(default_factory=dict)  # total ms per stage (detect, predict, pd, update, weight, merge, resample)
     capped_steps: int = 0  # steps at which the component cap bound
     per_step: dict = field(default_factory=dict)  # what hooks recorded, name -> (T,)
+    map_all_xy: np.ndarray | None = None  # (K', 2) every component of the best particle's map, however light
+    map_all_w: np.ndarray | None = None  # (K',)
     odometry: np.ndarray | None = None  # (T, 3) dead reckoning through the same frames (set by evaluate)
     metrics: dict = field(default_factory=dict)
 
@@ -151,9 +154,9 @@ def run_slam(
     start = start_pose(log, int(stamps[0]))
     slam = RBSlam(
         b.vehicle, b.mapfilter, cfg.particles, start, np.random.default_rng(seed),
-        resampler=cfg.resampler, resample_ess=cfg.resample_ess, resample_every=cfg.resample_every,
+        resampler=cfg.resampler, resample_ess=cfg.resample_ess, resample_every=cfg.resample_every, proposal=cfg.proposal,
     )
-    times, counts, ess_, res_, comp = np.zeros(n), np.zeros(n, np.int64), np.zeros(n), np.zeros(n, bool), np.zeros(n)
+    times, counts, ess_, res_, comp, rs_ms = np.zeros(n), np.zeros(n, np.int64), np.zeros(n), np.zeros(n, bool), np.zeros(n), np.zeros(n)
     mean_traj = np.zeros((n, 3))
     per_step = {h.name: np.full(n, np.nan) for h in hooks}
     detect_s = 0.0
@@ -169,17 +172,19 @@ def run_slam(
             slam.predict(fi.controls, fi.dts)
         info = slam.update(fi.meas)
         times[k] = (time.perf_counter() - t0) * 1e3
-        counts[k], ess_[k], res_[k], comp[k] = info.n_measurements, info.ess, info.resampled, info.components
+        counts[k], ess_[k], res_[k], comp[k], rs_ms[k] = info.n_measurements, info.ess, info.resampled, info.components, info.resample_ms
         mean_traj[k] = slam.mean_pose()
         for h in hooks:
             per_step[h.name][k] = h(k, slam)
         t_prev = time.perf_counter()
     traj = b.vehicle.pose(slam.trajectory())[1:]
     est_x, est_w = slam.map_estimate()
+    all_x, all_w = b.mapfilter.components(slam.maps, slam.best())
     stage = {"detect": detect_s * 1e3, **{k: v * 1e3 for k, v in slam.time.items()}, **{k: v * 1e3 for k, v in b.mapfilter.timers.total.items()}}
     return SlamResult(
         b.mapfilter.name, stamps, traj, mean_traj, b.mapfilter.feature.position(est_x), est_w, times, counts, ess_, res_, comp, start,
-        stage_ms=stage, capped_steps=b.mapfilter.capped_steps, per_step=per_step,
+        resample_ms=rs_ms, stage_ms=stage, capped_steps=b.mapfilter.capped_steps, per_step=per_step,
+        map_all_xy=b.mapfilter.feature.position(all_x), map_all_w=all_w,
     )
 
 
