@@ -391,38 +391,30 @@ def calibrate_planes(
 
 
 def validate_planes(profile: DetectorProfile, log: SensorLog):
-    """Score a lidar3d-planes profile on a held-out log with truth: P_D reliability (ECE) and false alarms per frame."""
-    from calib.validate import Validation, reliability
+    """Score a lidar3d-planes profile on a held-out log with truth (:mod:`calib.validate`): the reliability of its
+    P_D predictions over every (frame, landmark plane) pair in view, and observed against predicted false alarms
+    per frame."""
+    from calib.validate import Held, score
 
     if profile.kind != "lidar3d-planes":
         raise UsageError(f"profile {profile.ref} is a {profile.kind} profile, not lidar3d-planes")
     st = profile.planes
     cfg = PlaneCalibConfig(
-        detector=profile.detector.plane, max_elevation_deg=st.max_elevation_deg, min_points=st.min_points, min_width=st.min_width, offset_max=st.offset_max,
-        slab_k_sigma=st.slab_k_sigma, gate_offset=profile.detector.association_gate,
+        detector=profile.detector.plane, max_elevation_deg=st.max_elevation_deg, min_points=st.min_points, min_width=st.min_width,
+        offset_max=st.offset_max, slab_k_sigma=st.slab_k_sigma, gate_offset=profile.detector.association_gate,
     )
     lab = label_planes(log, cfg)
     pairs = lab.pairs
-    pred = st.pd_grid.lookup(pairs["n_p"].to_numpy(np.float64), np.radians(np.nan_to_num(pairs["incidence_deg"].to_numpy(np.float64)))) if st.pd_grid else profile.pd.lookup(pairs["n_p"].to_numpy(np.float64))
-    obs = pairs["detected"].to_numpy()
-    ece, bins = reliability(pred, obs)
+    pts, ang = pairs["n_p"].to_numpy(np.float64), np.radians(np.nan_to_num(pairs["incidence_deg"].to_numpy(np.float64)))
+    pred = st.pd_grid.lookup(pts, ang) if st.pd_grid is not None else profile.pd.lookup(pts)
+    t = log.clouds.stamp[pairs["frame"].to_numpy()] / 1e9
+    pairs = pairs.assign(predicted=pred, observed=pairs["detected"].to_numpy(), landmark=pairs["plane"], block=np.floor((t - t[0]) / 10.0) if len(t) else t)
     dets = lab.detections
     fa = dets[dets["landmark"] & (dets["plane"] < 0)]
     counts = np.bincount(np.searchsorted(np.arange(0, len(log.clouds), cfg.every), fa["frame"].to_numpy()), minlength=lab.frames)
-    rate = float(counts.mean())
-    summary = {
-        "profile": profile.ref,
-        "log": log.name,
-        "frames": lab.frames,
-        "pairs_in_view": len(pairs),
-        "ece": ece,
-        "detections_observed": int(obs.sum()),
-        "detections_predicted": float(pred.sum()),
-        "false_alarms_per_scan_observed": rate,
-        "false_alarms_per_scan_predicted": profile.clutter.rate,
-        "false_alarm_relative_error": (rate - profile.clutter.rate) / profile.clutter.rate if profile.clutter.rate > 0 else float("nan"),
-    }
-    return Validation(summary, pairs.assign(predicted=pred), bins, counts)
+    period = float(np.median(np.diff(log.clouds.stamp)) / 1e9) if len(log.clouds) > 1 else float("nan")
+    held = Held(log.name, pairs, counts, np.zeros(0), np.zeros(0), period, extra={"plane_frame_pairs_in_view": len(pairs)})
+    return score(profile, [held])
 
 
 def write_plane_calibration_run(cal: PlaneCalibration, out, *, overwrite: bool = False) -> list[str]:

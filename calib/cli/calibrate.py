@@ -168,7 +168,7 @@ def validate_cmd(
 
         if len(loaded) > 1:
             raise UsageError("validate one lidar log at a time")
-        v = validate_planes(prof, log)
+        v = validate_planes(prof, loaded[0])
     elif prof.detector.kind == "external":
         from calib.detlevel import validate_detections
 

@@ -46,7 +46,7 @@ def test_validation_on_a_held_out_street(street_profile, small_street):
     log = simulate_street(small_street_config(8), 23).log
     v = validate_planes(street_profile, log)
     assert v.summary["ece"] <= 0.08
-    assert v.summary["pairs_in_view"] > 200
+    assert v.summary["plane_frame_pairs_in_view"] > 200
 
 
 def test_refusals(small_street):
