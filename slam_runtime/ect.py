@@ -117,6 +117,10 @@ class ECT(VehicleModel):
     def pose(self, x: np.ndarray) -> np.ndarray:
         return x[..., POSE]
 
+    def control_sigmas(self, u: np.ndarray, dt: float) -> np.ndarray:
+        """(2,) noise of a (speed, yaw-rate) reading."""
+        return self.sig_u
+
     def with_velocity(self, x: np.ndarray, u: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
         """States whose velocity states are set from a (noisy, per particle) speed and yaw-rate reading."""
         x = np.array(x, dtype=np.float64)

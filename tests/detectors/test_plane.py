@@ -29,7 +29,8 @@ def frame_truth(sim, k):
 def test_detector_recovers_the_street_truth(small_street):
     """Done-when target on the simulator: >= 95 % of the true planes with >= 200 returns found, normal error median
     <= 1 deg, offset error median <= 3 cm. A plane counts as found when a detection takes at least half of its returns
-    and most of that detection's inliers are its own."""
+    and is that plane (normal within 2 deg, offset within 10 cm): facades in one line are one infinite plane, and one
+    detection finds them all."""
     found, total, ang, off = 0, 0, [], []
     for k in (0, 15, 30):
         ns, ds, ids, cloud = frame_truth(small_street, k)
@@ -42,11 +43,12 @@ def test_detector_recovers_the_street_truth(small_street):
             if got.size < counts[p] / 2:
                 continue
             m = np.bincount(got).argmax()
-            if (ids[lab == m] == p).mean() < 0.5:
+            a, o = np.degrees(normal_angle(det.normal[m], ns[p])), abs(det.offset[m] - ds[p])
+            if a > 2.0 or o > 0.1:
                 continue
             found += 1
-            ang.append(np.degrees(normal_angle(det.normal[m], ns[p])))
-            off.append(abs(det.offset[m] - ds[p]))
+            ang.append(a)
+            off.append(o)
     assert total >= 30
     assert found / total >= 0.95, (found, total)
     assert np.median(ang) <= 1.0 and np.median(off) <= 0.03
