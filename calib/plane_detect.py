@@ -196,7 +196,7 @@ def plot_transition(log: SensorLog, det: PlaneDetections, poses: np.ndarray, k: 
     rel = np.linalg.inv(m)
     poly_pred = [(np.c_[a.polygon(i), np.ones(len(a.polygon(i)))] @ rel.T)[:, :3] for i in range(len(a))]
     pairs = compare(pn, pd_, prect, a.area, b.normal, b.offset, b.rect, b.area)
-    fig, axes = plt.subplots(1, 2, figsize=(16, 7.5), dpi=90)
+    fig, axes = plt.subplots(2, 1, figsize=(14, 11), dpi=90, gridspec_kw={"height_ratios": [3, 1]})
     for ax, (i0, i1) in zip(axes, ((0, 1), (0, 2)), strict=True):
         for i in range(len(b)):
             v = np.vstack([b.polygon(i), b.polygon(i)[:1]])
@@ -205,7 +205,8 @@ def plot_transition(log: SensorLog, det: PlaneDetections, poses: np.ndarray, k: 
             v = np.vstack([v, v[:1]])
             ax.plot(v[:, i0], v[:, i1], "--", color="tab:orange", lw=1.0, label="predicted from k-1 (eq. 35)" if i == 0 else None)
         ax.plot(0, 0, "k^", ms=8)
-        ax.set_aspect("equal")
+        if i1 == 1:
+            ax.set_aspect("equal")
         ax.set_xlabel("x [m] (sensor frame at k)")
         ax.set_ylabel("y [m]" if i1 == 1 else "z [m]")
         ax.legend(loc="upper right", fontsize=8)

@@ -59,3 +59,18 @@ def test_constant_mode_buffer_and_clutter():
     assert np.allclose(m.clutter_intensity(z), [2.0 / m.clutter.volume, 0.0, 0.0])
     with pytest.raises(DataError, match="P_D of planes needs the frame's point cloud"):
         model().pd_features(np.zeros((1, 3)), mu, np.zeros((1, 3, 3, 3)), Measurements(np.zeros((0, 3))))
+
+
+def test_particles_share_one_pd_of_a_plane():
+    """Particles a degree apart see the same plane with one P_D (from their mean pose); with their own poses the one
+    turned off the wall finds fewer returns in its slab and so expects the wall less."""
+    rng = np.random.default_rng(2)
+    pts = cloud(rng)
+    mu = np.repeat(chart_from_normal(np.array([[0, 1.0, 0]]), np.array([8.0]))[None], 2, axis=0)
+    poses = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, np.radians(1.0)]])
+    meas = Measurements(np.zeros((0, 3)), cloud=pts)
+    cov = np.zeros((2, 1, 3, 3))
+    own = model(common_pose=False).visible_points(poses, mu, cov, pts)[0]
+    assert own[1, 0] < 0.8 * own[0, 0]  # 1 deg tilts the slab 9 cm off the wall 5 m along it
+    pd, _ = model().pd_features(poses, mu, cov, meas)
+    assert pd[0, 0] == pd[1, 0] > 0.5
