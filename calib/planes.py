@@ -51,7 +51,7 @@ from detectors.raytrace3d import BeamGrid, polygon_scene, range_image, visible_p
 from profiles.errors import DataError, UsageError
 from profiles.planes import PdGrid, PlaneDetectorParams, PlaneNoise, PlaneStats
 from profiles.profile import DetectorProfile, DetectorSpec, InputRef, Provenance
-from profiles.schema import PdTable
+from profiles.schema import ClutterParams, PdTable
 
 POINTS_EDGES = [0, 1, 10, 25, 50, 100, 200, 400, 800, 1600, 3200, 6400]
 ANGLE_EDGES = [0.0, 30.0, 50.0, 65.0, 75.0, 90.0]
@@ -152,9 +152,10 @@ def label_planes(log: SensorLog, cfg: PlaneCalibConfig, *, keep_detections: bool
     scene = polygon_scene(log.planes.take(steep_idx))
     frames = np.arange(0, len(log.clouds), cfg.every)
     sps = sensor_poses_at(log, log.clouds.stamp[frames])
+    # the runtime's slab counts of the true planes (its P_D table is not used here)
     slab_model = PlaneDetectionModel(
-        None, _dummy_clutter(), height, sigma, np.radians(cfg.max_elevation_deg), offset_max, constant_pd=None, slab_k_sigma=cfg.slab_k_sigma,
-        pd_grid=_flat_grid(),
+        None, ClutterParams(rate=0.0, space="plane", volume=1.0), height, sigma, np.radians(cfg.max_elevation_deg), offset_max,
+        constant_pd=1.0, slab_k_sigma=cfg.slab_k_sigma,
     )
     det_rows, pair_rows, kept = [], [], []
     pl = log.planes
@@ -230,16 +231,6 @@ def label_planes(log: SensorLog, cfg: PlaneCalibConfig, *, keep_detections: bool
     return PlaneLabels(pd.concat(det_rows, ignore_index=True), pd.concat(pair_rows, ignore_index=True), int(frames.size), kept)
 
 
-def _dummy_clutter():
-    from profiles.schema import ClutterParams
-
-    return ClutterParams(rate=0.0, space="plane", volume=1.0)
-
-
-def _flat_grid() -> PdGrid:
-    return PdGrid(points_edges=[0, 1], angle_edges_deg=[0, 90], pd=[[1.0]], counts=[[0]], detections=[[0]], filled=[[True]])
-
-
 def fit_points_table(values: np.ndarray, detected: np.ndarray, edges: list[float], cfg: PdFitConfig) -> PdTable:
     """P_D over expected visible points in the given bins (eq. 6.2), Wilson intervals, the thesis's clamping."""
     values = np.asarray(values, dtype=np.float64)
@@ -267,8 +258,9 @@ def fit_points_table(values: np.ndarray, detected: np.ndarray, edges: list[float
     )
 
 
-def fit_grid(pairs: pd.DataFrame, table: PdTable, angle_edges: list[float], min_count: int) -> PdGrid:
-    """P_D over (points bins of ``table``) x (incidence angle bins); thin cells take the 1-D table's value."""
+def fit_grid(pairs: pd.DataFrame, table: PdTable, angle_edges: list[float], min_count: int, zero_below: float = 0.1) -> PdGrid:
+    """P_D over (points bins of ``table``) x (incidence angle bins); thin cells take the 1-D table's value, cells of
+    their own under ``zero_below`` become 0 (the thesis's clamp, as for the table)."""
     pe = np.asarray(table.edges, dtype=np.float64)
     ae = np.asarray(angle_edges, dtype=np.float64)
     i = np.clip(np.searchsorted(pe, pairs["n_p"].to_numpy(np.float64), side="right") - 1, 0, pe.size - 2)
@@ -281,8 +273,7 @@ def fit_grid(pairs: pd.DataFrame, table: PdTable, angle_edges: list[float], min_
     one = np.asarray(table.pd)[:, None] * np.ones(shape)
     filled = n < min_count
     raw = np.where(n > 0, k / np.maximum(n, 1), 0.0)
-    pdv = np.where(filled, one, raw)
-    pdv = np.where((pdv < 0.1) & ~filled, 0.0, pdv) if table.pd[0] == 0.0 else pdv
+    pdv = np.where(filled, one, np.where(raw < zero_below, 0.0, raw))
     return PdGrid(points_edges=pe.tolist(), angle_edges_deg=ae.tolist(), pd=pdv.tolist(), counts=n.tolist(), detections=k.tolist(), filled=filled.tolist())
 
 
@@ -331,7 +322,7 @@ def calibrate_planes(
     dets = pd.concat([p.detections for p in parts], ignore_index=True)
     pairs = pd.concat([p.pairs for p in parts], ignore_index=True)
     table = fit_points_table(pairs["n_p"].to_numpy(), pairs["detected"].to_numpy(), cfg.points_edges, cfg.pd)
-    grid = fit_grid(pairs, table, cfg.angle_edges_deg, cfg.pd.min_count)
+    grid = fit_grid(pairs, table, cfg.angle_edges_deg, cfg.pd.min_count, cfg.pd.zero_below)
     # clutter: landmark detections that are no true plane's, per frame (frames with none count)
     fa = dets[dets["landmark"] & (dets["plane"] < 0)]
     counts = np.concatenate(

@@ -25,7 +25,6 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from detectors.geometry import compose, interpolate_poses
-from detectors.geometry3d import normal_from_chart
 from detectors.logs import SensorLog
 from detectors.raytrace3d import BeamGrid, polygon_scene, range_image, visible_planes
 from slam_runtime.metrics import gospa, ospa
@@ -102,11 +101,6 @@ def plane_map_metrics(log: SensorLog, est: np.ndarray, c: float = 1.0, p: float 
     out["map_normal_angle_median_deg"] = float(np.median(ang)) if ang.size else float("nan")
     out["map_offset_error_median_m"] = float(np.median(off)) if off.size else float("nan")
     return out
-
-
-def chart_normals(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(n (K, 3), d (K,)) of world-chart plane states (K, 3)."""
-    return normal_from_chart(np.asarray(x, dtype=np.float64).reshape(-1, 3))
 
 
 def draw_planes(ax, log: SensorLog, est: np.ndarray, trajectory: np.ndarray, reach: float = 30.0) -> None:
