@@ -37,6 +37,7 @@ STAGES = ("predict", "pd", "update", "weight", "merge", "resample", "detect")
 
 def row(name, n, seed, res, m) -> None:
     ms = res.step_ms[1:]
+    cpu = res.step_cpu_ms[1:]
     split = "  ".join(f"{k} {res.stage_ms.get(k, 0.0) / res.stamps.size:5.2f}" for k in STAGES)
     acc = []
     for key, label, fmt in (
@@ -48,7 +49,10 @@ def row(name, n, seed, res, m) -> None:
     ):
         if key in m:
             acc.append(f"{label} " + (fmt.format(m[key], m.get("landmarks_true")) if key == "landmarks_mapped" else fmt.format(m[key])))
-    print(f"{name:<14} {n:>4} p  seed {seed}  {ms.mean():7.2f} ms/step mean {np.median(ms):7.2f} median  | {split} |  {', '.join(acc)}", flush=True)
+    print(
+        f"{name:<14} {n:>4} p  seed {seed}  {ms.mean():7.2f} ms/step mean {np.median(ms):7.2f} median (CPU {cpu.mean():6.2f} mean)  | {split} |  {', '.join(acc)}",
+        flush=True,
+    )
 
 
 def main() -> None:
@@ -78,7 +82,7 @@ def main() -> None:
         sl = slice(at - 100, at + 100)
         print(
             f"long rfs-sim ({a.long} steps, 50 particles, resampling every step): steps {at - 100}-{at + 100}: "
-            f"resampling {res.resample_ms[sl].mean():.3f} ms/step, whole step {res.step_ms[sl].mean():.2f} ms, "
+            f"resampling {res.resample_ms[sl].mean():.3f} ms/step, whole step {res.step_ms[sl].mean():.2f} ms (CPU {res.step_cpu_ms[sl].mean():.2f}), "
             f"components/particle {res.components[sl].mean():.0f}"
         )
 

@@ -38,6 +38,23 @@ class PlaneDetectConfig(BaseModel):
     detector: PlaneDetectorParams = PlaneDetectorParams()
 
 
+def plane_detect_config(profile_ref: str | None, config: Path | None) -> PlaneDetectConfig:
+    """The detector settings of ``detcal detect`` on clouds: a lidar3d-planes profile's detector, or a config file."""
+    from calib.config import load_yaml_model
+    from profiles.errors import UsageError
+
+    if profile_ref is None:
+        return load_yaml_model(PlaneDetectConfig, config)
+    if config is not None:
+        raise UsageError("--profile and --config both set the detector; give one")
+    from profiles.store import resolve
+
+    prof = resolve(profile_ref)
+    if prof.detector.kind != "plane3d":
+        raise UsageError(f"profile {prof.ref} is a {prof.kind} profile; point clouds need a lidar3d-planes one")
+    return PlaneDetectConfig(detector=prof.detector.plane)
+
+
 def run_plane_detector(log: SensorLog, params: PlaneDetectorParams, *, show_progress: bool = True) -> tuple[PlaneDetections, np.ndarray]:
     """Planes of every cloud of ``log`` and the ms each frame took (F,)."""
     if log.clouds is None:

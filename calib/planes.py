@@ -408,22 +408,22 @@ def validate_planes(profile: DetectorProfile, log: SensorLog):
     return score(profile, [held])
 
 
-def write_plane_calibration_run(cal: PlaneCalibration, out, *, overwrite: bool = False) -> list[str]:
+def fill_plane_run(cal: PlaneCalibration, folder) -> list[str]:
+    """Create ``folder`` with profile.yaml, config.yaml, summary.yaml, pairs.csv.gz, detections.csv.gz and the
+    figures (P_D against visible points, clutter); returns the figure names."""
     from calib.config import dump_yaml
-    from calib.io.atomic import atomic_output
     from calib.report import plot_clutter
     from profiles.store import dump_profile
 
-    with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
-        tmp.mkdir()
-        (tmp / "profile.yaml").write_text(dump_profile(cal.profile))
-        (tmp / "config.yaml").write_text(dump_yaml(cal.config.model_dump(mode="json")))
-        (tmp / "summary.yaml").write_text(dump_yaml(cal.summary))
-        gz = {"method": "gzip", "mtime": 0}
-        cal.labels.pairs.to_csv(tmp / "pairs.csv.gz", index=False, float_format="%.9g", compression=gz)
-        cal.labels.detections.to_csv(tmp / "detections.csv.gz", index=False, float_format="%.9g", compression=gz)
-        plot_pd_points(cal, tmp / "pd_vs_points.png")
-        plot_clutter(cal, tmp / "clutter.png")
+    folder.mkdir()
+    (folder / "profile.yaml").write_text(dump_profile(cal.profile))
+    (folder / "config.yaml").write_text(dump_yaml(cal.config.model_dump(mode="json")))
+    (folder / "summary.yaml").write_text(dump_yaml(cal.summary))
+    gz = {"method": "gzip", "mtime": 0}
+    cal.labels.pairs.to_csv(folder / "pairs.csv.gz", index=False, float_format="%.9g", compression=gz)
+    cal.labels.detections.to_csv(folder / "detections.csv.gz", index=False, float_format="%.9g", compression=gz)
+    plot_pd_points(cal, folder / "pd_vs_points.png")
+    plot_clutter(cal, folder / "clutter.png")
     return ["pd_vs_points.png", "clutter.png"]
 
 

@@ -50,7 +50,9 @@ class SelfCalConfig(BaseModel):
     map_weight: float = Field(
         default=0.2, gt=0.0, description="map components of this weight or more are features (a feature missed twice at P_D 0.6 keeps 0.16 of its weight)"
     )
-    radius: float = Field(default=0.3, gt=0.0, description="trunk radius for the occlusion test when the log has no diameters [m]")
+    radius: float | None = Field(
+        default=None, gt=0.0, description="trunk radius for the occlusion test when the log has no diameters [m] (None: point landmarks, no occlusion)"
+    )
     pd: PdFitConfig = PdFitConfig(min_count=100, range_bin=5.0, zero_below=0.0)
 
 
@@ -116,7 +118,7 @@ def measure(log: SensorLog, trajectory: np.ndarray, map_xy: np.ndarray, sensor: 
     key = pd.MultiIndex.from_arrays([frame_of[matched], det_feat[matched]])
     pairs["detected"] = pd.MultiIndex.from_arrays([pairs["frame"], pairs["feature"]]).isin(key)
     # occlusion by the map's own trees: a nearer feature whose angular half-width covers this one's bearing
-    radius = np.full(map_xy.shape[0], cfg.radius)
+    radius = np.full(map_xy.shape[0], cfg.radius if cfg.radius is not None else 0.0)
     if diam is not None and matched.any():
         med = pd.Series(diam[matched]).groupby(det_feat[matched]).median()
         radius[med.index.to_numpy()] = np.clip(med.to_numpy() / 2, 0.05, 2.0)
@@ -124,13 +126,13 @@ def measure(log: SensorLog, trajectory: np.ndarray, map_xy: np.ndarray, sensor: 
     fr = pairs["frame"].to_numpy()
     starts = np.searchsorted(fr, np.arange(n_frames + 1))
     rng_all, brg_all, feat_all = pairs["range"].to_numpy(), pairs["bearing"].to_numpy(), pairs["feature"].to_numpy()
-    for f in range(n_frames):
+    for f in range(n_frames if (diam is not None or cfg.radius is not None) else 0):  # point landmarks occlude nothing
         a, b = starts[f], starts[f + 1]
         if b - a < 2:
             continue
         r, br, rad = rng_all[a:b], brg_all[a:b], radius[feat_all[a:b]]
         half = np.arcsin(np.clip(rad / np.maximum(r, 1e-6), 0.0, 1.0))  # angular half-width of each trunk
-        ahead = r[None, :] < r[:, None] - rad[:, None]  # [i, j]: j is nearer than i
+        ahead = r[None, :] < r[:, None] - 2 * rad[None, :]  # [i, j]: j is nearer than i by more than its trunk
         cover = np.abs(_wrap(br[:, None] - br[None, :])) < half[None, :]
         occluded[a:b] = (ahead & cover).any(axis=1)
     pairs["occluded"] = occluded
@@ -202,11 +204,15 @@ def self_calibrate(
         f"Self-calibrated against SLAM run {run or '(in memory)'} (iteration {iteration}): P_D of unoccluded map features "
         "against range, clutter and noise measured with the run's map and trajectory as the truth; no landmark truth was used."
     )
+    matched = dets["feature"].to_numpy() >= 0
+    diam = log.detections.descriptors.get("diameter")
+    occ_r = float(np.median(np.asarray(diam)[matched]) / 2) if diam is not None and matched.any() else cfg.radius
+    occ_r = None if occ_r is None else float(np.clip(occ_r, 0.05, 2.0))
     profile = DetectorProfile(
         name=name,
         version=version,
         description=desc,
-        detector=DetectorSpec(kind="external", association_gate=cfg.gate),
+        detector=DetectorSpec(kind="external", association_gate=cfg.gate, occluder_radius=occ_r),
         sensor=sensor,
         pd=table,
         clutter=clutter_params(clut, "range_bearing", volume),
@@ -221,6 +227,7 @@ def self_calibrate(
     )
     matched = dets["feature"] >= 0
     summary = {
+        "occluder_radius_m": profile.detector.occluder_radius,
         "log": log.name,
         "frames": int(log.detections.n_frames),
         "map_features": int(map_xy.shape[0]),

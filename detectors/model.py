@@ -80,6 +80,8 @@ class DetectionModel:
     buffer_sigmas: float = 2.0
     landmark_radius: float | None = None
     phase_average: bool = True
+    occluder_radius: float | None = None
+    occluder_weight: float = 0.5
 
     def __post_init__(self) -> None:
         if self.pd_table.covariate == "n_p" and self.sensor.n_beams is None:
@@ -103,7 +105,7 @@ class DetectionModel:
             noise=profile.noise,
             k_sigma=profile.detector.k_sigma,
             buffer_samples=profile.detector.buffer_samples,
-            **options,
+            **{"occluder_radius": profile.detector.occluder_radius, **options},
         )
 
     @property
@@ -148,24 +150,28 @@ class DetectionModel:
         centres: np.ndarray,
         radii: np.ndarray,
         lateral: np.ndarray | None = None,
+        angles: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """P_D (L,) and buffer-zone flags (L,) of landmarks seen from one sensor pose.
 
         sensor_pose (3,) world; ranges (B,) the current scan; centres (L, 2) world;
         radii (L,) or scalar; lateral (L,) spread [m] for the buffer rule (e.g. 2
         standard deviations of the position across the line of sight); without it
-        only the 0 < P_D < 0.5 rule applies.
+        only the 0 < P_D < 0.5 rule applies. angles (B,): the scan's beam angles,
+        needed for a laser of several beam layouts (``SensorLog.scan_angles(i)``);
+        default the sensor's one layout.
         """
         s = self.sensor
+        angles = s.angles() if angles is None else np.asarray(angles, dtype=np.float64)
         if lateral is None:
             n_p, _ = count_unoccluded(
-                np.asarray(sensor_pose)[None], s.angles(), np.asarray(ranges)[None], centres, radii,
+                np.asarray(sensor_pose)[None], angles, np.asarray(ranges)[None], centres, radii,
                 range_sigma=float(s.range_sigma), k_sigma=self.k_sigma, range_max=s.range_max,
             )
             pd = self.pd_of_np(n_p[0])
             return pd, (pd > 0) & (pd < 0.5)
         return buffer_zone(
-            sensor_pose, s.angles(), ranges, centres, radii, lateral, self.pd_of_np,
+            sensor_pose, angles, ranges, centres, radii, lateral, self.pd_of_np,
             samples=self.buffer_samples, range_sigma=float(s.range_sigma), k_sigma=self.k_sigma, range_max=s.range_max,
         )
 
@@ -214,12 +220,51 @@ class DetectionModel:
         pd = np.where(inside | near, pd_in, 0.0)
         return pd, near
 
-    def pd_features(self, sensor_poses: np.ndarray, mu: np.ndarray, cov: np.ndarray, meas) -> tuple[np.ndarray, np.ndarray]:
+    def pd_features(
+        self, sensor_poses: np.ndarray, mu: np.ndarray, cov: np.ndarray, meas, weights: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """What a map filter calls: P_D (P, J) and buffer flags (P, J) of the map features mu (P, J, dx)
         with covariances cov (P, J, dx, dx) seen from sensor poses (P, 3), given the frame's measurements
-        ``meas`` (:class:`slam_runtime.mapfilter.Measurements`: its scan and beam angles for n_p profiles).
-        Detection models of other feature kinds (planes) offer the same method."""
-        return self.pd_points(sensor_poses, mu, cov, getattr(meas, "scan", None), getattr(meas, "angles", None))
+        ``meas`` (:class:`slam_runtime.mapfilter.Measurements`: its scan and beam angles for n_p profiles)
+        and the features' weights or existence probabilities (P, J) (who can occlude whom). Detection
+        models of other feature kinds (planes) offer the same method."""
+        pd, buf = self.pd_points(sensor_poses, mu, cov, getattr(meas, "scan", None), getattr(meas, "angles", None))
+        if self.occluder_radius is not None and weights is not None and self.pd_table.covariate != "n_p" and mu.shape[1]:
+            pd, buf = self._occlude(np.asarray(sensor_poses, dtype=np.float64), mu, cov, np.asarray(weights), pd, buf)
+        return pd, buf
+
+    def _occlude(self, sp, mu, cov, w, pd, buf) -> tuple[np.ndarray, np.ndarray]:
+        """The n_p idea on a detection-level map: a feature whose centre lies behind a nearer confirmed
+        feature (weight >= occluder_weight), within that trunk's angular half-width, has P_D 0; one within
+        the half-width widened by buffer_sigmas of its own lateral spread is in the buffer zone."""
+        p, j = pd.shape
+        view = pd > 0
+        jv = int(view.sum(axis=1).max())
+        if jv < 2:
+            return pd, buf
+        sel = np.argsort(~view, axis=1, kind="stable")[:, :jv]
+        rows = np.arange(p)[:, None]
+        m, c, in_v = mu[rows, sel], cov[rows, sel], view[rows, sel]
+        occluder = in_v & (w[rows, sel] >= self.occluder_weight)
+        los = m - sp[:, None, :2]
+        r = np.maximum(np.hypot(los[..., 0], los[..., 1]), 1e-9)
+        b = np.arctan2(los[..., 1], los[..., 0])
+        u = los / r[..., None]
+        s_lat = np.sqrt(np.maximum(u[..., 1] ** 2 * c[..., 0, 0] - 2 * u[..., 0] * u[..., 1] * c[..., 0, 1] + u[..., 0] ** 2 * c[..., 1, 1], 0.0))
+        rad = self.occluder_radius
+        half = np.arcsin(np.clip(rad / r, 0.0, 1.0))  # (P, Jv) each occluder's angular half-width
+        ahead = r[:, None, :] < r[:, :, None] - 2 * rad  # [p, i, k]: k is nearer than i by more than a trunk
+        sep = np.abs(_wrap(b[:, :, None] - b[:, None, :]))
+        cand = ahead & occluder[:, None, :]
+        hidden = (cand & (sep < half[:, None, :])).any(axis=2) & in_v
+        margin = self.buffer_sigmas * s_lat / r
+        near = (cand & (sep < half[:, None, :] + margin[:, :, None])).any(axis=2) & in_v & ~hidden
+        pd_v, buf_v = pd[rows, sel], buf[rows, sel]
+        pd = pd.copy()
+        buf = buf.copy()
+        pd[rows, sel] = np.where(hidden, 0.0, pd_v)
+        buf[rows, sel] = buf_v | (near & self.buffer)
+        return pd, buf
 
     def pd_points(
         self,
@@ -295,13 +340,11 @@ class DetectionModel:
         ok = z[..., 0] >= s.range_min
         if s.range_max is not None:
             ok &= z[..., 0] <= s.range_max
-        fov = s.field_of_view
-        if fov is not None:
-            if s.angle_min is not None and s.angle_increment is not None and s.n_beams is not None:
-                lo = min(s.angle_min, s.angle_min + s.angle_increment * (s.n_beams - 1))
-                ok &= (z[..., 1] >= lo) & (z[..., 1] <= lo + fov)
-            else:
-                ok &= np.abs(z[..., 1]) <= fov / 2
+        span = s.angle_span()  # over every beam layout of the laser
+        if span is not None:
+            ok &= (z[..., 1] >= span[0]) & (z[..., 1] <= span[1])
+        elif s.fov is not None:
+            ok &= np.abs(z[..., 1]) <= s.fov / 2
         return ok
 
     def clutter_intensity(self, z: np.ndarray) -> np.ndarray:

@@ -79,6 +79,12 @@ class DetectorSpec(Strict):
     k_sigma: float = Field(default=3.0, gt=0.0, description="occlusion tolerance of the n_p ray tracer, in sigma_r")
     buffer_samples: int = Field(default=5, ge=1, description="lateral samples of the buffer-zone rule (odd)")
     association_gate: float = Field(default=1.0, gt=0.0, description="detection-landmark gate used in calibration [m]")
+    occluder_radius: float | None = Field(
+        default=None,
+        gt=0.0,
+        description="external detectors of round landmarks: P_D of a feature hidden behind a nearer mapped feature of this radius [m] is 0 "
+        "(the P_D table is then that of unoccluded features)",
+    )
 
     @model_validator(mode="after")
     def _circle(self) -> DetectorSpec:

@@ -41,6 +41,8 @@ class VelocityNoise(_Strict):
 
     sigma_v: float = Field(default=0.05, ge=0.0, description="m/s")
     sigma_omega: float = Field(default=0.05, ge=0.0, description="rad/s")
+    speed_scale: float = Field(default=1.0, gt=0.5, lt=2.0, description="factor on every speed command")
+    omega_offset: float = Field(default=0.0, ge=-0.5, le=0.5, description="turn-rate bias removed from every command [rad/s]")
 
 
 class AckermannNoise(_Strict):
@@ -95,6 +97,9 @@ class DetectionOptions(_Strict):
     phase_average: bool = Field(default=True, description="n_p averaged over where the beams fall, not the integer count")
     descriptor_likelihood: bool = Field(
         default=True, description="weigh each detection by g_x(d) / g_FA(d) of its descriptors (eqs. 2.26, 5.6) when the profile has a Hotelling model"
+    )
+    occlusion: bool = Field(
+        default=True, description="detection-level profiles with an occluder radius: features hidden behind a nearer mapped one have P_D 0"
     )
     landmarks_only: bool = Field(
         default=True, description="detection-level logs that label their detections (UTIAS `target`): feed only the landmark ones to the filter"
@@ -191,6 +196,7 @@ def detection_model(profile, opts: DetectionOptions, sensor=None):
         buffer_sigmas=opts.buffer_sigmas,
         landmark_radius=opts.landmark_radius,
         phase_average=opts.phase_average,
+        **({} if opts.occlusion else {"occluder_radius": None}),
     )
 
 

@@ -44,6 +44,7 @@ class SlamResult:
     components: np.ndarray  # (T,) mean components per particle
     start: np.ndarray  # (3,) the pose the filter started from
     resample_ms: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (T,) the resampling stage's time per frame
+    step_cpu_ms: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (T,) the process's CPU time per frame (fair on a loaded machine)
     stage_ms: dict = field(default_factory=dict)  # total ms per stage (detect, predict, pd, update, weight, merge, resample)
     capped_steps: int = 0  # steps at which the component cap bound
     per_step: dict = field(default_factory=dict)  # what hooks recorded, name -> (T,)
@@ -69,17 +70,21 @@ def check_inputs(log: SensorLog, profile) -> None:
 
 
 def _same_beams(profile, sensor) -> None:
-    p = profile.sensor
-    same = p.n_beams == sensor.n_beams and np.isclose(p.angle_min, sensor.angle_min, atol=1e-6) and np.isclose(
-        p.angle_increment, sensor.angle_increment, atol=1e-9
-    )
-    if not same:
-        raise UsageError(
-            f"profile {profile.ref} was calibrated for {p.n_beams} beams from {np.degrees(p.angle_min):.2f} deg every "
-            f"{np.degrees(p.angle_increment):.4f} deg; this log's laser has {sensor.n_beams} from "
-            f"{np.degrees(sensor.angle_min):.2f} deg every {np.degrees(sensor.angle_increment):.4f} deg "
-            "(calibrate a profile for this laser with detcal calibrate)"
-        )
+    """An n_p table holds only for the beam layouts it was measured with: the log's must be among them."""
+    theirs = profile.sensor.layouts()
+    for g in sensor.layouts():
+        if not any(
+            g.n_beams == t.n_beams and np.isclose(g.angle_min, t.angle_min, atol=1e-6) and np.isclose(g.angle_increment, t.angle_increment, atol=1e-9)
+            for t in theirs
+        ):
+            t = theirs[0]
+            raise UsageError(
+                f"profile {profile.ref} was calibrated for {t.n_beams} beams from {np.degrees(t.angle_min):.2f} deg every "
+                f"{np.degrees(t.angle_increment):.4f} deg"
+                + (f" (and {len(theirs) - 1} more layouts)" if len(theirs) > 1 else "")
+                + f"; this log's laser has {g.n_beams} from {np.degrees(g.angle_min):.2f} deg every {np.degrees(g.angle_increment):.4f} deg "
+                "(calibrate a profile for this laser with detcal calibrate)"
+            )
 
 
 @dataclass
@@ -147,16 +152,16 @@ def run_slam(
     """
     check_inputs(log, profile)
     b = build(log, profile, cfg)
-    n = sum(1 for _ in log.frames()) if max_frames is None else min(max_frames, sum(1 for _ in log.frames()))
+    stamps = np.array([fr.stamp for fr in log.frames()], dtype=np.int64)[:max_frames]
+    n = stamps.size
     if n == 0:
         raise DataError(f"log {log.name!r}: no scans or detections to run on")
-    stamps = np.array([fr.stamp for fr in log.frames()][:n], dtype=np.int64)
     start = start_pose(log, int(stamps[0]))
     slam = RBSlam(
         b.vehicle, b.mapfilter, cfg.particles, start, np.random.default_rng(seed),
         resampler=cfg.resampler, resample_ess=cfg.resample_ess, resample_every=cfg.resample_every, proposal=cfg.proposal,
     )
-    times, counts, ess_, res_, comp, rs_ms = np.zeros(n), np.zeros(n, np.int64), np.zeros(n), np.zeros(n, bool), np.zeros(n), np.zeros(n)
+    times, counts, ess_, res_, comp, rs_ms, cpu = (np.zeros(n), np.zeros(n, np.int64), np.zeros(n), np.zeros(n, bool), np.zeros(n), np.zeros(n), np.zeros(n))
     mean_traj = np.zeros((n, 3))
     per_step = {h.name: np.full(n, np.nan) for h in hooks}
     detect_s = 0.0
@@ -167,11 +172,13 @@ def run_slam(
     for fi in it:  # the source detects (laser) while the loop advances: that time is the "detect" stage
         k = fi.index
         t0 = time.perf_counter()
+        c0 = time.process_time()
         detect_s += t0 - t_prev
         if fi.controls.shape[0]:
             slam.predict(fi.controls, fi.dts)
         info = slam.update(fi.meas)
         times[k] = (time.perf_counter() - t0) * 1e3
+        cpu[k] = (time.process_time() - c0) * 1e3
         counts[k], ess_[k], res_[k], comp[k], rs_ms[k] = info.n_measurements, info.ess, info.resampled, info.components, info.resample_ms
         mean_traj[k] = slam.mean_pose()
         for h in hooks:
@@ -183,7 +190,7 @@ def run_slam(
     stage = {"detect": detect_s * 1e3, **{k: v * 1e3 for k, v in slam.time.items()}, **{k: v * 1e3 for k, v in b.mapfilter.timers.total.items()}}
     return SlamResult(
         b.mapfilter.name, stamps, traj, mean_traj, b.mapfilter.feature.position(est_x), est_w, times, counts, ess_, res_, comp, start,
-        resample_ms=rs_ms, stage_ms=stage, capped_steps=b.mapfilter.capped_steps, per_step=per_step,
+        resample_ms=rs_ms, step_cpu_ms=cpu, stage_ms=stage, capped_steps=b.mapfilter.capped_steps, per_step=per_step,
         map_all_xy=b.mapfilter.feature.position(all_x), map_all_w=all_w,
     )
 
@@ -220,6 +227,7 @@ def evaluate(log: SensorLog, res: SlamResult, c: float = 1.0, p: float = 1.0, cf
         "frames": int(res.stamps.size),
         "ms_per_step_mean": float(res.step_ms.mean()),
         "ms_per_step_median": float(np.median(res.step_ms)),
+        "cpu_ms_per_step_mean": float(res.step_cpu_ms.mean()) if res.step_cpu_ms.size else float("nan"),
         "resampled_steps": int(res.resampled.sum()),
         "cap_bound_steps": int(res.capped_steps),
     }

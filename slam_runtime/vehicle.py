@@ -12,7 +12,8 @@ and detection models need.
   vehicle frame (u = the increment, dt = its duration). Noise std per axis:
   a constant term per second (so a robot that stands still or creeps still
   drifts) plus terms that grow with the motion;
-* :class:`Unicycle` -- velocity commands u = (v, omega), exact arc integration;
+* :class:`Unicycle` -- velocity commands u = (v, omega), exact arc integration
+  (an optional speed scale and turn-rate offset applied first);
 * :class:`Ackermann` -- encoder speed and steering u = (v, steer) (Victoria
   Park): the speed is moved from the encoder to the rear-axle centre,
   v_c = v / (1 - tan(steer) H / L), and the rear-axle centre moves as a
@@ -153,14 +154,16 @@ class Unicycle(VehicleModel):
 
     control_dim = 2
 
-    def __init__(self, *, sigma_v: float = 0.05, sigma_omega: float = 0.05) -> None:
+    def __init__(self, *, sigma_v: float = 0.05, sigma_omega: float = 0.05, speed_scale: float = 1.0, omega_offset: float = 0.0) -> None:
         self.sig = np.array([sigma_v, sigma_omega], dtype=np.float64)
+        self.speed_scale, self.omega_offset = speed_scale, omega_offset
 
     def control_sigmas(self, u, dt):
         return self.sig
 
     def step(self, x, u, dt, rng):
         vv, ww = _noisy(x.shape[0], u, self.sig, rng).T
+        vv, ww = vv * self.speed_scale, ww - self.omega_offset
         th = x[:, 2]
         small = np.abs(ww) < 1e-9
         w_safe = np.where(small, 1.0, ww)
@@ -169,7 +172,7 @@ class Unicycle(VehicleModel):
         return np.column_stack([x[:, 0] + dx, x[:, 1] + dy, wrap_angle(th + ww * dt)])
 
     def jacobian(self, x, u, dt):
-        v, w = float(u[0]), float(u[1])
+        v, w = float(u[0]) * self.speed_scale, float(u[1]) - self.omega_offset
         th = x[:, 2]
         f = np.tile(np.eye(3), (x.shape[0], 1, 1))
         if abs(w) < 1e-9:

@@ -8,10 +8,9 @@ from typing import Annotated
 import typer
 
 from calib.cli.common import ReaderArgs, fresh, out, reader_options, summary_table
-from profiles.errors import UsageError
 
 
-@reader_options("fmt", "max_backstep", "laser", "range_max", "scan_topic")
+@reader_options("fmt", "max_backstep", "laser", "range_max", "range_sigma", "scan_topic")
 def detect_cmd(
     log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A log with laser scans, or with 3D point clouds (planes).")],
     reader: ReaderArgs,
@@ -25,44 +24,19 @@ def detect_cmd(
     force: Annotated[bool, typer.Option(help="Replace the run folder if it exists.")] = False,
 ) -> None:
     """Run the circle (tree) detector over every scan, or the plane detector over every point cloud, and write a table."""
-    from calib.config import load_yaml_model
-    from calib.detect import DetectConfig, write_detect_run
+    from calib.detect import detect_config, write_detect_run
 
-    if profile is not None and config is not None:
-        raise UsageError("--profile and --config both set the detector; give one")
     log = reader.read(log_path)
     if log.scans is None and log.clouds is not None:
-        from calib.plane_detect import PlaneDetectConfig, write_plane_detect_run
+        from calib.plane_detect import plane_detect_config, write_plane_detect_run
 
-        if profile is not None:
-            from profiles.store import resolve
-
-            prof = resolve(profile)
-            if prof.detector.kind != "plane3d":
-                raise UsageError(f"profile {prof.ref} is a {prof.kind} profile; point clouds need a lidar3d-planes one")
-            pcfg = PlaneDetectConfig(detector=prof.detector.plane)
-        else:
-            pcfg = load_yaml_model(PlaneDetectConfig, config)
+        pcfg = plane_detect_config(profile, config)
         target = out_dir or Path("runs") / f"detect_{log.name}"
         fresh(target, force)
         summary = write_plane_detect_run(log, pcfg, target, plot_frame=plot, overwrite=force)
         out.print(summary_table(f"planes -> {target}", summary))
         return
-    pd_table = None
-    if profile is not None:
-        if config is not None:
-            raise UsageError("--profile and --config both set the detector; give one")
-        from profiles.schema import HotellingParams
-        from profiles.store import resolve
-
-        prof = resolve(profile)
-        if prof.detector.kind != "circle2d":
-            raise UsageError(f"profile {prof.ref} is for an external detector, not the circle detector")
-        hot = None if prof.hotelling is None else HotellingParams.model_validate(prof.hotelling.model_dump(include=set(HotellingParams.model_fields)))
-        cfg = DetectConfig(detector=prof.detector.circle, hotelling=hot, k_sigma=prof.detector.k_sigma)
-        pd_table = prof.pd if prof.pd.covariate == "n_p" else None
-    else:
-        cfg = load_yaml_model(DetectConfig, config)
+    cfg, pd_table = detect_config(profile, config)
     target = out_dir or Path("runs") / f"detect_{log.name}"
     fresh(target, force)
     summary = write_detect_run(log, cfg, target, plot_scan=plot, pd_table=pd_table, overwrite=force)
