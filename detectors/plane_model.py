@@ -163,9 +163,12 @@ class PlaneDetectionModel:
             return self.pd_grid.lookup(points, np.nan_to_num(angle, nan=0.0))
         return self.pd_table.lookup(points)
 
-    def pd_features(self, sensor_poses: np.ndarray, mu: np.ndarray, cov: np.ndarray, meas) -> tuple[np.ndarray, np.ndarray]:
+    def pd_features(
+        self, sensor_poses: np.ndarray, mu: np.ndarray, cov: np.ndarray, meas, weights: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """What a map filter calls: P_D (P, J) and buffer flags (P, J) of map planes mu (P, J, 3) (world chart)
-        with covariances cov (P, J, 3, 3) from sensor poses (P, 3), given the frame's measurements (its cloud)."""
+        with covariances cov (P, J, 3, 3) from sensor poses (P, 3), given the frame's measurements (its cloud).
+        ``weights`` (the features' weights) are not needed: occlusion is read off the cloud itself."""
         p, j = mu.shape[:2]
         if j == 0:
             return np.zeros((p, 0)), np.zeros((p, 0), dtype=bool)
