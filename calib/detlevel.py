@@ -196,9 +196,12 @@ def true_detections(log: SensorLog, gate: float, remap: dict[int, int] | None = 
     )
 
 
-def fit_noise(dets: pd.DataFrame) -> MeasurementNoise | None:
-    """Robust spread (1.4826 MAD) and median bias of the true detections' range and bearing residuals."""
-    t = dets[dets["true"]]
+def fit_noise(dets: pd.DataFrame, true: pd.Series | None = None) -> MeasurementNoise | None:
+    """Robust spread (1.4826 MAD) and median bias of the true detections' range and bearing residuals.
+
+    true: which rows are true detections (default: the ``true`` column).
+    """
+    t = dets[dets["true"] if true is None else true]
     if len(t) < 10:
         return None
     out = {}

@@ -237,6 +237,21 @@ def check_save(request: Request, folder: str | Path | None = None, *, force: boo
     return path, "replace"
 
 
+def check_new_version(name: str, version: str, folder: str | Path | None = None, *, force: bool = False) -> tuple[Path, str]:
+    """Where a profile whose content is only known after the work (self-calibration) will be saved,
+    decided before any work: (path, ``"write"`` or ``"replace"``). An existing version is refused
+    unless ``force``; a bundled name@version is always refused (a user profile would shadow it)."""
+    folder = Path(folder) if folder is not None else user_dirs()[0]
+    path = folder / f"{name}@{version}.yaml"
+    if bundled(name, version) is not None and folder.resolve() != BUILTIN.resolve():
+        raise UsageError(f"profile {name}@{version} is bundled with detcal; a user profile of that name and version would shadow it: choose another --name or --version")
+    if not os.path.lexists(path):
+        return path, "write"
+    if not force:
+        raise UsageError(f"{path}: profile {name}@{version} exists; bump the version (--version) or use --force")
+    return path, "replace"
+
+
 def _load_or_none(path: Path) -> DetectorProfile | None:
     try:
         return load_profile_file(path)
