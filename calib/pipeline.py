@@ -125,7 +125,7 @@ def run_calibration(job: CalibrationJob) -> CalibrationOutcome:
             raise UsageError("--landmarks: detection-level logs carry their landmark truth")
         # the frame period and the identity audit follow from the inputs and the config: not part of the request
         derived = ("frame_period", "identity_remap")
-        params = cfg.model_dump(mode="json")
+        params = {k: v for k, v in cfg.model_dump(mode="json").items() if k not in derived}
         seed = None
         if job.per_sensor:
             if len(logs) < 2:
