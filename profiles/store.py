@@ -143,9 +143,14 @@ def dump_profile(profile: DetectorProfile, fmt: str = "yaml") -> str:
     use them), so it keeps its bytes.
     """
     data = profile.model_dump(mode="json", exclude=V2_FIELDS if profile.schema_version == 1 else None)
-    for section in ("noise", "sensors"):  # optional sections: absent rather than null, so older profiles keep their bytes
+    for section in ("noise", "sensors", "planes"):  # optional sections: absent rather than null, so older profiles keep their bytes
         if data.get(section) is None:
             data.pop(section, None)
+    det = data.get("detector", {})
+    if det.get("plane", 0) is None:
+        det.pop("plane")
+    if det.get("kind") == "plane3d" and det.get("circle", 0) is None:
+        det.pop("circle")
     if fmt == "json":
         return json.dumps(data, indent=2) + "\n"
     if fmt != "yaml":
