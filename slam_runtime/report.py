@@ -52,7 +52,8 @@ def write_slam_run(log: SensorLog, res: SlamResult, out: Path, config: dict, *, 
             [res.stamps, *res.trajectory.T, *res.mean_trajectory.T, *odo.T],
             ["%d"] + ["%.6f"] * 9,
         )
-        _table(tmp / "map.csv", ["x", "y", "weight"], [*res.map_xy.T, res.map_w], ["%.6f", "%.6f", "%.6f"])
+        cols = ["x", "y"] if res.map_xy.shape[1] == 2 else ["L_nx", "L_ny", "L_nz", "d"]  # planes: the metric's embedding
+        _table(tmp / "map.csv", [*cols, "weight"], [*res.map_xy.reshape(-1, len(cols)).T, res.map_w], ["%.6f"] * (len(cols) + 1))
         hooks = sorted(res.per_step)
         _table(
             tmp / "steps.csv",
@@ -95,7 +96,11 @@ def _figures(log: SensorLog, res: SlamResult, odo: np.ndarray, folder: Path) -> 
     ax.plot(res.trajectory[:, 0], res.trajectory[:, 1], "b-", lw=1.0, label="best particle")
     if log.landmarks is not None:
         ax.plot(log.landmarks.xy[:, 0], log.landmarks.xy[:, 1], "k*", ms=6, label="true landmarks")
-    if res.map_xy.size:
+    if res.map_xy.ndim == 2 and res.map_xy.shape[1] == 4:
+        from slam_runtime.plane_metrics import draw_planes
+
+        draw_planes(ax, log, res.map_xy, res.trajectory)
+    elif res.map_xy.size:
         ax.scatter(res.map_xy[:, 0], res.map_xy[:, 1], s=18, facecolors="none", edgecolors="g", label="map (weight >= threshold)")
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")

@@ -56,6 +56,8 @@ def calibrate_cmd(
     Laser logs: the circle detector, P_D against n_p, Hotelling ellipsoid, Poisson clutter;
     sigma_r from the log, --range-sigma, or estimated from the registered scans.
     Detection-level logs (UTIAS): P_D against range, clutter from non-landmark detections.
+    3D lidar logs with plane truth (detcal simulate street): the plane detector, P_D against the
+    ray-traced visible points and incidence angle, clutter planes (profile kind lidar3d-planes).
     """
     from calib.pipeline import CalibrationJob, check_name, run_calibration
 

@@ -16,7 +16,10 @@ app = typer.Typer(help="Run SLAM filters with a detector profile.", no_args_is_h
 PD_MODES = ("profile", "constant")
 
 
-def slam_config(config: Path | None, filter_: str | None, particles: int | None, pd_mode: str | None):
+FEATURES = ("points", "planes")
+
+
+def slam_config(config: Path | None, filter_: str | None, particles: int | None, pd_mode: str | None, features: str | None = None):
     """The settings file (or the defaults) with the command-line overrides, validated."""
     from calib.config import load_yaml_model
     from slam_runtime.config import FILTER_KINDS, SlamConfig, override
@@ -26,8 +29,10 @@ def slam_config(config: Path | None, filter_: str | None, particles: int | None,
     positive("--particles", particles)
     if pd_mode is not None and pd_mode not in PD_MODES:
         raise UsageError(f"--pd-mode: expected one of {', '.join(PD_MODES)}, got {pd_mode!r}")
+    if features is not None and features not in FEATURES:
+        raise UsageError(f"--features: expected one of {', '.join(FEATURES)}, got {features!r}")
     cfg = load_yaml_model(SlamConfig, config)
-    return override(cfg, particles=particles, **{"filter.kind": filter_, "detection.pd_mode": pd_mode})
+    return override(cfg, particles=particles, features=features, **{"filter.kind": filter_, "detection.pd_mode": pd_mode})
 
 
 @app.command("run")
@@ -40,6 +45,7 @@ def slam_run_cmd(
     particles: Annotated[int | None, typer.Option(help="Particles (default: the config's, 20).")] = None,
     seed: Annotated[int, typer.Option(help="Random seed; same log, profile, settings and seed give the same run.")] = 0,
     pd_mode: Annotated[str | None, typer.Option(help="P_D from the profile, or `constant` inside the sensor range (for comparison).")] = None,
+    features: Annotated[str | None, typer.Option(help="Landmarks: points (2D) or planes (3D point clouds) (default: the config's, points).")] = None,
     config: Annotated[Path | None, typer.Option(help="YAML settings (filter, motion noise, metric); unknown keys are refused.")] = None,
     frames: Annotated[int | None, typer.Option(help="Only the first N frames.")] = None,
     out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/slam_<log>_<profile>_<seed>).")] = None,
@@ -51,7 +57,7 @@ def slam_run_cmd(
     from slam_runtime.report import write_slam_run
     from slam_runtime.run import MapOSPA, check_inputs, evaluate, run_slam
 
-    cfg = slam_config(config, filter_, particles, pd_mode)
+    cfg = slam_config(config, filter_, particles, pd_mode, features)
     positive("--frames", frames)
     if seed < 0:
         raise UsageError(f"--seed: expected a non-negative integer, got {seed}")
@@ -62,6 +68,11 @@ def slam_run_cmd(
     fresh(target, force)
     m = cfg.metric
     hooks = (MapOSPA(log.landmarks.xy, m.ospa_c, m.ospa_p),) if log.landmarks is not None else ()
+    if cfg.features == "planes" and log.planes is not None and "ground_truth" in log.reference:
+        from slam_runtime.plane_features import plane_distance
+        from slam_runtime.plane_metrics import landmark_truth
+
+        hooks = (MapOSPA(landmark_truth(log, length=m.plane_length)[0], m.ospa_c, m.ospa_p, every=5, distance=plane_distance),)
     res = run_slam(log, prof, cfg, seed, progress=progress, max_frames=frames, hooks=hooks)
     res.metrics = evaluate(log, res, m.ospa_c, m.ospa_p, cfg)
     settings = {
