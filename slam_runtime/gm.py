@@ -135,8 +135,14 @@ def prune_merge(
     """Vo & Ma pruning and merging for every particle; at most ``cap`` components each.
 
     merge: squared Mahalanobis distance under which components merge.
-    inflate: factor on the covariance of a merged group of two or more (the
-    C++ RFS-SLAM library's ``covInflationFactor``); 1 = the moment match.
+    inflate: factor on the spread of the merged means (the between-component
+    term of the moment match); 1 = the moment match, a group of one is never
+    changed. Not the C++ RFS-SLAM library's ``covInflationFactor``, which
+    multiplies the whole merged covariance: with a low P_D a mapped feature
+    merges with its own missed-detection copy at every step, so that factor
+    compounds (measured on UTIAS at P_D ~ 0.3: covariances grew ~1.05x per step
+    until they overflowed); inflating the spread adds uncertainty in proportion
+    to how far apart the merged means were, and does not compound.
     mutual: a component joins the head only when each lies in the other's gate
     (Vo & Ma test only the head's): a heavy, broad head (a feature seen from
     afar, or one already grown by merging) then cannot swallow a well-localised
@@ -175,11 +181,9 @@ def prune_merge(
     safe = np.where(tot > 0, tot, 1.0)
     m = np.stack([np.bincount(idx, weights=wt * mu[ok][:, c], minlength=n) for c in range(d)], axis=-1) / safe[:, None]
     dm = mu[ok] - m[idx]
-    second = cov[ok] + dm[:, :, None] * dm[:, None, :]
+    second = cov[ok] + inflate * (dm[:, :, None] * dm[:, None, :])
     c = np.stack([np.bincount(idx, weights=wt * second[:, a, b], minlength=n) for a in range(d) for b in range(d)], axis=-1)
     c = c.reshape(n, d, d) / safe[:, None, None]
-    if inflate != 1.0:
-        c = np.where((size > 1)[:, None, None], c * inflate, c)
     c[tot == 0] = np.eye(d)
     out = GMBatch(tot.reshape(p, filled), m.reshape(p, filled, d), c.reshape(p, filled, d, d))
     if filled > cap:  # Vo & Ma: keep the cap heaviest merged components

@@ -51,7 +51,7 @@ class RBPHDConfig(BaseModel):
     merge_rule: Literal["head", "mutual"] = Field(
         default="head", description="merge a component into the heaviest one when it lies in the head's gate (Vo & Ma), or in both gates"
     )
-    merge_inflation: float = Field(default=1.0, ge=1.0, description="factor on the covariance of a merged group")
+    merge_inflation: float = Field(default=1.0, ge=1.0, description="factor on the spread of the means of a merged group (not on the whole covariance: that compounds)")
     cap: int = Field(default=150, ge=1, description="components per particle at most")
     gate: float = Field(default=16.0, gt=0.0, description="squared Mahalanobis distance beyond which a measurement does not update a component")
     landmark_noise: float = Field(default=0.0, ge=0.0, description="landmark position variance added per second [m^2/s]")

@@ -176,7 +176,13 @@ def run_slam(
         detect_s += t0 - t_prev
         if fi.controls.shape[0]:
             slam.predict(fi.controls, fi.dts)
-        info = slam.update(fi.meas)
+        try:
+            info = slam.update(fi.meas)
+        except FloatingPointError as exc:  # every particle at zero weight: the filter cannot go on
+            raise DataError(
+                f"log {log.name!r}, frame {k} (t = {(int(stamps[k]) - int(stamps[0])) / 1e9:.2f} s): {exc}: no particle explains "
+                "this frame's measurements; widen the measurement or motion noise (--config), use more particles, or check the profile"
+            ) from None
         times[k] = (time.perf_counter() - t0) * 1e3
         cpu[k] = (time.process_time() - c0) * 1e3
         counts[k], ess_[k], res_[k], comp[k], rs_ms[k] = info.n_measurements, info.ess, info.resampled, info.components, info.resample_ms

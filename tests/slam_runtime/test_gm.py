@@ -19,8 +19,30 @@ def test_prune_merge_follows_vo_and_ma():
     spread = 0.6 * (0.1 * 0.3 / 0.9) ** 2 + 0.3 * (0.1 - 0.1 * 0.3 / 0.9) ** 2
     assert out.cov[0, 0, 0, 0] == pytest.approx(0.04 + spread / 0.9)
     inflated, _ = prune_merge(GMBatch(w, mu, cov), prune=1e-4, merge=4.0, cap=10, inflate=1.5)
-    np.testing.assert_allclose(inflated.cov[0, 0], 1.5 * out.cov[0, 0])
+    assert inflated.cov[0, 0, 0, 0] == pytest.approx(0.04 + 1.5 * spread / 0.9)  # the spread of the means inflated
+    assert inflated.cov[0, 0, 1, 1] == pytest.approx(0.04)  # the means differ only in x
     np.testing.assert_allclose(inflated.cov[0, 1], out.cov[0, 1])  # a group of one is not inflated
+
+
+def test_inflation_does_not_compound_when_a_feature_merges_with_its_own_update():
+    """A feature of P_D 0.3 seen every step: its missed copy (weight 0.7, the prior covariance) and its
+    updated copy merge at every step. Inflating the whole merged covariance by 1.5 grows it by
+    ~1.05x per step without bound; inflating the spread of the means keeps it near the updated size."""
+    rng = np.random.default_rng(0)
+    r = np.eye(2) * 0.01
+    for whole in (False, True):
+        m, p = np.zeros(2), np.eye(2) * 0.01
+        for _ in range(300):
+            z = rng.normal(0.0, 0.1, 2)
+            k = p @ np.linalg.inv(p + r)
+            mu = np.stack([m, m + k @ (z - m)])
+            cov = np.stack([p, p - k @ p])
+            out, _ = prune_merge(GMBatch(np.array([[0.7, 0.3]]), mu[None], cov[None]), prune=1e-4, merge=1e9, cap=5, inflate=1.0 if whole else 1.5)
+            m, p = out.mu[0, 0], out.cov[0, 0] * (1.5 if whole else 1.0)
+        if whole:
+            assert np.trace(p) > 1e3  # the C++-style factor explodes
+        else:
+            assert np.trace(p) < 0.02  # bounded by the prior it started from plus the spread of the updates
 
 
 def test_merging_in_three_dimensions_and_the_cap():
