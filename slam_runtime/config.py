@@ -17,6 +17,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from profiles.errors import DataError, UsageError
+from slam_runtime.glmb import GLMBConfig
+from slam_runtime.lmb import LMBConfig
 from slam_runtime.rbphd import RBPHDConfig
 
 
@@ -88,7 +90,7 @@ class MetricConfig(_Strict):
     ospa_p: float = Field(default=1.0, ge=1.0, description="OSPA / GOSPA order")
 
 
-FilterConfig = Annotated[RBPHDConfig, Field(discriminator="kind")]
+FilterConfig = Annotated[RBPHDConfig | LMBConfig | GLMBConfig, Field(discriminator="kind")]
 
 
 class SlamConfig(_Strict):
@@ -103,7 +105,7 @@ class SlamConfig(_Strict):
     metric: MetricConfig = MetricConfig()
 
 
-FILTER_KINDS = ("rbphd",)
+FILTER_KINDS = ("rbphd", "lmb", "glmb")
 
 
 def override(cfg: SlamConfig, **changes) -> SlamConfig:
@@ -169,9 +171,15 @@ def feature_model(detection, noise: MeasurementNoiseConfig, mount: np.ndarray):
 
 
 def map_filter(cfg: SlamConfig, feature, detection):
+    from slam_runtime.glmb import GLMB
+    from slam_runtime.lmb import LMB
     from slam_runtime.rbphd import RBPHD
 
     f = cfg.filter
     if f.kind == "rbphd":
         return RBPHD(feature, detection, f)
+    if f.kind == "lmb":
+        return LMB(feature, detection, f)
+    if f.kind == "glmb":
+        return GLMB(feature, detection, f)
     raise UsageError(f"filter.kind: {f.kind!r} is not available")
