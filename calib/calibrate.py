@@ -8,7 +8,10 @@ Pipeline (Inostroza 2015, sec. 4.2, 5.3.3, ch. 6):
 3. labelling (:mod:`calib.label`): detect, associate within the gate, n_p;
 4. fits (:mod:`calib.fits`): Hotelling ellipsoid of the true detections; every
    detection is then gated by it, as the runtime detector will be; P_D per n_p
-   bin from the gated detections; clutter from the gated false alarms per scan;
+   bin from the gated detections; clutter from the gated false alarms per scan
+   (Poisson or negative binomial, with the tests) and where they fall (a
+   density over range x bearing, chosen against the uniform one by held-out
+   likelihood);
 5. a profile (:mod:`profiles.profile`) with its provenance, and a run folder
    with the labelled tables, a summary and the report figures.
 """
@@ -17,7 +20,7 @@ from __future__ import annotations
 
 import datetime as dt
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from math import gamma as gamma_fn
 from math import pi
 from pathlib import Path
@@ -28,6 +31,7 @@ import pandas as pd
 from pydantic import BaseModel, ConfigDict, Field
 
 from calib import __version__
+from calib.clutter import ClutterModelConfig, density_summary, fit_density, time_folds
 from calib.fits import (
     ClutterFit,
     HotellingFit,
@@ -61,11 +65,17 @@ class CalibrateConfig(BaseModel):
     # ["fit_error", "radius", "convexity"] remain available
     descriptors: list[DescriptorName] = Field(default=["log_mse", "log_radius", "rel_convexity"], min_length=1)
     confidence: float = Field(default=0.999, gt=0.0, lt=1.0, description="Hotelling ellipsoid confidence (eq. 5.4)")
+    gamma: Literal["chi2", "empirical"] = Field(
+        default="chi2",
+        description="Hotelling threshold: the chi-square quantile (eq. 5.4; exact for Gaussian descriptors) or the empirical "
+        "quantile of the true detections' Mahalanobis distances (the stated confidence holds whatever their distribution)",
+    )
     gate: float = Field(default=1.0, gt=0.0, description="detection-landmark association gate [m]")
     k_sigma: float = Field(default=3.0, gt=0.0, description="occlusion tolerance of the ray tracer, in sigma_r")
     buffer_samples: int = Field(default=5, ge=1)
     pd: PdFitConfig = PdFitConfig()
     clutter_space: Literal["range_bearing", "xy"] = "range_bearing"
+    clutter: ClutterModelConfig = ClutterModelConfig()
     poses: Literal["auto", "reference", "icp"] = Field(default="auto", description="where scan poses come from")
 
 
@@ -211,6 +221,8 @@ def calibrate(
     finite = np.isfinite(desc).all(axis=1)
     hot = fit_hotelling(desc[true & finite], names, cfg.confidence)
     m2 = maha2(desc, hot.mean, hot.cov)  # inf where a descriptor is not finite
+    if cfg.gamma == "empirical":
+        hot = replace(hot, gamma=float(np.quantile(m2[true & finite], cfg.confidence, method="higher")))
     dets["maha2"] = m2
     gated = m2 <= hot.gamma
     dets["gated"] = gated
@@ -225,8 +237,18 @@ def calibrate(
     counts = np.concatenate(
         [np.bincount(fa.loc[fa["log"] == k, "scan"].to_numpy(np.int64), minlength=len(lg.scans)) for k, lg in enumerate(logs)]
     )
-    clut = fit_clutter(counts)
+    clut = fit_clutter(counts, cfg.clutter.dispersion_level)
     volume = fov_volume(sensor, cfg.clutter_space)
+    density = None
+    if cfg.clutter.use_density(len(logs)) and cfg.clutter_space == "range_bearing":
+        lo = min(sensor.angle_min, sensor.angle_min + sensor.angle_increment * (sensor.n_beams - 1))
+        re_ = np.linspace(sensor.range_min, sensor.range_max, cfg.clutter.range_bins + 1)
+        be = np.linspace(lo, lo + sensor.field_of_view, cfg.clutter.bearing_bins + 1)
+        if len(logs) > 1:
+            fold, label = fa["log"].to_numpy(), f"sensors ({len(logs)})"
+        else:
+            fold, label = time_folds(len(logs[0].scans), cfg.clutter.folds)[fa["scan"].to_numpy(np.int64)], f"time blocks ({cfg.clutter.folds})"
+        density = fit_density(fa["range"].to_numpy(), fa["bearing"].to_numpy(), fold, re_, be, cfg.clutter, label)
     d = len(names)
     ell_vol = pi ** (d / 2) / gamma_fn(d / 2 + 1) * hot.gamma ** (d / 2) * float(np.sqrt(np.linalg.det(hot.cov)))
     seeds = {lg.source.get("seed") for lg in logs if lg.source.get("seed") is not None}
@@ -247,9 +269,11 @@ def calibrate(
             auc_hotelling=rc["auc_hotelling"],
             auc_fisher=rc["auc_fisher"] if np.isfinite(rc["auc_fisher"]) else None,
             samples=hot.samples,
+            gamma_method=cfg.gamma,
+            coverage=float(gated[true].mean()) if true.any() else None,
         ),
         pd=pd_table,
-        clutter=clutter_params(clut, cfg.clutter_space, volume),
+        clutter=clutter_params(clut, cfg.clutter_space, volume, density),
         descriptor_likelihoods=DescriptorLikelihoods(gaussian_mass=cfg.confidence, ellipsoid_volume=ell_vol),
         provenance=Provenance(
             inputs=input_refs if input_refs is not None else [r for lg in logs for r in _log_digest(lg)],
@@ -279,5 +303,11 @@ def calibrate(
         "clutter_p_value": clut.p_value,
         "clutter_dispersion": clut.dispersion,
         "clutter_poisson_rejected_at_0.05": bool(np.isfinite(clut.p_value) and clut.p_value < 0.05),
+        "clutter_count_model": clut.count_model,
+        "clutter_nb_size": clut.size,
+        "clutter_dispersion_test_p_value": clut.dispersion_test.p_value if clut.dispersion_test else None,
+        "clutter_density": density_summary(density),
+        "hotelling_gamma": hot.gamma,
+        "hotelling_gamma_method": cfg.gamma,
     }
     return Calibration(profile, cfg, Labelled(dets, pairs), hot, rc, clut, logs, poses, lms, gated, summary)

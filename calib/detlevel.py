@@ -1,14 +1,19 @@
 """Calibration and validation of detection-level logs with truth (UTIAS MRCLAM's camera).
 
 Such a log carries detections (range, bearing, an identity such as a barcode)
-but no raw scans, so P_D cannot go through n_p: it is fitted against range
-(thesis eq. 6.2 with the covariate changed). The steps:
+but no raw scans, so P_D cannot go through n_p: it is fitted against range and
+bearing (thesis eq. 6.2 with the covariates changed). The steps:
 
 * **camera epochs**: the log only lists frames that detected something, so the
   opportunities to detect are rebuilt as a regular grid at the camera's frame
   period (the median gap between consecutive detection frames when gaps under
   0.5 s are considered; 0.24 s on UTIAS), each detection frame snapped to the
   nearest epoch;
+* **identity audit**: a landmark identity whose detections almost all fall on
+  another landmark's surveyed position (and almost never on its own) marks a
+  swapped entry in the truth; its detections are attributed to the landmark
+  they fall on, and the summary says so (UTIAS dataset 1: landmarks 11 and 17,
+  every one of their 3,600 detections on all five robots);
 * **expected landmarks**: at every epoch the true vehicle pose (Vicon) gives
   each landmark's range and bearing; a landmark is expected when it is inside
   the field of view (|bearing| <= fov / 2, range <= range_max), both estimated
@@ -17,13 +22,17 @@ but no raw scans, so P_D cannot go through n_p: it is fitted against range
   position is within the gate of that landmark's true position is a true
   detection; every other detection (other robots, unknown barcodes, misplaced
   landmark readings) is a false alarm;
-* **fits**: P_D per range bin with Wilson intervals and the clamping rules;
-  Poisson clutter per epoch with Pearson's test; kappa over range x bearing.
+* **fits**: the P_D model chosen by held-out likelihood among a range table
+  and range x bearing grids (:mod:`calib.pdmodels`); clutter counts per epoch
+  (Poisson or negative binomial, with the tests) and the clutter density over
+  range x bearing (:mod:`calib.clutter`); with several sensors (robots) the
+  spread between them and, on request, one partially pooled profile per sensor.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import re
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -31,16 +40,25 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from calib import __version__
 from calib.calibrate import created_now
+from calib.clutter import ClutterModelConfig, density_summary, fit_density, time_folds
+from calib.fits import ClutterFit, clutter_params, fit_clutter
 from calib.io.common import index_of
-from calib.fits import ClutterFit, PdFitConfig, clutter_params, fit_clutter, fit_pd_table
-from calib.validate import Validation, reliability
+from calib.pdmodels import PdModelConfig, between_sensor_sd, choose_pd_model, pool_sensors, predict, shrink_rates
+from calib.validate import BLOCK_S, Held, Validation, score
 from detectors.geometry import compose, interpolate_poses
 from detectors.logs import SensorLog
 from profiles.errors import DataError, UsageError
-from profiles.profile import DetectorProfile, DetectorSpec, InputRef, Provenance
+from profiles.profile import DetectorProfile, DetectorSpec, InputRef, Provenance, SensorSpread
 from profiles.schema import MeasurementNoise, SensorModel
 
-TARGET_LANDMARK = 1
+
+class IdentityAudit(BaseModel):
+    """When a landmark identity's detections are taken to belong to another landmark."""
+
+    model_config = ConfigDict(extra="forbid")
+    enabled: bool = True
+    share: float = Field(default=0.9, gt=0.5, le=1.0, description="share of its detections on one other landmark (and at most 1 - share on its own)")
+    min_detections: int = Field(default=20, ge=1)
 
 
 class DetectionCalibConfig(BaseModel):
@@ -50,12 +68,13 @@ class DetectionCalibConfig(BaseModel):
     fov: float | None = Field(default=None, gt=0.0, description="field of view [rad] (default: from the true detections)")
     range_max: float | None = Field(default=None, gt=0.0, description="[m] (default: from the true detections)")
     quantile: float = Field(default=0.995, gt=0.5, lt=1.0)
-    # no zero clamp: inside the field of view a low P_D is real, not a sign of being out of view
-    # (on UTIAS robots 1-3 -> 4-5 the thesis's clamp below 0.1 raised the ECE from 0.046 to 0.053)
-    pd: PdFitConfig = PdFitConfig(min_count=50, range_bin=0.25, zero_below=0.0)
+    audit: IdentityAudit = IdentityAudit()
+    pd: PdModelConfig = PdModelConfig()
+    clutter: ClutterModelConfig = ClutterModelConfig()
 
 
 def frame_period(logs: list[SensorLog]) -> float:
+    """The camera's frame period [s]: the median gap between detection frames, gaps of 0.05-0.5 s."""
     gaps = np.concatenate([np.diff(lg.detections.frame_stamp) / 1e9 for lg in logs])
     gaps = gaps[(gaps > 0.05) & (gaps < 0.5)]
     if gaps.size < 10:
@@ -72,24 +91,90 @@ def _need(log: SensorLog) -> None:
         raise DataError(f"log {log.name!r}: detections carry no identity (descriptor 'subject')")
 
 
-def true_detections(log: SensorLog, gate: float) -> pd.DataFrame:
-    """One row per detection: range, bearing, frame stamp, landmark index or -1, and whether it is true."""
-    d = log.detections
+def sensor_id(log: SensorLog) -> str:
+    """A short name for the sensor of a log: ``robot<N>`` for UTIAS, else the log's name (lower case)."""
+    robot = log.source.get("robot")
+    if robot is not None:
+        return f"robot{robot}"
+    return re.sub(r"[^a-z0-9._-]+", "-", log.name.lower()).strip("-") or "sensor"
+
+
+def _sensor_poses(log: SensorLog, stamp: np.ndarray) -> np.ndarray:
     ref = log.reference["ground_truth"]
-    stamp = d.frame_stamp[d.frame]
     pose = interpolate_poses(ref.stamp, ref.poses, stamp)
     m = log.sensor.mount if log.sensor is not None else None
-    sp = pose if m is None else compose(pose, np.array([m.x, m.y, m.theta]))
+    return pose if m is None else compose(pose, np.array([m.x, m.y, m.theta]))
+
+
+def _detections_world(log: SensorLog) -> tuple[np.ndarray, np.ndarray]:
+    d = log.detections
+    sp = _sensor_poses(log, d.frame_stamp[d.frame])
     world = compose(sp, np.column_stack([d.range * np.cos(d.bearing), d.range * np.sin(d.bearing), np.zeros(len(d))]))
-    lm = index_of(np.asarray(d.descriptors["subject"], dtype=np.int64), log.landmarks.ids)
-    dist = np.where(lm >= 0, np.hypot(*(world[:, :2] - log.landmarks.xy[np.maximum(lm, 0)]).T), np.inf)
+    return sp, world[:, :2]
+
+
+def audit_identities(logs: list[SensorLog], gate: float, cfg: IdentityAudit) -> tuple[dict[int, int], dict[str, list[int]]]:
+    """({identity -> landmark id its detections fall on}, evidence {"a->b": [on b, of all, on a]}).
+
+    For each landmark identity, over all logs: how many of its detections lie
+    within the gate of its own surveyed position and how many within the gate of
+    each other landmark. An identity is re-attributed when at least ``share`` of
+    its detections (and at least ``min_detections``) fall on one other landmark
+    and at most 1 - share on its own.
+    """
+    if not cfg.enabled:
+        return {}, {}
+    ids = logs[0].landmarks.ids
+    n_l = ids.size
+    hits = np.zeros((n_l, n_l), dtype=np.int64)  # [identity, landmark it falls on]
+    total = np.zeros(n_l, dtype=np.int64)
+    for lg in logs:
+        subj = np.asarray(lg.detections.descriptors["subject"], dtype=np.int64)
+        lm = index_of(subj, lg.landmarks.ids)
+        use = lm >= 0
+        if not use.any():
+            continue
+        _, w = _detections_world(lg)
+        dist = np.hypot(w[use, None, 0] - lg.landmarks.xy[None, :, 0], w[use, None, 1] - lg.landmarks.xy[None, :, 1])  # (D, L)
+        near = dist.argmin(axis=1)
+        ok = dist[np.arange(near.size), near] <= gate
+        np.add.at(hits, (lm[use][ok], near[ok]), 1)
+        total += np.bincount(lm[use], minlength=n_l)
+    remap, evidence = {}, {}
+    for a in range(n_l):
+        if total[a] < cfg.min_detections:
+            continue
+        other = hits[a].copy()
+        other[a] = -1
+        b = int(other.argmax())
+        if hits[a, b] >= cfg.share * total[a] and hits[a, a] <= (1 - cfg.share) * total[a]:
+            remap[int(ids[a])] = int(ids[b])
+            evidence[f"{int(ids[a])}->{int(ids[b])}"] = [int(hits[a, b]), int(total[a]), int(hits[a, a])]
+    return remap, evidence
+
+
+def true_detections(log: SensorLog, gate: float, remap: dict[int, int] | None = None) -> pd.DataFrame:
+    """One row per detection: range, bearing, frame stamp, landmark index or -1, and whether it is true.
+
+    ``remap``: identity -> landmark id for identities the audit re-attributed.
+    """
+    d = log.detections
+    sp, world = _detections_world(log)
+    subj = np.asarray(d.descriptors["subject"], dtype=np.int64)
+    if remap:
+        keys = np.array(list(remap), dtype=np.int64)
+        vals = np.array(list(remap.values()), dtype=np.int64)
+        pos = index_of(subj, keys)
+        subj = np.where(pos >= 0, vals[np.maximum(pos, 0)], subj)
+    lm = index_of(subj, log.landmarks.ids)
+    dist = np.where(lm >= 0, np.hypot(*(world - log.landmarks.xy[np.maximum(lm, 0)]).T), np.inf)
     rel = log.landmarks.xy[np.maximum(lm, 0)] - sp[:, :2]
     r_hat = np.hypot(rel[:, 0], rel[:, 1])
     b_hat = np.arctan2(rel[:, 1], rel[:, 0]) - sp[:, 2]
     true = dist <= gate
     return pd.DataFrame(
         {
-            "stamp": stamp,
+            "stamp": d.frame_stamp[d.frame],
             "range": d.range,
             "bearing": d.bearing,
             "landmark_index": lm,
@@ -122,26 +207,39 @@ def _epochs(log: SensorLog, period: float) -> tuple[np.ndarray, np.ndarray]:
     return epochs, idx
 
 
-def label_epochs(log: SensorLog, cfg: DetectionCalibConfig, period: float, fov: float, range_max: float):
-    """(pairs, false alarms per epoch): one pair per (epoch, landmark in view) with range, bearing, detected."""
-    dets = true_detections(log, cfg.gate)
+@dataclass
+class Labelled:
+    """One log labelled at its epochs: pairs in view, false alarms per epoch and the false alarms themselves."""
+
+    pairs: pd.DataFrame  # epoch, landmark, range, bearing, detected
+    counts: np.ndarray  # false alarms per epoch (E,)
+    false_alarms: pd.DataFrame  # epoch, range, bearing
+    detections: pd.DataFrame  # :func:`true_detections`
+    outside: int  # true detections outside the field of view / range
+
+
+def label_epochs(log: SensorLog, gate: float, period: float, fov: float, range_max: float, remap: dict[int, int] | None = None) -> Labelled:
+    """One pair per (epoch, landmark in view) with range, bearing [sensor frame] and whether it was detected."""
+    dets = true_detections(log, gate, remap)
     epochs, f_epoch = _epochs(log, period)
     d_epoch = f_epoch[log.detections.frame]
-    ref = log.reference["ground_truth"]
-    pose = interpolate_poses(ref.stamp, ref.poses, epochs)
-    m = log.sensor.mount if log.sensor is not None else None
-    sp = pose if m is None else compose(pose, np.array([m.x, m.y, m.theta]))
+    sp = _sensor_poses(log, epochs)
     rel = log.landmarks.xy[None, :, :] - sp[:, None, :2]
     rng = np.hypot(rel[..., 0], rel[..., 1])
     brg = np.mod(np.arctan2(rel[..., 1], rel[..., 0]) - sp[:, None, 2] + np.pi, 2 * np.pi) - np.pi
     view = (np.abs(brg) <= fov / 2) & (rng <= range_max)
     seen = np.zeros(rng.shape, dtype=bool)
     t = dets["true"].to_numpy()
-    seen[d_epoch[t], dets["landmark_index"].to_numpy()[t]] = True
+    lm_t = dets["landmark_index"].to_numpy()[t]
+    seen[d_epoch[t], lm_t] = True
+    outside = int((~view[d_epoch[t], lm_t]).sum())
     e, lm = np.nonzero(view)
-    pairs = pd.DataFrame({"epoch": e, "landmark": log.landmarks.ids[lm], "range": rng[e, lm], "bearing": brg[e, lm], "detected": seen[e, lm]})
-    fa = np.bincount(d_epoch[~t], minlength=epochs.size)
-    return pairs, fa, dets
+    block = (e * period // BLOCK_S).astype(np.int64)
+    pairs = pd.DataFrame(
+        {"epoch": e, "landmark": log.landmarks.ids[lm], "range": rng[e, lm], "bearing": brg[e, lm], "detected": seen[e, lm], "block": block}
+    )
+    fa = pd.DataFrame({"epoch": d_epoch[~t], "range": log.detections.range[~t], "bearing": log.detections.bearing[~t]})
+    return Labelled(pairs, np.bincount(d_epoch[~t], minlength=epochs.size), fa, dets, outside)
 
 
 @dataclass
@@ -150,91 +248,196 @@ class DetectionCalibration:
     pairs: pd.DataFrame
     clutter: ClutterFit
     summary: dict
+    members: list[DetectorProfile] = field(default_factory=list)
+    labelled: list[Labelled] = field(default_factory=list)
+    names: list[str] = field(default_factory=list)
+    config: DetectionCalibConfig | None = None
 
 
 def calibrate_detections(
-    logs: list[SensorLog], cfg: DetectionCalibConfig, *, name: str, version: str, description: str = "", input_refs=None, command: str = ""
+    logs: list[SensorLog],
+    cfg: DetectionCalibConfig,
+    *,
+    name: str,
+    version: str,
+    description: str = "",
+    input_refs=None,
+    command: str = "",
+    per_sensor: bool = False,
 ) -> DetectionCalibration:
+    """A pooled profile of detection-level logs (one sensor each), and with ``per_sensor`` one profile per sensor.
+
+    Folds for the held-out model choices: the sensors when there are several
+    (a model must transfer to a sensor it was not fitted to), else
+    ``cfg.pd.folds`` contiguous time blocks.
+    """
+    if not logs:
+        raise UsageError("no logs to calibrate")
     for lg in logs:
         _need(lg)
+    names = [sensor_id(lg) for lg in logs]
+    if len(set(names)) != len(names):
+        names = [f"{n}-{k + 1}" for k, n in enumerate(names)]
     period = cfg.frame_period or frame_period(logs)
-    truths = pd.concat([true_detections(lg, cfg.gate) for lg in logs], ignore_index=True)
+    remap, evidence = audit_identities(logs, cfg.gate, cfg.audit)
+    truths = pd.concat([true_detections(lg, cfg.gate, remap) for lg in logs], ignore_index=True)
     tt = truths[truths["true"]]
     if len(tt) < 20:
         raise DataError("fewer than 20 true detections: cannot estimate the field of view")
     fov = cfg.fov or float(2 * np.quantile(np.abs(tt["bearing"]), cfg.quantile))
     rmax = cfg.range_max or float(np.quantile(tt["range"], cfg.quantile))
-    parts = [label_epochs(lg, cfg, period, fov, rmax) for lg in logs]
-    pairs = pd.concat([p.assign(log=k) for k, (p, _, _) in enumerate(parts)], ignore_index=True)
-    counts = np.concatenate([fa for _, fa, _ in parts])
-    table = fit_pd_table(pairs["range"].to_numpy(), pairs["detected"].to_numpy(), "range", cfg.pd)
-    clut = fit_clutter(counts)
+    parts = [label_epochs(lg, cfg.gate, period, fov, rmax, remap) for lg in logs]
+    pairs = pd.concat([p.pairs.assign(log=k) for k, p in enumerate(parts)], ignore_index=True)
+    fas = pd.concat([p.false_alarms.assign(log=k) for k, p in enumerate(parts)], ignore_index=True)
+    counts = np.concatenate([p.counts for p in parts])
+    if len(logs) > 1:
+        pd_fold, fa_fold, label = pairs["log"].to_numpy(), fas["log"].to_numpy(), f"sensors ({len(logs)})"
+    else:
+        n_ep = parts[0].counts.size
+        blocks = time_folds(n_ep, cfg.pd.folds)
+        pd_fold, fa_fold = blocks[pairs["epoch"].to_numpy()], blocks[fas["epoch"].to_numpy()]
+        label = f"time blocks ({cfg.pd.folds})"
+    table = choose_pd_model(pairs, pd_fold, label, fov, cfg.pd)
+    clut = fit_clutter(counts, cfg.clutter.dispersion_level)
+    density = None
+    if cfg.clutter.use_density(len(logs)):
+        re_ = np.linspace(0.0, rmax, cfg.clutter.range_bins + 1)
+        be = np.linspace(-fov / 2, fov / 2, cfg.clutter.bearing_bins + 1)
+        density = fit_density(fas["range"].to_numpy(), fas["bearing"].to_numpy(), fa_fold, re_, be, cfg.clutter, label)
     sensor = SensorModel(kind="camera", fov=fov, range_max=rmax, mount=logs[0].sensor.mount if logs[0].sensor else SensorModel().mount)
-    profile = DetectorProfile(
-        name=name,
+    clutter = clutter_params(clut, "range_bearing", fov * rmax, density)
+    spread = pooling = None
+    member_rates: list[float] = []
+    weights: list[float] = []
+    if len(logs) > 1:
+        cluster = pairs.groupby(["log", "landmark", "block"], sort=False).ngroup().to_numpy()
+        pooling = pool_sensors(table, pairs, pairs["log"].to_numpy(), names, cluster)
+        _, tau, weights, member_rates = shrink_rates([p.counts for p in parts])
+        table = table.model_copy(update={"between_sensor_sd": between_sensor_sd(table, pooling)})
+        spread = dict(
+            names=names,
+            pairs=pooling.pairs,
+            pd_observed=pooling.pd_observed,
+            pd_predicted=pooling.pd_predicted,
+            frames=[int(p.counts.size) for p in parts],
+            clutter_rate=[float(p.counts.mean()) for p in parts],
+            pd_logit_offset=pooling.offsets,
+            pd_logit_sd=pooling.offset_sd,
+            pd_concentration=pooling.concentration,
+            pd_between_sd=pooling.between_sd,
+            clutter_between_sd=tau,
+        )
+    params = {**cfg.model_dump(mode="json"), "frame_period": period, "identity_remap": {str(k): v for k, v in remap.items()}}
+    prov = Provenance(inputs=input_refs or [], detcal_version=__version__, command=command, parameters=params, created=created_now())
+    base = dict(
         version=version,
         description=description,
         detector=DetectorSpec(kind="external", association_gate=cfg.gate),
         sensor=sensor,
-        pd=table,
-        clutter=clutter_params(clut, "range_bearing", fov * rmax),
         noise=fit_noise(truths),
-        provenance=Provenance(
-            inputs=input_refs or [],
-            detcal_version=__version__,
-            command=command,
-            parameters={**cfg.model_dump(mode="json"), "frame_period": period},
-            created=created_now(),
-        ),
+        provenance=prov,
     )
+    profile = DetectorProfile(name=name, pd=table, clutter=clutter, sensors=SensorSpread(**spread) if spread else None, **base)
+    members = []
+    if per_sensor and pooling is not None:
+        for k, lg in enumerate(logs):
+            own = fit_clutter(parts[k].counts, cfg.clutter.dispersion_level)
+            mc = clutter.model_copy(
+                update={
+                    "rate": member_rates[k],
+                    "kappa": None,
+                    "chi2": own.chi2 if np.isfinite(own.chi2) else None,
+                    "dof": own.dof if np.isfinite(own.chi2) else None,
+                    "p_value": own.p_value if np.isfinite(own.chi2) else None,
+                    "dispersion": own.dispersion if np.isfinite(own.dispersion) else None,
+                    "dispersion_test": own.dispersion_test,
+                    "nb_gof": None,
+                }
+            )
+            sp = SensorSpread(**{**spread, "member": names[k], "clutter_weight": weights[k]})
+            members.append(
+                DetectorProfile(
+                    name=f"{name}-{names[k]}", pd=pooling.tables[k], clutter=type(clutter).model_validate(mc.model_dump()), sensors=sp,
+                    **{**base, "noise": fit_noise(parts[k].detections)},
+                )
+            )
+    sel = table.selection
     summary = {
         "logs": [lg.name for lg in logs],
         "frame_period_s": period,
         "epochs": int(counts.size),
         "fov_deg": float(np.degrees(fov)),
         "range_max_m": rmax,
-        "true_detections": int(sum(int(d["true"].sum()) for _, _, d in parts)),
+        "identity_remap": {k: v for k, v in evidence.items()} or "none",
+        "true_detections": int(sum(int(p.detections["true"].sum()) for p in parts)),
         "false_detections": int(counts.sum()),
         "landmark_epoch_pairs": len(pairs),
         "pd_overall": float(pairs["detected"].mean()),
+        "pd_model": table.model if table.covariate == "range_bearing" else "range",
+        "pd_model_loglik": {c: round(v, 6) for c, v in zip(sel.candidates, sel.loglik, strict=True)} if sel else "no choice (one fold)",
         "clutter_rate_per_epoch": clut.rate,
-        "clutter_p_value": clut.p_value,
+        "clutter_count_model": clut.count_model,
+        "clutter_nb_size": clut.size,
+        "clutter_poisson_p_value": clut.p_value,
         "clutter_dispersion": clut.dispersion,
+        "clutter_dispersion_test_p_value": clut.dispersion_test.p_value if clut.dispersion_test else None,
+        "clutter_density": density_summary(density),
     }
-    return DetectionCalibration(profile, pairs, clut, summary)
+    if pooling is not None:
+        summary.update(
+            {
+                "sensors": names,
+                "pd_observed_per_sensor": [round(x, 4) for x in pooling.pd_observed],
+                "pd_predicted_per_sensor": [round(x, 4) for x in pooling.pd_predicted],
+                "pd_between_sensor_sd": pooling.between_sd,
+                "pd_logit_offset_per_sensor": [round(x, 4) for x in pooling.offsets],
+                "pd_logit_offset_sd": pooling.offset_sd,
+                "pd_pooling_concentration": pooling.concentration,
+                "pd_design_effect_per_sensor": [round(x, 2) for x in pooling.design_effects],
+                "clutter_rate_per_sensor": [round(float(p.counts.mean()), 4) for p in parts],
+                "clutter_between_sensor_sd": spread["clutter_between_sd"],
+            }
+        )
+    return DetectionCalibration(profile, pairs, clut, summary, members, parts, names, cfg)
 
 
-def validate_detections(profile: DetectorProfile, logs: list[SensorLog]) -> Validation:
-    if profile.pd.covariate != "range":
-        raise UsageError(f"profile {profile.ref} has a {profile.pd.covariate} P_D table; a detection-level log needs a range table")
+def held_out_detections(profile: DetectorProfile, log: SensorLog, *, remap: dict[int, int], period: float) -> Held:
+    """Label a detection-level log at its own frame period and score what the profile predicts for it."""
+    fov, rmax = profile.sensor.fov, profile.sensor.range_max
+    lab = label_epochs(log, profile.detector.association_gate, period, fov, rmax, remap)
+    pairs = lab.pairs.assign(log=log.name)
+    pairs["predicted"] = predict(profile.pd, pairs)
+    pairs["observed"] = pairs["detected"]
+    fa = lab.false_alarms
+    return Held(
+        log.name, pairs, lab.counts, fa["range"].to_numpy(np.float64), fa["bearing"].to_numpy(np.float64), period,
+        extra={"true_detections_outside_fov": lab.outside},
+    )
+
+
+def validate_detections(profile: DetectorProfile, logs: list[SensorLog], *, audit: IdentityAudit | None = None) -> Validation:
+    """Score a detection-level profile on held-out logs, each at its own frame period.
+
+    The identity audit runs on the held-out logs themselves (it corrects the
+    truth, not the detector); its findings are in the summary.
+    """
+    if profile.pd.covariate == "n_p":
+        raise UsageError(f"profile {profile.ref} has an n_p P_D table; a detection-level log needs a range or range_bearing table")
+    if profile.sensor.fov is None or profile.sensor.range_max is None:
+        raise DataError(f"profile {profile.ref}: the sensor has no fov or range_max")
     for lg in logs:
         _need(lg)
-    period = float(profile.provenance.parameters.get("frame_period") or frame_period(logs))
-    cfg = DetectionCalibConfig(gate=profile.detector.association_gate)
-    fov, rmax = profile.sensor.fov, profile.sensor.range_max
-    if fov is None or rmax is None:
-        raise DataError(f"profile {profile.ref}: the sensor has no fov or range_max")
-    parts = [label_epochs(lg, cfg, period, fov, rmax) for lg in logs]
-    pairs = pd.concat([p.assign(log=k) for k, (p, _, _) in enumerate(parts)], ignore_index=True)
-    counts = np.concatenate([fa for _, fa, _ in parts])
-    pred = profile.pd.lookup(pairs["range"].to_numpy())
-    obs = pairs["detected"].to_numpy()
-    ece, bins = reliability(pred, obs)
-    pairs = pairs.assign(predicted=pred, observed=obs)
-    rate = float(counts.mean())
-    summary = {
-        "profile": profile.ref,
-        "logs": [lg.name for lg in logs],
-        "epochs": int(counts.size),
-        "pairs_in_view": len(pairs),
-        "ece": ece,
-        "detections_observed": int(obs.sum()),
-        "detections_predicted": float(pred.sum()),
-        "false_alarms_per_scan_observed": rate,
-        "false_alarms_per_scan_predicted": profile.clutter.rate,
-        "false_alarm_relative_error": (rate - profile.clutter.rate) / profile.clutter.rate if profile.clutter.rate > 0 else float("nan"),
-    }
-    return Validation(summary, pairs, bins, counts)
+    remap, evidence = audit_identities(logs, profile.detector.association_gate, audit or IdentityAudit())
+    held = []
+    for lg in logs:
+        try:
+            period = frame_period([lg])
+        except DataError:  # too few frames to tell: the training period is the best guess
+            period = float(profile.provenance.parameters.get("frame_period") or np.nan)
+            if not np.isfinite(period):
+                raise
+        held.append(held_out_detections(profile, lg, remap=remap, period=period))
+    return score(profile, held, {"identity_remap": evidence or "none"})
 
 
 def input_refs_for(log: SensorLog) -> list[InputRef]:
@@ -247,14 +450,33 @@ def input_refs_for(log: SensorLog) -> list[InputRef]:
 def write_detection_run(cal: DetectionCalibration, out, *, overwrite: bool = False) -> list[str]:
     from calib.config import dump_yaml
     from calib.io.atomic import atomic_output
-    from calib.report import plot_clutter, plot_pd
+    from calib.report import plot_clutter, plot_clutter_density, plot_pd, plot_pd_grid, plot_sensors
     from profiles.store import dump_profile
 
+    figures = []
     with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
         tmp.mkdir()
         (tmp / "profile.yaml").write_text(dump_profile(cal.profile))
+        if cal.members:
+            (tmp / "sensors").mkdir()
+            for m in cal.members:
+                (tmp / "sensors" / f"{m.name}@{m.version}.yaml").write_text(dump_profile(m))
         (tmp / "summary.yaml").write_text(dump_yaml(cal.summary))
+        if cal.config is not None:
+            (tmp / "config.yaml").write_text(dump_yaml(cal.config.model_dump(mode="json")))
         cal.pairs.to_csv(tmp / "pairs.csv.gz", index=False, float_format="%.9g", compression={"method": "gzip", "mtime": 0})
-        plot_pd(cal, tmp / "pd_vs_range.png")
+        if cal.profile.pd.two_d:
+            plot_pd_grid(cal.profile.pd, cal.pairs, tmp / "pd_range_bearing.png")
+            figures.append("pd_range_bearing.png")
+        else:
+            plot_pd(cal, tmp / "pd_vs_range.png")
+            figures.append("pd_vs_range.png")
         plot_clutter(cal, tmp / "clutter.png")
-    return ["pd_vs_range.png", "clutter.png"]
+        figures.append("clutter.png")
+        if cal.profile.clutter.density is not None:
+            plot_clutter_density(cal.profile.clutter, tmp / "clutter_density.png")
+            figures.append("clutter_density.png")
+        if len(cal.names) > 1:
+            plot_sensors(cal, tmp / "sensors.png")
+            figures.append("sensors.png")
+    return figures

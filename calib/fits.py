@@ -8,7 +8,8 @@
   Wilson intervals and the thesis's clamping (ch. 6);
 * :func:`fit_clutter` -- Poisson rate of false alarms per scan (maximum
   likelihood: the mean), Pearson chi-square goodness of fit, p-value and
-  dispersion index (sec. 6.1, fig. 6.4).
+  dispersion index (sec. 6.1, fig. 6.4); the negative binomial and its
+  dispersion test when the counts are over-dispersed (:mod:`calib.clutter`).
 """
 
 from __future__ import annotations
@@ -19,9 +20,11 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.stats import chi2, poisson, rankdata
 
+from calib.clutter import dispersion_test, fit_negative_binomial, nb_pmf_sf, pearson
+
 from detectors.circle import mahalanobis2 as maha2
 from profiles.errors import DataError
-from profiles.schema import ClutterParams, PdTable
+from profiles.schema import ClutterDensity, ClutterParams, CountTest, PdTable
 
 Z95 = 1.959963984540054
 
@@ -183,14 +186,21 @@ class ClutterFit:
     observed: np.ndarray  # per merged bin
     expected: np.ndarray
     bin_low: np.ndarray  # smallest count of each merged bin (the last is open-ended)
+    size: float | None = None  # negative binomial shape r (None: no over-dispersion)
+    dispersion_test: CountTest | None = None
+    nb_gof: CountTest | None = None
+    count_model: str = "poisson"
 
 
-def fit_clutter(counts: np.ndarray) -> ClutterFit:
-    """Poisson fit to false alarms per scan with Pearson's chi-square test.
+def fit_clutter(counts: np.ndarray, level: float = 0.05) -> ClutterFit:
+    """Count model of false alarms per frame with its tests (sec. 4.2, fig. 6.4).
 
-    Bins k = 0, 1, ... with the upper tail pooled into the last bin, then
-    neighbouring bins merged until every expected count is at least 5;
-    degrees of freedom = bins - 1 - 1 (the rate is estimated).
+    The Poisson rate (the mean) with Pearson's chi-square test, as in the thesis
+    (tail pooled into the last bin, neighbouring bins merged until every expected
+    count is at least 5, dof = bins - 1 - 1); then the negative binomial
+    (Poisson-gamma) by maximum likelihood and the likelihood-ratio dispersion
+    test (:mod:`calib.clutter`). The count model is the negative binomial when
+    that test rejects the Poisson at ``level``, else the Poisson.
     """
     counts = np.asarray(counts, dtype=np.int64)
     n = counts.size
@@ -198,35 +208,24 @@ def fit_clutter(counts: np.ndarray) -> ClutterFit:
         raise DataError("no scans to fit the clutter to")
     lam = float(counts.mean())
     var = float(counts.var(ddof=1)) if n > 1 else 0.0
-    kmax = int(counts.max())
-    obs = np.bincount(counts, minlength=kmax + 1).astype(np.float64)
-    pk = poisson.pmf(np.arange(kmax + 1), lam)
-    pk[-1] = poisson.sf(kmax - 1, lam)  # P(X >= kmax)
-    exp = n * pk
-    lows, o_m, e_m = [], [], []
-    cur_o = cur_e = 0.0
-    start = 0
-    for k in range(kmax + 1):  # merging runs over at most max(count)+1 bins
-        cur_o += obs[k]
-        cur_e += exp[k]
-        if cur_e >= 5.0:
-            lows.append(start), o_m.append(cur_o), e_m.append(cur_e)
-            cur_o = cur_e = 0.0
-            start = k + 1
-    if cur_e > 0 or cur_o > 0:
-        if e_m:
-            o_m[-1] += cur_o
-            e_m[-1] += cur_e
-        else:
-            lows.append(start), o_m.append(cur_o), e_m.append(cur_e)
-    o_m, e_m = np.array(o_m), np.array(e_m)
-    dof = int(o_m.size - 2)
-    stat = float(((o_m - e_m) ** 2 / e_m).sum()) if dof > 0 else float("nan")
-    p = float(chi2.sf(stat, dof)) if dof > 0 else float("nan")
-    return ClutterFit(lam, counts, stat, dof, p, var / lam if lam > 0 else float("nan"), o_m, e_m, np.array(lows))
+    pois = pearson(counts, lambda k: poisson.pmf(k, lam), lambda k: poisson.sf(k, lam), fitted=1)
+    nb = fit_negative_binomial(counts)
+    test = dispersion_test(nb)
+    gof = None
+    model = "poisson"
+    if nb.size is not None and test.p_value < level:
+        model = "negative_binomial"
+        pmf, sf = nb_pmf_sf(lam, nb.size)
+        g = pearson(counts, pmf, sf, fitted=2)
+        if np.isfinite(g.chi2):
+            gof = CountTest(test="Pearson chi-square, negative binomial", statistic=g.chi2, dof=g.dof, p_value=g.p_value)
+    return ClutterFit(
+        lam, counts, pois.chi2, pois.dof, pois.p_value, var / lam if lam > 0 else float("nan"), pois.observed, pois.expected, pois.bin_low,
+        size=nb.size if model == "negative_binomial" else None, dispersion_test=test, nb_gof=gof, count_model=model,
+    )
 
 
-def clutter_params(fit: ClutterFit, space: str, volume: float) -> ClutterParams:
+def clutter_params(fit: ClutterFit, space: str, volume: float, density: ClutterDensity | None = None) -> ClutterParams:
     finite = np.isfinite(fit.chi2)
     return ClutterParams(
         rate=fit.rate,
@@ -236,4 +235,9 @@ def clutter_params(fit: ClutterFit, space: str, volume: float) -> ClutterParams:
         dof=fit.dof if finite else None,
         p_value=fit.p_value if finite else None,
         dispersion=fit.dispersion if np.isfinite(fit.dispersion) else None,
+        count_model=fit.count_model,
+        size=fit.size,
+        dispersion_test=fit.dispersion_test,
+        nb_gof=fit.nb_gof,
+        density=density,
     )

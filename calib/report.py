@@ -10,7 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.patches import Circle  # noqa: E402
-from scipy.stats import poisson  # noqa: E402
+from scipy.stats import nbinom, poisson  # noqa: E402
 
 from calib.calibrate import Calibration  # noqa: E402
 from detectors.circle import descriptor_matrix  # noqa: E402
@@ -61,23 +61,141 @@ def plot_roc(cal: Calibration, path: Path) -> None:
     _save(fig, path)
 
 
-def plot_clutter(cal: Calibration, path: Path) -> None:
+def plot_clutter(cal, path: Path) -> None:
+    """False alarms per frame: histogram, the Poisson fit and (when chosen) the negative binomial, with the tests."""
     c = cal.clutter
     counts = c.counts
     kmax = int(counts.max()) if counts.size else 0
     ks = np.arange(kmax + 1)
     fig, ax = plt.subplots(figsize=(8, 5), dpi=100)
-    ax.bar(ks, np.bincount(counts, minlength=kmax + 1), color="tab:gray", label="scans")
-    ax.plot(ks, counts.size * poisson.pmf(ks, c.rate), "o-", color="tab:red", label=f"Poisson, lambda = {c.rate:.3f}")
+    ax.bar(ks, np.bincount(counts, minlength=kmax + 1), color="tab:gray", label="frames")
+    ax.plot(ks, counts.size * poisson.pmf(ks, c.rate), "o-", color="tab:red", ms=4, label=f"Poisson, lambda = {c.rate:.3f}")
+    if c.size is not None:
+        r = c.size
+        ax.plot(ks, counts.size * nbinom.pmf(ks, r, r / (r + c.rate)), "s-", color="tab:blue", ms=4, label=f"negative binomial, r = {r:.3g}")
     verdict = "rejected" if np.isfinite(c.p_value) and c.p_value < 0.05 else "not rejected"
+    disp = c.dispersion_test
+    line2 = (
+        f"dispersion {c.dispersion:.2f}; negative binomial vs Poisson: LR = {disp.statistic:.1f}, p = {disp.p_value:.3g} -> {c.count_model.replace('_', ' ')}"
+        if disp is not None
+        else f"dispersion {c.dispersion:.2f}"
+    )
+    ax.set_title(f"false alarms per frame: Poisson chi2 = {c.chi2:.1f} on {c.dof} dof, p = {c.p_value:.3g} ({verdict} at 0.05)\n{line2}", fontsize=9)
+    ax.set_xlabel("false alarms in a frame")
+    ax.set_ylabel("frames")
+    ax.legend()
+    _save(fig, path)
+
+
+def plot_pd_grid(table, pairs, path: Path) -> None:
+    """A range x bearing P_D table: the grid, and observed rates against range and bearing beside the model's."""
+    from calib.pdmodels import predict
+
+    e, be = np.asarray(table.edges), np.asarray(table.bearing_edges)
+    pdv = np.asarray(table.pd)
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.8), dpi=100)
+    ax = axes[0]
+    shown_e = np.append(e[:-1], e[-2] + 2 * (e[-1] - e[-2]))  # the last row is open-ended: drawn twice as deep
+    m = ax.pcolormesh(np.degrees(be), shown_e, pdv, cmap="viridis", vmin=0, vmax=max(0.05, float(pdv.max())), shading="flat")
+    fig.colorbar(m, ax=ax, label="P_D")
+    ax.set_xlabel("bearing [deg] (sensor frame, left positive)")
+    ax.set_ylabel("range [m]")
+    sel = table.selection
+    ax.set_title(f"P_D model: {table.model}" + (f" (held-out choice over {sel.folds})" if sel else ""), fontsize=9)
+    pred = predict(table, pairs)
+    y = pairs["detected"].to_numpy(float)
+    for ax, col, edges, unit, scale in ((axes[1], "range", e, "range [m]", 1.0), (axes[2], "bearing", be, "bearing [deg]", np.degrees(1.0))):
+        v = pairs[col].to_numpy()
+        i = np.clip(np.searchsorted(edges, v, side="right") - 1, 0, edges.size - 2)
+        n = np.bincount(i, minlength=edges.size - 1)
+        k = np.bincount(i, weights=y, minlength=edges.size - 1)
+        p = np.bincount(i, weights=pred, minlength=edges.size - 1)
+        mid = (edges[:-1] + edges[1:]) / 2 * scale
+        ok = n > 0
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ax.plot(mid[ok], (k / n)[ok], "o", color="tab:blue", label="observed")
+            ax.plot(mid[ok], (p / n)[ok], "-", color="tab:red", label="model (mean over the same pairs)")
+        ax.set_xlabel(unit)
+        ax.set_ylabel("detection rate")
+        ax.set_ylim(0, 1)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    if sel:
+        txt = ", ".join(f"{c} {ll:.4f}" for c, ll in zip(sel.candidates, sel.loglik, strict=True))
+        fig.suptitle(f"held-out log-likelihood per pair: {txt} -> {sel.chosen}", fontsize=9)
+    _save(fig, path)
+
+
+def plot_clutter_density(clutter, path: Path) -> None:
+    """Where false alarms fall: the profile's clutter density over range x bearing (with the calibration counts)."""
+    d = clutter.density
+    re_, be = np.asarray(d.range_edges), np.asarray(d.bearing_edges)
+    dens = np.asarray(d.density) * clutter.rate  # intensity kappa(z)
+    fig, ax = plt.subplots(figsize=(8, 5.5), dpi=100)
+    m = ax.pcolormesh(np.degrees(be), re_, dens, cmap="magma", shading="flat")
+    fig.colorbar(m, ax=ax, label="kappa(z) [false alarms / (m rad frame)]")
+    if d.counts is not None and np.asarray(d.counts).size <= 400:
+        c = np.asarray(d.counts)
+        for i in range(c.shape[0]):
+            for j in range(c.shape[1]):
+                ax.text(np.degrees((be[j] + be[j + 1]) / 2), (re_[i] + re_[i + 1]) / 2, str(c[i, j]), ha="center", va="center", fontsize=6, color="cyan")
+    sel = d.selection
+    title = "clutter intensity over the measurement space"
+    if sel:
+        parts = [f"{c} {v:.3f}" for c, v in zip(sel.candidates, sel.loglik, strict=True)]
+        lines = [", ".join(parts[i : i + 3]) for i in range(0, len(parts), 3)]
+        title += f"\nheld-out mean log density per false alarm ({sel.folds}):\n" + "\n".join(lines) + f"\n-> {sel.chosen}"
+    ax.set_title(title, fontsize=9)
+    ax.set_xlabel("bearing [deg] (sensor frame)")
+    ax.set_ylabel("range [m]")
+    _save(fig, path)
+
+
+def plot_sensors(cal, path: Path) -> None:
+    """Per sensor: observed P_D against range beside the pooled model's prediction for the same pairs; clutter rates."""
+    from calib.clutter import batch_means_ci
+    from calib.pdmodels import predict
+
+    pairs = cal.pairs
+    table = cal.profile.pd
+    pred = predict(table, pairs)
+    edges = np.asarray(table.edges)
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(14, 5), dpi=100)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for s, name in enumerate(cal.names):
+        w = pairs["log"].to_numpy() == s
+        v = pairs.loc[w, "range"].to_numpy()
+        i = np.clip(np.searchsorted(edges, v, side="right") - 1, 0, edges.size - 2)
+        n = np.bincount(i, minlength=edges.size - 1)
+        k = np.bincount(i, weights=pairs.loc[w, "detected"].to_numpy(float), minlength=edges.size - 1)
+        p = np.bincount(i, weights=pred[w], minlength=edges.size - 1)
+        ok = n >= 20
+        mid = (edges[:-1] + edges[1:]) / 2
+        col = colors[s % len(colors)]
+        ax.plot(mid[ok], k[ok] / n[ok], "o-", color=col, ms=3, label=f"{name} observed")
+        ax.plot(mid[ok], p[ok] / n[ok], ":", color=col)
+    ax.set_xlabel("range [m]")
+    ax.set_ylabel("detection rate (dotted: pooled model on the same pairs)")
+    sp = cal.profile.sensors
     ax.set_title(
-        f"false alarms per scan: chi2 = {c.chi2:.1f} on {c.dof} dof, p = {c.p_value:.3g} (Poisson {verdict} at 0.05), "
-        f"dispersion {c.dispersion:.2f}",
+        f"P_D per sensor; between-sensor sd {sp.pd_between_sd:.3f} (logit offsets sd {sp.pd_logit_sd:.2f}"
+        + (f", cells m = {sp.pd_concentration:.3g})" if sp.pd_concentration else ")"),
         fontsize=9,
     )
-    ax.set_xlabel("false alarms in a scan (after the Hotelling gate)")
-    ax.set_ylabel("scans")
-    ax.legend()
+    ax.set_ylim(0, 1)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    mids, los, his = [], [], []
+    for lab in cal.labelled:
+        m, lo, hi = batch_means_ci(lab.counts)
+        mids.append(m), los.append(m - lo), his.append(hi - m)
+    x = np.arange(len(cal.names))
+    ax2.bar(x, mids, yerr=[los, his], color="tab:gray", capsize=4, label="per sensor, 95 % batch-means interval")
+    ax2.axhline(cal.profile.clutter.rate, color="tab:red", label=f"pooled {cal.profile.clutter.rate:.3f}")
+    ax2.set_xticks(x, cal.names)
+    ax2.set_ylabel("false alarms per frame")
+    ax2.set_title(f"clutter per sensor; between-sensor sd {sp.clutter_between_sd:.3f}", fontsize=9)
+    ax2.legend(fontsize=8)
     _save(fig, path)
 
 

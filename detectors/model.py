@@ -9,11 +9,14 @@ P_D tables, the buffer bands and the clutter:
   against the current scan for a laser profile (eqs. 4.1, 6.1, 6.2), through the
   predicted measurement for a detection-level profile (:meth:`pd_at`), or a
   constant inside the field of view (for comparison);
-* :meth:`DetectionModel.pd_at` -- P_D of a feature predicted at range-bearing z;
+* :meth:`DetectionModel.pd_at` -- P_D of a feature predicted at range-bearing z
+  (sensor frame) for detection-level profiles: a range table or a range x
+  bearing grid, 0 outside the field of view;
 * :meth:`DetectionModel.pd_landmarks` -- P_D of L landmarks from one sensor pose
   given the current scan, with the buffer-zone flag of sec. 6.1 (for eq. 3.21);
-* :meth:`DetectionModel.clutter_intensity` -- kappa(z) = lambda / |FoV| inside
-  the field of view, 0 outside (sec. 4.2);
+* :meth:`DetectionModel.clutter_intensity` -- kappa(z): lambda / |FoV| inside
+  the field of view (sec. 4.2), or lambda x the profile's clutter density over
+  (range, bearing) when it has one; 0 outside;
 * :meth:`DetectionModel.g_true` / :meth:`DetectionModel.g_false` -- the
   descriptor likelihoods of eq. 5.6 for the amplitude-feature update (eq. 2.26).
 
@@ -77,6 +80,8 @@ class DetectionModel:
     buffer_sigmas: float = 2.0
     landmark_radius: float | None = None
     phase_average: bool = True
+    occluder_radius: float | None = None
+    occluder_weight: float = 0.5
 
     def __post_init__(self) -> None:
         if self.pd_table.covariate == "n_p" and self.sensor.n_beams is None:
@@ -100,7 +105,7 @@ class DetectionModel:
             noise=profile.noise,
             k_sigma=profile.detector.k_sigma,
             buffer_samples=profile.detector.buffer_samples,
-            **options,
+            **{"occluder_radius": profile.detector.occluder_radius, **options},
         )
 
     @property
@@ -167,15 +172,26 @@ class DetectionModel:
         )
 
     def pd_at(self, z: np.ndarray) -> np.ndarray:
-        """P_D (...) of features predicted at range-bearing z (..., 2) (sensor frame): the covariate
-        table (range) inside the field of view, 0 outside; a constant in constant mode."""
+        """P_D (...) of features predicted at range-bearing z (..., 2) (sensor frame): the profile's
+        range table or range x bearing grid inside the field of view, 0 outside; a constant in
+        constant mode. An n_p table needs the scan (:meth:`pd_points`)."""
         z = np.asarray(z, dtype=np.float64)
+        if z.shape[-1:] != (2,):
+            raise DataError(f"pd_at: z must have shape (..., 2) = (range, bearing), got {z.shape}")
         inside = self.in_fov(z)
         if self.constant_pd is not None:
             return np.where(inside, self.constant_pd, 0.0)
-        if self.pd_table.covariate != "range":
-            raise DataError(f"P_D of a {self.pd_table.covariate} table needs the scan (pd_points), not a predicted measurement")
-        return np.where(inside, self.pd_table.lookup(z[..., 0]), 0.0)
+        return np.where(inside, self._table_at(z), 0.0)
+
+    def _table_at(self, z: np.ndarray) -> np.ndarray:
+        """The table's P_D at z (..., 2) as if inside the field of view: a grid's bearing is held to its
+        edges, so a feature in the buffer band beyond an edge gets the edge cell's value."""
+        t = self.pd_table
+        if t.covariate == "n_p":
+            raise DataError(f"P_D of a {t.covariate} table needs the scan (pd_points), not a predicted measurement")
+        if t.two_d:
+            return t.lookup_rb(z[..., 0], np.clip(z[..., 1], t.bearing_edges[0], t.bearing_edges[-1]))
+        return t.lookup(z[..., 0])
 
     def _edge_band(self, z: np.ndarray, s_rad: np.ndarray, s_lat: np.ndarray, pd_in: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """P_D and buffer flags at the edges of the field of view and the range limits.
@@ -200,12 +216,51 @@ class DetectionModel:
         pd = np.where(inside | near, pd_in, 0.0)
         return pd, near
 
-    def pd_features(self, sensor_poses: np.ndarray, mu: np.ndarray, cov: np.ndarray, meas) -> tuple[np.ndarray, np.ndarray]:
+    def pd_features(
+        self, sensor_poses: np.ndarray, mu: np.ndarray, cov: np.ndarray, meas, weights: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """What a map filter calls: P_D (P, J) and buffer flags (P, J) of the map features mu (P, J, dx)
         with covariances cov (P, J, dx, dx) seen from sensor poses (P, 3), given the frame's measurements
-        ``meas`` (:class:`slam_runtime.mapfilter.Measurements`: its scan and beam angles for n_p profiles).
-        Detection models of other feature kinds (planes) offer the same method."""
-        return self.pd_points(sensor_poses, mu, cov, getattr(meas, "scan", None), getattr(meas, "angles", None))
+        ``meas`` (:class:`slam_runtime.mapfilter.Measurements`: its scan and beam angles for n_p profiles)
+        and the features' weights or existence probabilities (P, J) (who can occlude whom). Detection
+        models of other feature kinds (planes) offer the same method."""
+        pd, buf = self.pd_points(sensor_poses, mu, cov, getattr(meas, "scan", None), getattr(meas, "angles", None))
+        if self.occluder_radius is not None and weights is not None and self.pd_table.covariate != "n_p" and mu.shape[1]:
+            pd, buf = self._occlude(np.asarray(sensor_poses, dtype=np.float64), mu, cov, np.asarray(weights), pd, buf)
+        return pd, buf
+
+    def _occlude(self, sp, mu, cov, w, pd, buf) -> tuple[np.ndarray, np.ndarray]:
+        """The n_p idea on a detection-level map: a feature whose centre lies behind a nearer confirmed
+        feature (weight >= occluder_weight), within that trunk's angular half-width, has P_D 0; one within
+        the half-width widened by buffer_sigmas of its own lateral spread is in the buffer zone."""
+        p, j = pd.shape
+        view = pd > 0
+        jv = int(view.sum(axis=1).max())
+        if jv < 2:
+            return pd, buf
+        sel = np.argsort(~view, axis=1, kind="stable")[:, :jv]
+        rows = np.arange(p)[:, None]
+        m, c, in_v = mu[rows, sel], cov[rows, sel], view[rows, sel]
+        occluder = in_v & (w[rows, sel] >= self.occluder_weight)
+        los = m - sp[:, None, :2]
+        r = np.maximum(np.hypot(los[..., 0], los[..., 1]), 1e-9)
+        b = np.arctan2(los[..., 1], los[..., 0])
+        u = los / r[..., None]
+        s_lat = np.sqrt(np.maximum(u[..., 1] ** 2 * c[..., 0, 0] - 2 * u[..., 0] * u[..., 1] * c[..., 0, 1] + u[..., 0] ** 2 * c[..., 1, 1], 0.0))
+        rad = self.occluder_radius
+        half = np.arcsin(np.clip(rad / r, 0.0, 1.0))  # (P, Jv) each occluder's angular half-width
+        ahead = r[:, None, :] < r[:, :, None] - 2 * rad  # [p, i, k]: k is nearer than i by more than a trunk
+        sep = np.abs(_wrap(b[:, :, None] - b[:, None, :]))
+        cand = ahead & occluder[:, None, :]
+        hidden = (cand & (sep < half[:, None, :])).any(axis=2) & in_v
+        margin = self.buffer_sigmas * s_lat / r
+        near = (cand & (sep < half[:, None, :] + margin[:, :, None])).any(axis=2) & in_v & ~hidden
+        pd_v, buf_v = pd[rows, sel], buf[rows, sel]
+        pd = pd.copy()
+        buf = buf.copy()
+        pd[rows, sel] = np.where(hidden, 0.0, pd_v)
+        buf[rows, sel] = buf_v | (near & self.buffer)
+        return pd, buf
 
     def pd_points(
         self,
@@ -232,8 +287,8 @@ class DetectionModel:
         u = los / rr[..., None]
         s_rad = np.sqrt(np.maximum(u[..., 0] ** 2 * cov[..., 0, 0] + 2 * u[..., 0] * u[..., 1] * cov[..., 0, 1] + u[..., 1] ** 2 * cov[..., 1, 1], 0.0))
         s_lat = np.sqrt(np.maximum(u[..., 1] ** 2 * cov[..., 0, 0] - 2 * u[..., 0] * u[..., 1] * cov[..., 0, 1] + u[..., 0] ** 2 * cov[..., 1, 1], 0.0))
-        if self.constant_pd is not None or self.pd_table.covariate == "range":
-            full = np.full((p, j), self.constant_pd) if self.constant_pd is not None else self.pd_table.lookup(rr)
+        if self.constant_pd is not None or self.pd_table.covariate != "n_p":
+            full = np.full((p, j), self.constant_pd) if self.constant_pd is not None else self._table_at(z)
             return self._edge_band(z, s_rad, s_lat, full)
         return self._pd_np(sp, mu, z, s_lat, scan, angles)
 
@@ -291,9 +346,18 @@ class DetectionModel:
         return ok
 
     def clutter_intensity(self, z: np.ndarray) -> np.ndarray:
-        """kappa(z) (M,) for range-bearing measurements z (M, 2), per unit of the clutter space."""
+        """kappa(z) (M,) for range-bearing measurements z (M, 2) in the sensor frame.
+
+        Per unit of range x bearing [1 / (m rad)]: lambda x density(z) when the
+        profile has a clutter density (it integrates to lambda over the field of
+        view), else the uniform lambda / |FoV| of the thesis (sec. 4.2); 0 outside
+        the field of view. For an ``xy`` profile the uniform density per m^2 times
+        the Jacobian r.
+        """
         z = np.atleast_2d(np.asarray(z, dtype=np.float64))
         k = self.clutter.kappa
+        if self.clutter.density is not None:
+            return np.where(self.in_fov(z), self.clutter.rate * self.clutter.density.at(z[:, 0], z[:, 1]), 0.0)
         if self.clutter.space == "xy":
             # a uniform density in x-y is r times a density in (r, bearing)
             return np.where(self.in_fov(z), k * z[:, 0], 0.0)

@@ -2,19 +2,30 @@
 
 A profile is a versioned YAML document (schema version ``SCHEMA_VERSION``)::
 
-    schema_version: 1
+    schema_version: 2
     name: park-laser            # [a-z0-9][a-z0-9._-]*
     version: 1.0.0              # semantic version; a written version is never replaced silently
     description: ...
     detector:  {kind: circle2d, circle: {jump, min_points, ...}, k_sigma, buffer_samples, association_gate}
     sensor:    {kind, n_beams, angle_min, angle_increment, range_min, range_max, range_sigma, fov, mount}
     hotelling: {names, mean, covariance, confidence, gamma, auc_hotelling, auc_fisher}
-    pd:        {covariate: n_p | range, edges, pd, counts, detections, wilson_low, wilson_high, clamping}
-    clutter:   {rate, space, volume, chi2, dof, p_value, dispersion}
+    pd:        {covariate: n_p | range | range_bearing, edges, bearing_edges, pd, counts, detections, wilson_low,
+                wilson_high, clamping, model, shrinkage, between_sensor_sd, selection}
+    clutter:   {rate, space, volume, kappa, chi2, dof, p_value, dispersion, count_model, size, dispersion_test,
+                nb_gof, density}
+    sensors:   {names, member, pairs, pd_observed, pd_predicted, frames, clutter_rate, ...}   (optional)
     descriptor_likelihoods: {true: truncated_gaussian, false: uniform_ellipsoid, gaussian_mass, ellipsoid_volume}
     provenance: {inputs: [{name, sha256}], detcal_version, command, parameters, created, seed}
 
 Every level forbids unknown keys; a wrong value is reported with its field path.
+
+Schema versions: 2 added richer models (a range x bearing P_D grid, model
+selection records, negative-binomial clutter counts and a clutter density, the
+Hotelling coverage, the spread between sensors). A schema-1 reader would refuse
+them field by field, hence the new number. Every field added in 2 is optional
+with a default meaning the schema-1 behaviour, so schema-1 documents load
+unchanged and are written back byte for byte as schema 1 (:data:`V2_FIELDS` are
+left out); a schema-1 document that uses a schema-2 field is refused by name.
 """
 
 from __future__ import annotations
@@ -26,7 +37,15 @@ from pydantic import Field, field_validator, model_validator
 
 from profiles.schema import CircleDetectorParams, ClutterParams, HotellingParams, MeasurementNoise, PdTable, SensorModel, Strict
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+SUPPORTED_SCHEMAS = (1, 2)
+# fields added in schema 2, as a pydantic ``exclude`` spec (left out when writing a schema-1 document)
+V2_FIELDS: dict = {
+    "pd": {"bearing_edges", "model", "shrinkage", "between_sensor_sd", "selection"},
+    "clutter": {"count_model", "size", "dispersion_test", "nb_gof", "density"},
+    "hotelling": {"gamma_method", "coverage"},
+    "sensors": True,
+}
 NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]*$")
 SEMVER_RE = re.compile(r"^(0|[1-9]\d*)\.(0|[1-9]\d*)\.(0|[1-9]\d*)$")
 
@@ -51,6 +70,12 @@ class DetectorSpec(Strict):
     k_sigma: float = Field(default=3.0, gt=0.0, description="occlusion tolerance of the n_p ray tracer, in sigma_r")
     buffer_samples: int = Field(default=5, ge=1, description="lateral samples of the buffer-zone rule (odd)")
     association_gate: float = Field(default=1.0, gt=0.0, description="detection-landmark gate used in calibration [m]")
+    occluder_radius: float | None = Field(
+        default=None,
+        gt=0.0,
+        description="external detectors of round landmarks: P_D of a feature hidden behind a nearer mapped feature of this radius [m] is 0 "
+        "(the P_D table is then that of unoccluded features)",
+    )
 
     @model_validator(mode="after")
     def _circle(self) -> DetectorSpec:
@@ -69,6 +94,12 @@ class HotellingModel(HotellingParams):
     auc_hotelling: float | None = Field(default=None, ge=0.0, le=1.0)
     auc_fisher: float | None = Field(default=None, ge=0.0, le=1.0)
     samples: int | None = Field(default=None, ge=0, description="true detections the ellipsoid was fitted to")
+    gamma_method: Literal["chi2", "empirical"] = Field(
+        default="chi2",
+        description="gamma from the chi-square quantile at `confidence` (eq. 5.4, exact for Gaussian descriptors) or the "
+        "empirical quantile of the true detections' Mahalanobis distances (right whatever their distribution)",
+    )
+    coverage: float | None = Field(default=None, ge=0.0, le=1.0, description="share of the calibration's true detections inside the ellipsoid")
 
 
 class DescriptorLikelihoods(Strict):
@@ -78,6 +109,48 @@ class DescriptorLikelihoods(Strict):
     false: Literal["uniform_ellipsoid"] = "uniform_ellipsoid"
     gaussian_mass: float = Field(gt=0.0, le=1.0, description="chi2 CDF of gamma: the Gaussian's mass inside the ellipsoid")
     ellipsoid_volume: float = Field(gt=0.0, description="volume of the ellipsoid in descriptor space (g_FA = 1 / volume)")
+
+
+class SensorSpread(Strict):
+    """The sensors (robots, logs) behind a profile and how far they differ (schema 2).
+
+    Lists run over ``names``. ``pd_observed`` is each sensor's detection rate over
+    its own pairs and ``pd_predicted`` what the pooled model predicts for the same
+    pairs (they differ when the sensors differ, not only by where they looked).
+    Partial pooling in two levels: ``pd_logit_offset`` is each sensor's shift of
+    logit P_D from the pooled table (shrunk by ``pd_logit_sd``, the offsets' spread
+    beyond their sampling error), and ``pd_concentration`` is m of the beta prior
+    on what the offset leaves cell by cell (None: the cells agree within their
+    noise). ``pd_between_sd`` is the between-sensor standard deviation of P_D
+    both imply at the pooled overall P_D. Clutter rates are pooled likewise:
+    ``clutter_between_sd`` is the spread of the sensors' rates beyond their
+    sampling error (batch means), and a member's rate is w own + (1 - w) pooled.
+    ``member``: None for the pooled profile, else the sensor this profile is for.
+    """
+
+    names: list[str] = Field(min_length=1)
+    member: str | None = None
+    pairs: list[int]
+    pd_observed: list[float]
+    pd_predicted: list[float]
+    frames: list[int]
+    clutter_rate: list[float]
+    pd_logit_offset: list[float]
+    pd_logit_sd: float = Field(ge=0.0)
+    pd_concentration: float | None = Field(default=None, gt=0.0)
+    pd_between_sd: float = Field(ge=0.0)
+    clutter_between_sd: float = Field(ge=0.0)
+    clutter_weight: float | None = Field(default=None, ge=0.0, le=1.0, description="member: weight of its own clutter rate")
+
+    @model_validator(mode="after")
+    def _lengths(self) -> SensorSpread:
+        n = len(self.names)
+        for name in ("pairs", "pd_observed", "pd_predicted", "frames", "clutter_rate", "pd_logit_offset"):
+            if len(getattr(self, name)) != n:
+                raise ValueError(f"{name} has {len(getattr(self, name))} entries for {n} sensors")
+        if self.member is not None and self.member not in self.names:
+            raise ValueError(f"member {self.member!r} is not one of the sensors")
+        return self
 
 
 class InputRef(Strict):
@@ -95,7 +168,7 @@ class Provenance(Strict):
 
 
 class DetectorProfile(Strict):
-    schema_version: Literal[1] = SCHEMA_VERSION
+    schema_version: Literal[1, 2] = SCHEMA_VERSION
     name: str
     version: str
     description: str = ""
@@ -106,6 +179,7 @@ class DetectorProfile(Strict):
     clutter: ClutterParams
     descriptor_likelihoods: DescriptorLikelihoods | None = None
     noise: MeasurementNoise | None = Field(default=None, description="measurement noise of true detections (written only when measured)")
+    sensors: SensorSpread | None = Field(default=None, description="the sensors behind the profile and their spread (written only when several)")
     provenance: Provenance
 
     @field_validator("name")
@@ -130,8 +204,28 @@ class DetectorProfile(Strict):
                 raise ValueError("pd.covariate n_p needs sensor.n_beams and sensor.range_sigma")
         if (self.descriptor_likelihoods is not None) and self.hotelling is None:
             raise ValueError("descriptor_likelihoods need a hotelling model")
+        if self.pd.two_d and self.detector.kind == "circle2d":
+            raise ValueError("a range_bearing P_D table is for detection-level sensors (external detector)")
+        if self.schema_version == 1:
+            used = schema2_fields_used(self)
+            if used:
+                raise ValueError(f"{used[0]} needs schema_version 2 (this document says 1)")
         return self
 
     @property
     def ref(self) -> str:
         return f"{self.name}@{self.version}"
+
+
+def schema2_fields_used(p: DetectorProfile) -> list[str]:
+    """Field paths of ``p`` that hold something only schema 2 can say (a value other than the default)."""
+    used = [f"pd.{k}" for k in sorted(V2_FIELDS["pd"]) if getattr(p.pd, k) != type(p.pd).model_fields[k].default]
+    used += [f"clutter.{k}" for k in sorted(V2_FIELDS["clutter"]) if getattr(p.clutter, k) != type(p.clutter).model_fields[k].default]
+    if p.pd.covariate == "range_bearing":
+        used.insert(0, "pd.covariate")
+    if p.hotelling is not None:
+        h = p.hotelling
+        used += [f"hotelling.{k}" for k in sorted(V2_FIELDS["hotelling"]) if getattr(h, k) != type(h).model_fields[k].default]
+    if p.sensors is not None:
+        used.append("sensors")
+    return used

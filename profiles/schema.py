@@ -113,43 +113,136 @@ class HotellingParams(Strict):
         return self
 
 
+class Selection(Strict):
+    """How a model was chosen among candidates: by the mean held-out log-likelihood.
+
+    Each candidate was fitted on all folds but one and scored on the one left
+    out; ``loglik`` is the mean log-likelihood per held-out item (pair for P_D,
+    false alarm for the clutter density), in the order of ``candidates``.
+    """
+
+    criterion: Literal["heldout_loglik"] = "heldout_loglik"
+    folds: str = Field(description="what the folds were, e.g. 'sensors (4)' or 'time blocks (5)'")
+    candidates: list[str] = Field(min_length=1)
+    loglik: list[float]
+    items: int = Field(ge=0, description="held-out items scored (summed over folds)")
+    chosen: str
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Selection:
+        if len(self.loglik) != len(self.candidates):
+            raise ValueError(f"loglik has {len(self.loglik)} entries for {len(self.candidates)} candidates")
+        if self.chosen not in self.candidates:
+            raise ValueError(f"chosen {self.chosen!r} is not one of the candidates")
+        return self
+
+
+def _shape(v) -> tuple[int, ...]:
+    """Shape of a list or a list of lists (numpy refuses a ragged one with a ValueError)."""
+    return np.asarray(v, dtype=np.float64).shape
+
+
 class PdTable(Strict):
     """P_D against a covariate, piecewise constant (thesis eq. 6.2, Table 6.1).
 
-    Bin i covers ``edges[i] <= v < edges[i+1]``; a value at or beyond the last
-    edge uses the last bin, a value below the first edge has P_D = 0. For
-    ``n_p`` the edges are integers, one bin per count.
+    One covariate (``n_p`` or ``range``): bin i covers ``edges[i] <= v < edges[i+1]``;
+    a value at or beyond the last edge uses the last bin, a value below the first
+    edge has P_D = 0. For ``n_p`` the edges are integers, one bin per count.
+
+    ``range_bearing`` (schema 2): a grid over range (``edges``, rows) and bearing
+    (``bearing_edges`` [rad, sensor frame], columns); ``pd``, ``counts``, ... are
+    lists of rows. Range beyond the last edge uses the last row; a bearing outside
+    the bearing edges is outside the field of view (P_D = 0). ``model`` says how the
+    cell values were estimated: ``binned`` (each cell its own rate),
+    ``additive_logit`` (logit P_D = a(range bin) + b(bearing bin), a logistic
+    regression: few parameters, no cell left empty) or ``cells_shrunk`` (each
+    cell's rate shrunk toward the additive model with ``shrinkage`` pseudo-pairs)
+    or ``partial_pooling`` (one sensor's table: the pooled table of several
+    sensors shifted by the sensor's logit offset, its cells shrunk toward that
+    with ``shrinkage`` = m pseudo-pairs; see ``sensors``).
+
+    ``between_sensor_sd`` (pooled profiles): how far the sensors' own P_D spread
+    about the pooled one in each bin, beyond binomial noise (beta-binomial).
     """
 
-    covariate: Literal["n_p", "range"] = "n_p"
+    covariate: Literal["n_p", "range", "range_bearing"] = "n_p"
     edges: list[float] = Field(min_length=2)
-    pd: list[float]
-    counts: list[int] | None = None
-    detections: list[int] | None = None
-    wilson_low: list[float] | None = None
-    wilson_high: list[float] | None = None
+    bearing_edges: list[float] | None = Field(default=None, min_length=2)
+    pd: list[float] | list[list[float]]
+    counts: list[int] | list[list[int]] | None = None
+    detections: list[int] | list[list[int]] | None = None
+    wilson_low: list[float] | list[list[float]] | None = None
+    wilson_high: list[float] | list[list[float]] | None = None
     clamping: str = Field(default="none", description="how the raw estimates were clamped")
+    model: Literal["binned", "additive_logit", "cells_shrunk", "partial_pooling"] = "binned"
+    shrinkage: float | None = Field(
+        default=None, gt=0.0, description="pseudo-pairs toward the additive model (cells_shrunk) or the shifted pooled table (partial_pooling; None: cells fully pooled)"
+    )
+    between_sensor_sd: list[float] | list[list[float]] | None = None
+    selection: Selection | None = None
 
     @model_validator(mode="after")
     def _shapes(self) -> PdTable:
         e = np.asarray(self.edges)
         if np.any(np.diff(e) <= 0):
             raise ValueError("edges must increase strictly")
-        n = e.size - 1
-        for name in ("pd", "counts", "detections", "wilson_low", "wilson_high"):
+        two_d = self.covariate == "range_bearing"
+        if two_d != (self.bearing_edges is not None):
+            raise ValueError("bearing_edges are given exactly when the covariate is range_bearing")
+        shape: tuple[int, ...] = (e.size - 1,)
+        if two_d:
+            be = np.asarray(self.bearing_edges)
+            if np.any(np.diff(be) <= 0):
+                raise ValueError("bearing_edges must increase strictly")
+            shape = (e.size - 1, be.size - 1)
+        for name in ("pd", "counts", "detections", "wilson_low", "wilson_high", "between_sensor_sd"):
             v = getattr(self, name)
-            if v is not None and len(v) != n:
-                raise ValueError(f"{name} has {len(v)} entries for {n} bins")
-        if any(not 0.0 <= p <= 1.0 for p in self.pd):
+            if v is None:
+                continue
+            got = _shape(v)
+            if got != shape:
+                if len(shape) == 1 and len(got) == 1:
+                    raise ValueError(f"{name} has {got[0]} entries for {shape[0]} bins")
+                raise ValueError(f"{name} has shape {got} for a {'x'.join(map(str, shape))} table")
+        pd = np.asarray(self.pd, dtype=np.float64)
+        if not np.all((pd >= 0.0) & (pd <= 1.0)):
             raise ValueError("pd values must lie in [0, 1]")
+        if self.model == "cells_shrunk" and self.shrinkage is None:
+            raise ValueError("a cells_shrunk table needs its shrinkage")
+        if self.model not in ("cells_shrunk", "partial_pooling") and self.shrinkage is not None:
+            raise ValueError("shrinkage belongs to cells_shrunk and partial_pooling tables")
         return self
 
+    @property
+    def two_d(self) -> bool:
+        return self.covariate == "range_bearing"
+
     def lookup(self, v: np.ndarray) -> np.ndarray:
-        """P_D for covariate values ``v`` (any shape)."""
+        """P_D for covariate values ``v`` (any shape) of a one-covariate table."""
+        if self.two_d:
+            raise ValueError("a range_bearing table needs range and bearing: use lookup_rb")
         e = np.asarray(self.edges)
         pd = np.asarray(self.pd)
         i = np.clip(np.searchsorted(e, v, side="right") - 1, 0, pd.size - 1)
         return np.where(np.asarray(v) < e[0], 0.0, pd[i])
+
+    def lookup_rb(self, r: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """P_D at range ``r`` [m] and bearing ``b`` [rad, sensor frame] (broadcast shapes).
+
+        A one-covariate range table ignores the bearing.
+        """
+        r = np.asarray(r, dtype=np.float64)
+        if not self.two_d:
+            if self.covariate != "range":
+                raise ValueError(f"a {self.covariate} table cannot be looked up by range and bearing")
+            return self.lookup(np.broadcast_to(r, np.broadcast_shapes(r.shape, np.shape(b))))
+        b = np.asarray(b, dtype=np.float64)
+        e, be = np.asarray(self.edges), np.asarray(self.bearing_edges)
+        pd = np.asarray(self.pd)
+        i = np.clip(np.searchsorted(e, r, side="right") - 1, 0, pd.shape[0] - 1)
+        j = np.clip(np.searchsorted(be, b, side="right") - 1, 0, pd.shape[1] - 1)
+        inside = (r >= e[0]) & (b >= be[0]) & (b <= be[-1])
+        return np.where(inside, pd[i, j], 0.0)
 
 
 class MeasurementNoise(Strict):
@@ -167,10 +260,75 @@ class MeasurementNoise(Strict):
     samples: int = Field(default=0, ge=0, description="true detections the figures come from")
 
 
-class ClutterParams(Strict):
-    """Poisson clutter: ``rate`` false alarms per scan spread uniformly over ``volume``.
+class CountTest(Strict):
+    """A test on per-frame counts: statistic, degrees of freedom (None where not chi-square) and p-value."""
 
-    space: ``range_bearing`` (volume in m*rad) or ``xy`` (area in m^2).
+    test: str
+    statistic: float
+    dof: int | None = None
+    p_value: float = Field(ge=0.0, le=1.0)
+
+
+class ClutterDensity(Strict):
+    """Where false alarms fall in the measurement space: a density over (range, bearing).
+
+    Piecewise constant over the grid ``range_edges`` [m] x ``bearing_edges`` [rad,
+    sensor frame]; ``density`` [1 / (m rad)] integrates to 1 over the grid and is 0
+    outside it. Estimated from the calibration's false alarms with ``smoothing``
+    pseudo-counts spread uniformly (a Dirichlet prior): 0 is the raw histogram, a
+    large value approaches the uniform density of the thesis (sec. 4.2).
+    """
+
+    range_edges: list[float] = Field(min_length=2)
+    bearing_edges: list[float] = Field(min_length=2)
+    density: list[list[float]]
+    counts: list[list[int]] | None = None
+    smoothing: float = Field(ge=0.0)
+    selection: Selection | None = None
+
+    @model_validator(mode="after")
+    def _shape(self) -> ClutterDensity:
+        re_, be = np.asarray(self.range_edges), np.asarray(self.bearing_edges)
+        if np.any(np.diff(re_) <= 0) or np.any(np.diff(be) <= 0):
+            raise ValueError("range_edges and bearing_edges must increase strictly")
+        want = (re_.size - 1, be.size - 1)
+        for name in ("density", "counts"):
+            v = getattr(self, name)
+            if v is not None and _shape(v) != want:
+                raise ValueError(f"{name} has shape {_shape(v)} for a {want[0]}x{want[1]} grid")
+        d = np.asarray(self.density, dtype=np.float64)
+        if np.any(d < 0):
+            raise ValueError("density values must be >= 0")
+        mass = float((d * np.diff(re_)[:, None] * np.diff(be)[None, :]).sum())
+        if not np.isclose(mass, 1.0, rtol=1e-6):
+            raise ValueError(f"density integrates to {mass:.9g} over the grid, not 1")
+        return self
+
+    def at(self, r: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Density [1 / (m rad)] at range ``r`` and bearing ``b`` (broadcast shapes); 0 outside the grid."""
+        r, b = np.asarray(r, dtype=np.float64), np.asarray(b, dtype=np.float64)
+        re_, be = np.asarray(self.range_edges), np.asarray(self.bearing_edges)
+        d = np.asarray(self.density)
+        i = np.clip(np.searchsorted(re_, r, side="right") - 1, 0, d.shape[0] - 1)
+        j = np.clip(np.searchsorted(be, b, side="right") - 1, 0, d.shape[1] - 1)
+        inside = (r >= re_[0]) & (r <= re_[-1]) & (b >= be[0]) & (b <= be[-1])
+        return np.where(inside, d[i, j], 0.0)
+
+
+class ClutterParams(Strict):
+    """Clutter: ``rate`` false alarms per frame, spread over the measurement space.
+
+    space: ``range_bearing`` (volume in m*rad) or ``xy`` (area in m^2). ``kappa`` is
+    the mean intensity rate / volume (uniform, thesis sec. 4.2); with a ``density``
+    (schema 2) the intensity is rate x density(range, bearing) instead.
+
+    Counts per frame (schema 2): ``count_model`` ``poisson`` (the thesis; its
+    Pearson test is ``chi2``/``dof``/``p_value``) or ``negative_binomial`` (a
+    Poisson-gamma mixture with mean ``rate`` and variance rate + rate^2 / ``size``),
+    chosen when ``dispersion_test`` (likelihood ratio of the negative binomial
+    against the Poisson) rejects the Poisson at 0.05; ``nb_gof`` is the negative
+    binomial's Pearson test. A PHD filter uses only the intensity (the mean); the
+    count model is what a cardinality-aware filter (CPHD) and the validation use.
     """
 
     rate: float = Field(ge=0.0, description="lambda: mean false alarms per scan")
@@ -181,6 +339,11 @@ class ClutterParams(Strict):
     dof: int | None = None
     p_value: float | None = Field(default=None, ge=0.0, le=1.0)
     dispersion: float | None = Field(default=None, ge=0.0, description="variance / mean of the per-scan counts")
+    count_model: Literal["poisson", "negative_binomial"] = "poisson"
+    size: float | None = Field(default=None, gt=0.0, description="negative binomial shape r (variance = rate + rate^2 / r)")
+    dispersion_test: CountTest | None = None
+    nb_gof: CountTest | None = None
+    density: ClutterDensity | None = None
 
     @model_validator(mode="after")
     def _kappa(self) -> ClutterParams:
@@ -189,4 +352,34 @@ class ClutterParams(Strict):
             self.kappa = k
         elif not np.isclose(self.kappa, k, rtol=1e-9, atol=0.0):
             raise ValueError(f"kappa {self.kappa} is not rate / volume = {k}")
+        if (self.count_model == "negative_binomial") != (self.size is not None):
+            raise ValueError("size is given exactly when the count model is negative_binomial")
+        if self.density is not None and self.space != "range_bearing":
+            raise ValueError("a clutter density is over range and bearing: space must be range_bearing")
         return self
+
+    def count_pmf(self, k: np.ndarray) -> np.ndarray:
+        """P(k false alarms in a frame) under the count model, k (...) non-negative integers."""
+        from scipy.stats import nbinom, poisson
+
+        k = np.asarray(k)
+        if self.count_model == "poisson":
+            return poisson.pmf(k, self.rate)
+        r = float(self.size)
+        return nbinom.pmf(k, r, r / (r + self.rate))
+
+    def count_sf(self, k: np.ndarray) -> np.ndarray:
+        """P(more than k false alarms in a frame)."""
+        from scipy.stats import nbinom, poisson
+
+        if self.count_model == "poisson":
+            return poisson.sf(k, self.rate)
+        r = float(self.size)
+        return nbinom.sf(k, r, r / (r + self.rate))
+
+    @property
+    def count_variance(self) -> float:
+        """Variance of the count per frame under the count model."""
+        if self.count_model == "poisson":
+            return self.rate
+        return self.rate + self.rate**2 / float(self.size)

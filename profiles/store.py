@@ -24,7 +24,7 @@ from pydantic import ValidationError
 
 from profiles.atomic import atomic_output
 from profiles.errors import DataError, UsageError
-from profiles.profile import SCHEMA_VERSION, DetectorProfile, semver_key
+from profiles.profile import SCHEMA_VERSION, SUPPORTED_SCHEMAS, V2_FIELDS, DetectorProfile, semver_key
 
 BUILTIN = Path(__file__).resolve().parent / "builtin"
 
@@ -42,18 +42,22 @@ def _field_path(loc: tuple) -> str:
 
 
 def parse_profile(data: object, where: str) -> DetectorProfile:
-    """Validate a loaded document; migrate or refuse other schema versions by name."""
+    """Validate a loaded document; refuse other schema versions by name.
+
+    Schema 1 documents load as they are: every field schema 2 added is optional
+    with a default meaning the schema-1 behaviour (see :mod:`profiles.profile`).
+    """
     if not isinstance(data, dict):
         raise DataError(f"{where}: a profile is a mapping at the top level")
     version = data.get("schema_version")
-    if version != SCHEMA_VERSION:
-        if isinstance(version, int) and version > SCHEMA_VERSION:
+    if version not in SUPPORTED_SCHEMAS or isinstance(version, bool):
+        if isinstance(version, int) and not isinstance(version, bool) and version > SCHEMA_VERSION:
             raise DataError(
                 f"{where}: schema_version {version} is newer than this detcal reads ({SCHEMA_VERSION}); upgrade detcal"
             )
         raise DataError(
-            f"{where}: schema_version {version!r} is not supported; this detcal reads schema {SCHEMA_VERSION} "
-            "and has no migration from it"
+            f"{where}: schema_version {version!r} is not supported; this detcal reads schemas "
+            f"{', '.join(map(str, SUPPORTED_SCHEMAS))} and has no migration from it"
         )
     try:
         return DetectorProfile.model_validate(data)
@@ -80,10 +84,15 @@ def load_profile_file(path: str | Path) -> DetectorProfile:
 
 
 def dump_profile(profile: DetectorProfile, fmt: str = "yaml") -> str:
-    """Deterministic text: schema order, floats written exactly (round trip is lossless)."""
-    data = profile.model_dump(mode="json")
-    if data.get("noise") is None:  # optional section: absent rather than null, so older profiles keep their bytes
-        data.pop("noise", None)
+    """Deterministic text: schema order, floats written exactly (round trip is lossless).
+
+    A schema-1 profile is written without the fields schema 2 added (it cannot
+    use them), so it keeps its bytes.
+    """
+    data = profile.model_dump(mode="json", exclude=V2_FIELDS if profile.schema_version == 1 else None)
+    for section in ("noise", "sensors"):  # optional sections: absent rather than null, so older profiles keep their bytes
+        if data.get(section) is None:
+            data.pop(section, None)
     if fmt == "json":
         return json.dumps(data, indent=2) + "\n"
     if fmt != "yaml":

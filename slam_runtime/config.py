@@ -43,6 +43,8 @@ class VelocityNoise(_Strict):
 
     sigma_v: float = Field(default=0.05, ge=0.0, description="m/s")
     sigma_omega: float = Field(default=0.05, ge=0.0, description="rad/s")
+    speed_scale: float = Field(default=1.0, gt=0.5, lt=2.0, description="factor on every speed command")
+    omega_offset: float = Field(default=0.0, ge=-0.5, le=0.5, description="turn-rate bias removed from every command [rad/s]")
 
 
 class AckermannNoise(_Strict):
@@ -51,6 +53,7 @@ class AckermannNoise(_Strict):
     sigma_speed: float = Field(default=0.1, ge=0.0, description="m/s")
     sigma_steer: float = Field(default=0.02, ge=0.0, description="rad")
     steer_offset: float = Field(default=0.0, ge=-0.2, le=0.2, description="steering bias removed from every reading [rad]")
+    speed_scale: float = Field(default=1.0, gt=0.5, lt=2.0, description="factor on every speed reading")
 
 
 class MotionNoise(_Strict):
@@ -80,6 +83,9 @@ class DetectionOptions(_Strict):
     descriptor_likelihood: bool = Field(
         default=True, description="weigh each detection by g_x(d) / g_FA(d) of its descriptors (eqs. 2.26, 5.6) when the profile has a Hotelling model"
     )
+    occlusion: bool = Field(
+        default=True, description="detection-level profiles with an occluder radius: features hidden behind a nearer mapped one have P_D 0"
+    )
     landmarks_only: bool = Field(
         default=True, description="detection-level logs that label their detections (UTIAS `target`): feed only the landmark ones to the filter"
     )
@@ -98,6 +104,9 @@ class SlamConfig(_Strict):
     resampler: Literal["systematic", "stratified", "multinomial", "residual"] = "systematic"
     resample_ess: float = Field(default=0.5, gt=0.0, le=1.0, description="resample when ESS < this x particles")
     resample_every: int = Field(default=1, ge=1, description="updates at least between two resamplings")
+    proposal: Literal["prior", "optimal"] = Field(
+        default="prior", description="draw poses from the motion model, or from its Gaussian updated by the measurements the map explains"
+    )
     filter: FilterConfig = RBPHDConfig()
     measurement: MeasurementNoiseConfig = MeasurementNoiseConfig()
     motion: MotionNoise = MotionNoise()
@@ -157,6 +166,7 @@ def detection_model(profile, opts: DetectionOptions, sensor=None):
         buffer_sigmas=opts.buffer_sigmas,
         landmark_radius=opts.landmark_radius,
         phase_average=opts.phase_average,
+        **({} if opts.occlusion else {"occluder_radius": None}),
     )
 
 

@@ -64,6 +64,10 @@ class FeatureModel(ABC):
     def inverse(self, poses: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return self.inverse_sensor(self.sensor_pose(poses), z)
 
+    def pose_jacobian(self, poses: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """(..., dz, 3) d(predicted z)/d(vehicle pose (x, y, theta)), the mount included (the pose proposal needs it)."""
+        raise NotImplementedError(f"{type(self).__name__} has no pose Jacobian")
+
     def innovation(self, z: np.ndarray, zhat: np.ndarray) -> np.ndarray:
         d = z - zhat
         for i in self.angular:
@@ -98,6 +102,21 @@ class RangeBearing(FeatureModel):
         h[..., 1, 0] = -dy / q
         h[..., 1, 1] = dx / q
         return zhat, h
+
+    def pose_jacobian(self, poses, x):
+        poses = np.asarray(poses, dtype=np.float64)
+        sp = self.sensor_pose(poses)
+        _, h = self.predict_sensor(sp, x)  # d z / d landmark = - d z / d sensor position
+        th = poses[..., 2]
+        mx, my = self.mount[0], self.mount[1]
+        dsx = -np.sin(th) * mx - np.cos(th) * my  # d(sensor position)/d(theta)
+        dsy = np.cos(th) * mx - np.sin(th) * my
+        out = np.empty(h.shape[:-1] + (3,))
+        out[..., 0] = -h[..., 0]
+        out[..., 1] = -h[..., 1]
+        out[..., 2] = -(h[..., 0] * dsx[..., None] + h[..., 1] * dsy[..., None])
+        out[..., 1, 2] -= 1.0  # the bearing turns with the sensor
+        return out
 
     def inverse_sensor(self, sensor, z):
         a = sensor[..., 2] + z[..., 1]

@@ -101,6 +101,10 @@ class MapFilter(ABC):
     def estimate(self, maps: MapState, i: int) -> tuple[np.ndarray, np.ndarray]:
         """Particle i's map: feature states (K, dx) and their weights or existence probabilities (K,)."""
 
+    def components(self, maps: MapState, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Particle i's whole map: every component's state (K, dx) and weight (K,), however light."""
+        return self.estimate(maps, i)
+
     @abstractmethod
     def size(self, maps: MapState) -> np.ndarray:
         """(P,) components (or tracks) per particle."""

@@ -119,6 +119,10 @@ class RBPHD(MapFilter):
     def size(self, maps: PHDMaps) -> np.ndarray:
         return maps.gm.count()
 
+    def components(self, maps: PHDMaps, i: int) -> tuple[np.ndarray, np.ndarray]:
+        keep = maps.gm.w[i] > 0
+        return maps.gm.mu[i][keep], maps.gm.w[i][keep]
+
     def estimate(self, maps: PHDMaps, i: int) -> tuple[np.ndarray, np.ndarray]:
         keep = maps.gm.w[i] >= self.cfg.map_threshold
         return maps.gm.mu[i][keep], maps.gm.w[i][keep]
@@ -136,7 +140,7 @@ class RBPHD(MapFilter):
         w, mu, cov = prior.w, prior.mu, prior.cov
         p, j = w.shape
         with tm("pd"):
-            pd, buf = self.detection.pd_features(sp, mu, cov, meas)
+            pd, buf = self.detection.pd_features(sp, mu, cov, meas, w)
             buf[:, n_map:] = False  # the rule protects map features, not this step's birth hypotheses
         kappa = self.detection.clutter_intensity(z) if m else np.zeros(0)
         if meas.ratio is not None and m:
@@ -203,6 +207,72 @@ class RBPHD(MapFilter):
         # adaptive birth: a measurement the map already explains gives birth to little
         birth = self._birth(sp, z, rz, 1.0 - np.clip(w_det.sum(axis=1), 0.0, 1.0) if cfg.adaptive_birth else None)
         return PHDMaps(gm, birth), loglik
+
+    def pose_proposal(
+        self, maps: PHDMaps, xbar: np.ndarray, q: np.ndarray, meas: Measurements, *, share: float = 0.5, iterations: int = 3
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A Gaussian approximation of the optimal importance density of each particle's pose (FastSLAM
+        2.0; the optimal proposal of PHD-SLAM 2.0/3.0): the motion prior N(xbar, q) (P, 3), (P, 3, 3)
+        updated by the frame's measurements that the particle's map explains, each by its likeliest
+        feature when that feature takes at least ``share`` of it (the share of the PHD update,
+        P_D w q / (kappa + sum)), with an iterated EKF (re-linearised ``iterations`` times).
+        Returns the mean (P, 3), covariance (P, 3, 3) and the number of measurements used (P,)."""
+        fm = self.feature
+        gm = maps.gm
+        p, j = gm.shape
+        dz = fm.dim_z
+        z = np.asarray(meas.z, dtype=np.float64).reshape(-1, dz)
+        m = z.shape[0]
+        if m == 0 or j == 0:
+            return xbar, q, np.zeros(p, dtype=np.int64)
+        rz = np.broadcast_to(self.r, (m, dz, dz)) if meas.cov is None else np.asarray(meas.cov).reshape(m, dz, dz) + self.r
+        sp = fm.sensor_pose(xbar)
+        pd, _ = self.detection.pd_features(sp, gm.mu, gm.cov, meas, gm.w)
+        seen = (pd > 0) & (gm.w > 0)
+        js = int(seen.sum(axis=1).max())
+        if js == 0:
+            return xbar, q, np.zeros(p, dtype=np.int64)
+        rows = np.arange(p)[:, None]
+        sel = np.argsort(~seen, axis=1, kind="stable")[:, :js]
+        in_s = seen[rows, sel]
+        mu_s, cov_s = gm.mu[rows, sel], gm.cov[rows, sel]
+        w_s = np.where(in_s, gm.w[rows, sel] * pd[rows, sel], 0.0)
+        zhat, hl = fm.predict_sensor(sp[:, None, :], mu_s)
+        hph = matmul(hl, matmul(cov_s, transpose(hl)))
+        s_pair = hph[:, :, None] + rz[None, None]  # (P, Js, M, dz, dz)
+        nu = fm.innovation(z[None, None], zhat[:, :, None])
+        m2 = quad(inv(s_pair), nu)
+        lik = np.where(m2 <= self.cfg.gate, gaussian(m2, det(s_pair), dz), 0.0) * w_s[..., None]
+        kappa = self.detection.clutter_intensity(z)
+        if meas.ratio is not None:
+            kappa = kappa / np.maximum(np.asarray(meas.ratio, dtype=np.float64), 1e-300)
+        best = np.argmax(lik, axis=1)  # (P, M) the likeliest feature of each measurement
+        lb = np.take_along_axis(lik, best[:, None, :], axis=1)[:, 0]
+        use = lb > share * (kappa[None, :] + lik.sum(axis=1))  # (P, M)
+        n_used = use.sum(axis=1)
+        if not use.any():
+            return xbar, q, n_used
+        rm = np.arange(p)[:, None]
+        mu_b = mu_s[rm, best]  # (P, M, dx)
+        s_b = s_pair[rm, best, np.arange(m)[None, :]]  # (P, M, dz, dz)
+        s_inv = np.where(use[..., None, None], inv(s_b), 0.0)
+        q_reg = q + np.eye(3) * 1e-12
+        q_inv = np.linalg.inv(q_reg)
+        x = xbar.copy()
+        cov = q_reg
+        for _ in range(iterations):
+            zh, _ = fm.predict(x[:, None, :], mu_b)
+            hx = fm.pose_jacobian(x[:, None, :], mu_b)  # (P, M, dz, 3)
+            r = fm.innovation(np.broadcast_to(z, zh.shape), zh)
+            dx = x - xbar
+            dx[:, 2] = np.mod(dx[:, 2] + np.pi, 2 * np.pi) - np.pi
+            r = r + (hx @ dx[:, None, :, None])[..., 0]  # iterated EKF: linearise at x, expand about xbar
+            hts = transpose(hx) @ s_inv  # (P, M, 3, dz)
+            info = q_inv + (hts @ hx).sum(axis=1)
+            cov = np.linalg.inv(info)
+            x = xbar + (cov @ (hts @ r[..., None]).sum(axis=1))[..., 0]
+            x[:, 2] = np.mod(x[:, 2] + np.pi, 2 * np.pi) - np.pi
+        return x, 0.5 * (cov + transpose(cov)), n_used
 
     def _birth(self, sp: np.ndarray, z: np.ndarray, rz: np.ndarray, unexplained: np.ndarray | None) -> GMBatch:
         """Birth mixture for the next step from this step's measurements (eq. 3.15).

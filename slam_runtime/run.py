@@ -43,9 +43,13 @@ class SlamResult:
     resampled: np.ndarray  # (T,) bool
     components: np.ndarray  # (T,) mean components per particle
     start: np.ndarray  # (3,) the pose the filter started from
+    resample_ms: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (T,) the resampling stage's time per frame
+    step_cpu_ms: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (T,) the process's CPU time per frame (fair on a loaded machine)
     stage_ms: dict = field(default_factory=dict)  # total ms per stage (detect, predict, pd, update, weight, merge, resample)
     capped_steps: int = 0  # steps at which the component cap bound
     per_step: dict = field(default_factory=dict)  # what hooks recorded, name -> (T,)
+    map_all_xy: np.ndarray | None = None  # (K', 2) every component of the best particle's map, however light
+    map_all_w: np.ndarray | None = None  # (K',)
     odometry: np.ndarray | None = None  # (T, 3) dead reckoning through the same frames (set by evaluate)
     metrics: dict = field(default_factory=dict)
 
@@ -132,16 +136,16 @@ def run_slam(
     """
     check_inputs(log, profile)
     b = build(log, profile, cfg)
-    n = sum(1 for _ in log.frames()) if max_frames is None else min(max_frames, sum(1 for _ in log.frames()))
+    stamps = np.array([fr.stamp for fr in log.frames()], dtype=np.int64)[:max_frames]
+    n = stamps.size
     if n == 0:
         raise DataError(f"log {log.name!r}: no scans or detections to run on")
-    stamps = np.array([fr.stamp for fr in log.frames()][:n], dtype=np.int64)
     start = start_pose(log, int(stamps[0]))
     slam = RBSlam(
         b.vehicle, b.mapfilter, cfg.particles, start, np.random.default_rng(seed),
-        resampler=cfg.resampler, resample_ess=cfg.resample_ess, resample_every=cfg.resample_every,
+        resampler=cfg.resampler, resample_ess=cfg.resample_ess, resample_every=cfg.resample_every, proposal=cfg.proposal,
     )
-    times, counts, ess_, res_, comp = np.zeros(n), np.zeros(n, np.int64), np.zeros(n), np.zeros(n, bool), np.zeros(n)
+    times, counts, ess_, res_, comp, rs_ms, cpu = (np.zeros(n), np.zeros(n, np.int64), np.zeros(n), np.zeros(n, bool), np.zeros(n), np.zeros(n), np.zeros(n))
     mean_traj = np.zeros((n, 3))
     per_step = {h.name: np.full(n, np.nan) for h in hooks}
     detect_s = 0.0
@@ -152,22 +156,26 @@ def run_slam(
     for fi in it:  # the source detects (laser) while the loop advances: that time is the "detect" stage
         k = fi.index
         t0 = time.perf_counter()
+        c0 = time.process_time()
         detect_s += t0 - t_prev
         if fi.controls.shape[0]:
             slam.predict(fi.controls, fi.dts)
         info = slam.update(fi.meas)
         times[k] = (time.perf_counter() - t0) * 1e3
-        counts[k], ess_[k], res_[k], comp[k] = info.n_measurements, info.ess, info.resampled, info.components
+        cpu[k] = (time.process_time() - c0) * 1e3
+        counts[k], ess_[k], res_[k], comp[k], rs_ms[k] = info.n_measurements, info.ess, info.resampled, info.components, info.resample_ms
         mean_traj[k] = slam.mean_pose()
         for h in hooks:
             per_step[h.name][k] = h(k, slam)
         t_prev = time.perf_counter()
     traj = b.vehicle.pose(slam.trajectory())[1:]
     est_x, est_w = slam.map_estimate()
+    all_x, all_w = b.mapfilter.components(slam.maps, slam.best())
     stage = {"detect": detect_s * 1e3, **{k: v * 1e3 for k, v in slam.time.items()}, **{k: v * 1e3 for k, v in b.mapfilter.timers.total.items()}}
     return SlamResult(
         b.mapfilter.name, stamps, traj, mean_traj, b.mapfilter.feature.position(est_x), est_w, times, counts, ess_, res_, comp, start,
-        stage_ms=stage, capped_steps=b.mapfilter.capped_steps, per_step=per_step,
+        resample_ms=rs_ms, step_cpu_ms=cpu, stage_ms=stage, capped_steps=b.mapfilter.capped_steps, per_step=per_step,
+        map_all_xy=b.mapfilter.feature.position(all_x), map_all_w=all_w,
     )
 
 
@@ -203,6 +211,7 @@ def evaluate(log: SensorLog, res: SlamResult, c: float = 1.0, p: float = 1.0, cf
         "frames": int(res.stamps.size),
         "ms_per_step_mean": float(res.step_ms.mean()),
         "ms_per_step_median": float(np.median(res.step_ms)),
+        "cpu_ms_per_step_mean": float(res.step_cpu_ms.mean()) if res.step_cpu_ms.size else float("nan"),
         "resampled_steps": int(res.resampled.sum()),
         "cap_bound_steps": int(res.capped_steps),
     }

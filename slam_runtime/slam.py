@@ -43,6 +43,7 @@ class StepInfo:
     ess: float
     resampled: bool
     components: float
+    resample_ms: float  # time of the resampling decision and, when it happened, the resampling
 
 
 class RBSlam:
@@ -57,6 +58,7 @@ class RBSlam:
         resampler: str = "systematic",
         resample_ess: float = 0.5,
         resample_every: int = 1,
+        proposal: str = "prior",
     ) -> None:
         self.vehicle = vehicle
         self.mf = mapfilter
@@ -73,6 +75,9 @@ class RBSlam:
         self._pending = np.arange(n, dtype=np.int32)  # parents of the next history row
         self._since = 0
         self.time = {"predict": 0.0, "resample": 0.0}
+        # the optimal proposal needs a planar-pose vehicle and a map filter that offers it
+        self.proposal = proposal if (vehicle.dim == 3 and hasattr(mapfilter, "pose_proposal")) else "prior"
+        self._prior: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def n(self) -> int:
@@ -81,17 +86,35 @@ class RBSlam:
     def predict(self, controls: np.ndarray, dts: np.ndarray) -> None:
         """Move every particle through the control rows (R, k), each held for dts (R,) [s]."""
         t0 = time.perf_counter()
-        for u, dt in zip(controls, dts, strict=True):  # rows of one frame (a handful); each vectorised over particles
-            self.x = self.vehicle.sample(self.x, u, float(dt), self.rng)
+        if self.proposal == "optimal":  # sampled in update(), once the measurements are known
+            self._prior = self.vehicle.predict_gaussian(self.x, controls, dts)
+            self.x = self._prior[0]
+        else:
+            for u, dt in zip(controls, dts, strict=True):  # rows of one frame (a handful); each vectorised over particles
+                self.x = self.vehicle.sample(self.x, u, float(dt), self.rng)
         self.maps = self.mf.predict(self.maps, float(np.sum(dts)))
         self.time["predict"] += time.perf_counter() - t0
 
     def update(self, meas: Measurements) -> StepInfo:
-        """Record the states of this step, update the maps and weights with ``meas``, resample if needed."""
+        """Record the states of this step, update the maps and weights with ``meas``, resample if needed.
+
+        With the optimal proposal the pose is drawn here from the Gaussian the map filter makes of the
+        motion prior and the measurements, and the weight is corrected by prior / proposal."""
+        correction = 0.0
+        if self._prior is not None:
+            t0 = time.perf_counter()
+            xbar, q = self._prior
+            mean, cov, _ = self.mf.pose_proposal(self.maps, xbar, q, meas)
+            chol = np.linalg.cholesky(cov + np.eye(3) * 1e-12)
+            x = mean + (chol @ self.rng.standard_normal((self.n, 3, 1)))[..., 0]
+            x[:, 2] = np.mod(x[:, 2] + np.pi, 2 * np.pi) - np.pi
+            correction = _log_normal(x, xbar, q) - _log_normal(x, mean, cov)
+            self.x, self._prior = x, None
+            self.time["proposal"] = self.time.get("proposal", 0.0) + time.perf_counter() - t0
         self.history.append(self.x, self._pending)
         self._pending = np.arange(self.n, dtype=np.int32)
         self.maps, loglik = self.mf.update(self.maps, self.vehicle.pose(self.x), meas)
-        self.logw, _ = normalise_log(self.logw + loglik)
+        self.logw, _ = normalise_log(self.logw + loglik + correction)
         t0 = time.perf_counter()
         e = ess(self.logw)
         self._since += 1
@@ -104,8 +127,9 @@ class RBSlam:
             self._pending = idx.astype(np.int32)
             self.logw = np.full(self.n, -np.log(self.n))
             self._since = 0
-        self.time["resample"] += time.perf_counter() - t0
-        return StepInfo(len(meas), e, bool(resampled), float(np.mean(self.mf.size(self.maps))))
+        dt = time.perf_counter() - t0
+        self.time["resample"] += dt
+        return StepInfo(len(meas), e, bool(resampled), float(np.mean(self.mf.size(self.maps))), dt * 1e3)
 
     # ------------------------------------------------------------------ estimates
     def best(self) -> int:
@@ -130,3 +154,13 @@ class RBSlam:
 
     def map_estimate(self, i: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         return self.mf.estimate(self.maps, self.best() if i is None else i)
+
+
+def _log_normal(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """log N(x; mean, cov) of planar poses (P, 3) (heading difference wrapped)."""
+    d = x - mean
+    d[:, 2] = np.mod(d[:, 2] + np.pi, 2 * np.pi) - np.pi
+    c = cov + np.eye(3) * 1e-12
+    sol = np.linalg.solve(c, d[..., None])[..., 0]
+    _, logdet = np.linalg.slogdet(c)
+    return -0.5 * (np.einsum("pi,pi->p", d, sol) + logdet + 3 * np.log(2 * np.pi))

@@ -12,11 +12,14 @@ and detection models need.
   vehicle frame (u = the increment, dt = its duration). Noise std per axis:
   a constant term per second (so a robot that stands still or creeps still
   drifts) plus terms that grow with the motion;
-* :class:`Unicycle` -- velocity commands u = (v, omega), exact arc integration;
+* :class:`Unicycle` -- velocity commands u = (v, omega), exact arc integration
+  (an optional speed scale and turn-rate offset applied first);
 * :class:`Ackermann` -- encoder speed and steering u = (v, steer) (Victoria
   Park): the speed is moved from the encoder to the rear-axle centre,
   v_c = v / (1 - tan(steer) H / L), and the rear-axle centre moves as a
-  bicycle of wheelbase L; an optional steering offset is removed first.
+  bicycle of wheelbase L; an optional steering offset is removed and a speed
+  scale applied first (:func:`fit_ackermann_bias` measures both against a
+  trajectory).
 """
 
 from __future__ import annotations
@@ -61,6 +64,36 @@ class VehicleModel(ABC):
     def sample(self, x: np.ndarray, u: np.ndarray, dt: float, rng: np.random.Generator) -> np.ndarray:
         return self.step(x, u, dt, rng)
 
+    def control_sigmas(self, u: np.ndarray, dt: float) -> np.ndarray:
+        """(control_dim,) standard deviations of the noise on control u."""
+        raise NotImplementedError(f"{type(self).__name__} has no control noise model")
+
+    def predict_gaussian(self, x: np.ndarray, controls: np.ndarray, dts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The mean motion (P, dim) through control rows (R, k) held for dts (R,), and its covariance
+        (P, dim, dim) from the control noise linearised row by row: C <- F C F^T + G S G^T, with F
+        the state Jacobian, G = d(motion)/d(control) (central differences) and S the control noise.
+        The Gaussian a pose proposal starts from."""
+        p, d = x.shape
+        cov = np.zeros((p, d, d))
+        for u, dt in zip(controls, dts, strict=True):
+            u = np.asarray(u, dtype=np.float64)
+            dt = float(dt)
+            f = self.jacobian(x, u, dt)
+            sig = self.control_sigmas(u, dt)
+            g = np.empty((p, d, u.size))
+            for c in range(u.size):
+                h = 1e-6 * max(1.0, abs(u[c]))
+                up, um = u.copy(), u.copy()
+                up[c] += h
+                um[c] -= h
+                diff = self.mean(x, up, dt) - self.mean(x, um, dt)
+                diff[:, 2] = np.mod(diff[:, 2] + np.pi, 2 * np.pi) - np.pi
+                g[:, :, c] = diff / (2 * h)
+            gs = g * sig[None, None, :]
+            cov = f @ cov @ np.swapaxes(f, 1, 2) + gs @ np.swapaxes(gs, 1, 2)
+            x = self.mean(x, u, dt)
+        return x, cov
+
 
 def _noisy(n: int, values: np.ndarray, sigmas: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
     """(n, k) copies of a control with independent Gaussian noise of std ``sigmas`` per column."""
@@ -96,6 +129,9 @@ class OdometryIncrement(VehicleModel):
         self.a_trans, self.a_rot, self.a_rot_trans, self.lateral = a_trans, a_rot, a_rot_trans, lateral
         self.const = np.array([s_x, s_y, s_theta], dtype=np.float64)
 
+    def control_sigmas(self, u, dt):
+        return self.sigmas(np.asarray(u, dtype=np.float64), dt)
+
     def sigmas(self, u: np.ndarray, dt: float) -> np.ndarray:
         d = float(np.hypot(u[0], u[1]))
         return self.const * np.sqrt(max(dt, 0.0)) + np.array([self.a_trans * d, self.lateral * d, self.a_rot * abs(u[2]) + self.a_rot_trans * d])
@@ -118,11 +154,16 @@ class Unicycle(VehicleModel):
 
     control_dim = 2
 
-    def __init__(self, *, sigma_v: float = 0.05, sigma_omega: float = 0.05) -> None:
+    def __init__(self, *, sigma_v: float = 0.05, sigma_omega: float = 0.05, speed_scale: float = 1.0, omega_offset: float = 0.0) -> None:
         self.sig = np.array([sigma_v, sigma_omega], dtype=np.float64)
+        self.speed_scale, self.omega_offset = speed_scale, omega_offset
+
+    def control_sigmas(self, u, dt):
+        return self.sig
 
     def step(self, x, u, dt, rng):
         vv, ww = _noisy(x.shape[0], u, self.sig, rng).T
+        vv, ww = vv * self.speed_scale, ww - self.omega_offset
         th = x[:, 2]
         small = np.abs(ww) < 1e-9
         w_safe = np.where(small, 1.0, ww)
@@ -131,7 +172,7 @@ class Unicycle(VehicleModel):
         return np.column_stack([x[:, 0] + dx, x[:, 1] + dy, wrap_angle(th + ww * dt)])
 
     def jacobian(self, x, u, dt):
-        v, w = float(u[0]), float(u[1])
+        v, w = float(u[0]) * self.speed_scale, float(u[1]) - self.omega_offset
         th = x[:, 2]
         f = np.tile(np.eye(3), (x.shape[0], 1, 1))
         if abs(w) < 1e-9:
@@ -148,23 +189,83 @@ class Ackermann(VehicleModel):
     control_dim = 2
 
     def __init__(
-        self, wheelbase: float, encoder_offset: float = 0.0, *, sigma_speed: float = 0.1, sigma_steer: float = 0.02, steer_offset: float = 0.0
+        self,
+        wheelbase: float,
+        encoder_offset: float = 0.0,
+        *,
+        sigma_speed: float = 0.1,
+        sigma_steer: float = 0.02,
+        steer_offset: float | np.ndarray = 0.0,
+        speed_scale: float | np.ndarray = 1.0,
     ) -> None:
         self.L, self.H = float(wheelbase), float(encoder_offset)
         self.sig = np.array([sigma_speed, sigma_steer], dtype=np.float64)
-        self.steer_offset = float(steer_offset)
+        self.steer_offset = steer_offset
+        self.speed_scale = speed_scale
+
+    def control_sigmas(self, u, dt):
+        return self.sig
 
     def step(self, x, u, dt, rng):
-        u = np.asarray(u, dtype=np.float64) - np.array([0.0, self.steer_offset])
         v, g = _noisy(x.shape[0], u, self.sig, rng).T
+        g = g - self.steer_offset  # a float, or one offset per state (a search over offsets)
+        v = v * self.speed_scale
         vc = v / (1.0 - np.tan(g) * self.H / self.L)  # encoder speed -> rear-axle centre
         th = x[:, 2]
         return np.column_stack([x[:, 0] + dt * vc * np.cos(th), x[:, 1] + dt * vc * np.sin(th), wrap_angle(th + dt * vc / self.L * np.tan(g))])
 
     def jacobian(self, x, u, dt):
-        v, g = float(u[0]), float(u[1]) - self.steer_offset
+        v, g = float(u[0]) * self.speed_scale, float(u[1]) - self.steer_offset
         vc = v / (1.0 - np.tan(g) * self.H / self.L)
         th = x[:, 2]
         f = np.tile(np.eye(3), (x.shape[0], 1, 1))
         f[:, 0, 2], f[:, 1, 2] = -dt * vc * np.sin(th), dt * vc * np.cos(th)
         return f
+
+
+def fit_ackermann_bias(
+    model: Ackermann,
+    controls: list[tuple[np.ndarray, np.ndarray]],
+    trajectory: np.ndarray,
+    *,
+    window: int = 25,
+    offsets: np.ndarray | None = None,
+) -> dict:
+    """Steering offset and speed scale of Ackermann odometry, measured against a trajectory.
+
+    controls: per frame, its control rows (R, 2) and their durations (R,) (the rows since
+    the previous frame); trajectory (T, 3): the vehicle poses at the same frames (e.g. a
+    SLAM run's). Over windows of ``window`` frames, the odometry is integrated from the
+    trajectory's pose at the window's start for every candidate offset at once; the
+    offset whose heading changes best match the trajectory's (least squares) wins, then
+    the speed scale is the ratio of the trajectory's path length to the odometry's.
+    """
+    offsets = np.linspace(-0.03, 0.03, 241) if offsets is None else np.asarray(offsets, dtype=np.float64)
+    t = trajectory.shape[0]
+    if len(controls) != t:
+        raise ValueError("one list of control rows per trajectory pose")
+    c = offsets.size
+    starts = np.arange(0, t - window, window)
+    err = np.zeros(c)
+    dist_dr = np.zeros(c)
+    dist_tr = 0.0
+    probe = Ackermann(model.L, model.H, steer_offset=offsets)
+    for s0 in starts:
+        x = np.tile(trajectory[s0], (c, 1))
+        for f in range(s0 + 1, s0 + window + 1):
+            u, dt = controls[f]
+            for uu, d in zip(u, dt, strict=True):
+                prev = x
+                x = probe.mean(x, uu, float(d))
+                dist_dr += np.hypot(x[:, 0] - prev[:, 0], x[:, 1] - prev[:, 1])
+        dth = np.mod(x[:, 2] - trajectory[s0 + window, 2] + np.pi, 2 * np.pi) - np.pi
+        err += dth * dth
+        dist_tr += float(np.sum(np.hypot(*np.diff(trajectory[s0 : s0 + window + 1, :2], axis=0).T)))
+    best = int(np.argmin(err))
+    return {
+        "steer_offset": float(offsets[best]),
+        "speed_scale": float(dist_tr / dist_dr[best]) if dist_dr[best] > 0 else 1.0,
+        "heading_rms_rad": float(np.sqrt(err[best] / max(len(starts), 1))),
+        "heading_rms_without_rad": float(np.sqrt(err[np.argmin(np.abs(offsets))] / max(len(starts), 1))),
+        "windows": int(len(starts)),
+    }

@@ -17,7 +17,7 @@ from typing import Annotated
 import typer
 
 from calib import __version__
-from calib.cli import calibrate, detect, logs, profile, simulate, slam
+from calib.cli import calibrate, detect, logs, profile, selfcal, simulate, slam
 from calib.cli.common import out
 from profiles.errors import DetcalError
 
@@ -36,6 +36,7 @@ app.command("detect")(detect.detect_cmd)
 app.command("calibrate")(calibrate.calibrate_cmd)
 app.command("validate")(calibrate.validate_cmd)
 app.command("icp")(calibrate.icp_cmd)
+app.command("selfcal")(selfcal.selfcal_cmd)
 
 
 def _version(value: bool) -> None:

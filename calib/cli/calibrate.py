@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+from rich.table import Table
 
 from calib.cli.common import ReaderArgs, fresh, out, reader_options, summary_table
 from profiles.errors import UsageError
@@ -45,6 +46,9 @@ def calibrate_cmd(
     profiles_dir: Annotated[Path | None, typer.Option(help="Where to save the profile (default: the user profile folder).")] = None,
     force: Annotated[bool, typer.Option(help="Replace an existing run folder and profile version.")] = False,
     robot: RobotsOpt = None,
+    per_sensor: Annotated[
+        bool, typer.Option(help="Detection-level logs of several sensors: also write one partially pooled profile per sensor (<name>-<sensor>).")
+    ] = False,
 ) -> None:
     """Calibrate a detector on logs with truth -> a profile and a report.
 
@@ -81,10 +85,17 @@ def calibrate_cmd(
         from calib.detlevel import DetectionCalibConfig, calibrate_detections, input_refs_for, write_detection_run
 
         dcfg = load_yaml_model(DetectionCalibConfig, config)
-        refs = [r for lg in loaded for r in input_refs_for(lg)] or refs
-        cal = calibrate_detections(loaded, dcfg, name=prof_name, version=version, description=description, input_refs=refs, command=command)
+        # robots of one dataset folder share files (Barcodes.dat, ...): each file once
+        refs = list({(r.name, r.sha256): r for lg in loaded for r in input_refs_for(lg)}.values()) or refs
+        cal = calibrate_detections(
+            loaded, dcfg, name=prof_name, version=version, description=description, input_refs=refs, command=command, per_sensor=per_sensor
+        )
+        if per_sensor and not cal.members:
+            raise UsageError("--per-sensor needs logs of at least two sensors (e.g. --robot 1 --robot 2)")
         figures = write_detection_run(cal, target, overwrite=force)
     else:
+        if per_sensor:
+            raise UsageError("--per-sensor applies to detection-level logs (laser logs are pooled)")
         cfg = load_yaml_model(CalibrateConfig, config)
         if poses is not None:
             cfg = cfg.model_copy(update={"poses": poses})
@@ -93,47 +104,117 @@ def calibrate_cmd(
         )
         figures = write_calibration_run(cal, target, overwrite=force)
     saved, status = save_profile(cal.profile, profiles_dir, force=force)
+    members = [save_profile(m, profiles_dir, force=force) for m in getattr(cal, "members", [])]
     p = cal.profile
     rows = {
         "profile": f"{p.ref} ({status}: {saved})",
         "run folder": f"{target} ({len(figures)} figures)",
+        **({"per-sensor profiles": ", ".join(f"{path.stem} ({st})" for path, st in members)} if members else {}),
         **{k: v for k, v in cal.summary.items() if k not in ("logs",)},
-        "P_D table": ", ".join(f"{int(e) if float(e).is_integer() else e}:{v:.2f}" for e, v in zip(p.pd.edges[:-1], p.pd.pd, strict=True)),
     }
+    if not p.pd.two_d:
+        rows["P_D table"] = ", ".join(f"{int(e) if float(e).is_integer() else e}:{v:.2f}" for e, v in zip(p.pd.edges[:-1], p.pd.pd, strict=True))
     out.print(summary_table(f"calibration of {', '.join(cal.summary['logs'])}", rows))
 
 
 @reader_options("fmt", "max_backstep", "laser", "range_max", "scan_topic", "truth_topic")
 def validate_cmd(
-    profile_ref: Annotated[str, typer.Argument(metavar="PROFILE", help="name or name@version, or a profile file.")],
-    log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A held-out log with truth.")],
+    args: Annotated[
+        list[str] | None, typer.Argument(metavar="[PROFILE] LOG...", help="A profile (name, name@version or file) and held-out logs; with --cv only logs.")
+    ] = None,
+    *,
     reader: ReaderArgs,
+    cv: Annotated[str | None, typer.Option("--cv", help="Cross-validate the calibration instead: robots (leave one sensor out) or time (first half / second half).")] = None,
+    config: Annotated[Path | None, typer.Option(help="--cv: the calibration config (as for calibrate).")] = None,
+    adapt: Annotated[float | None, typer.Option(help="--cv robots on detection-level logs: seconds of the held-out sensor used for its own partially pooled profile.")] = None,
     landmarks: Annotated[Path | None, typer.Option(help="Landmark truth: a CSV (id, x, y, radius) or `cloud`.")] = None,
     poses: Annotated[str, typer.Option(help="Scan poses from: auto, reference, icp.")] = "auto",
-    out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/validate_<profile>_<log>).")] = None,
+    out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/validate_<profile>_<log> or runs/cv_<kind>_<log>).")] = None,
     force: Annotated[bool, typer.Option(help="Replace the run folder if it exists.")] = False,
     robot: RobotsOpt = None,
 ) -> None:
-    """Check a profile on a held-out log: P_D reliability (ECE), false alarms per scan, Hotelling coverage."""
+    """Check a profile on held-out logs, or cross-validate a calibration (--cv robots|time).
+
+    Reports P_D reliability (ECE over informative pairs with bin counts, Brier, log-likelihood),
+    false alarms per frame with a 95 % interval, the clutter tests on the held-out frames,
+    Hotelling coverage against the nominal confidence, and the held-out frames' period.
+    """
+    check_poses(poses)
+    args = args or []
+    if cv is not None:
+        _cross_validate(args, reader, cv, config, adapt, landmarks, poses, out_dir, force, robot)
+        return
+    if config is not None or adapt is not None:
+        raise UsageError("--config and --adapt go with --cv")
+    if len(args) < 2:
+        raise UsageError("validate needs a PROFILE and at least one LOG (or --cv robots|time with logs)")
     from calib.validate import validate, write_validation_run
     from profiles.store import resolve
 
-    check_poses(poses)
-    prof = resolve(profile_ref)
-    loaded, _ = reader.read_many([log_path], robot)
-    log = loaded[0]
-    target = out_dir or Path("runs") / f"validate_{prof.ref}_{log.name}"
+    prof = resolve(args[0])
+    loaded, _ = reader.read_many([Path(a) for a in args[1:]], robot)
+    target = out_dir or Path("runs") / f"validate_{prof.ref}_{loaded[0].name}"
     fresh(target, force)
     if prof.detector.kind == "external":
         from calib.detlevel import validate_detections
 
         v = validate_detections(prof, loaded)
     else:
-        if len(loaded) > 1:
-            raise UsageError("validate one laser log at a time")
-        v = validate(prof, log, landmarks_csv=landmarks, poses=poses)
+        v = validate(prof, loaded, landmarks_csv=landmarks, poses=poses)
     write_validation_run(v, target, overwrite=force)
-    out.print(summary_table(f"validation of {prof.ref} on {log.name} -> {target}", v.summary))
+    out.print(summary_table(f"validation of {prof.ref} on {', '.join(lg.name for lg in loaded)} -> {target}", v.summary))
+    if len(loaded) > 1:
+        out.print(scores_table("per held-out log (ECE noise: what a calibrated model would show)", v.per_log, ("log",)))
+
+
+def scores_table(title: str, t, first: tuple[str, ...]) -> Table:
+    """Rows of validation scores (fold rows or per-log rows) in columns narrow enough for a terminal."""
+    tab = Table(title=title)
+    cover = "hotelling_coverage" in t and t["hotelling_coverage"].notna().any()
+    for c in (*first, "ECE (noise)", "Brier", "loglik", "FA error [95 % CI]", *(["coverage"] if cover else [])):
+        tab.add_column(c, overflow="fold", justify="left" if c in first else "right")
+    for r in t.to_dict("records"):
+        row = [str(r[c]) for c in first] + [
+            f"{r['ece']:.3f} ({r['ece_if_calibrated_blocks']:.3f})",
+            f"{r['brier']:.3f}",
+            f"{r['loglik_per_pair']:.3f}",
+            f"{100 * r['false_alarm_relative_error']:+.0f} [{100 * r['false_alarm_relative_error_ci95_low']:+.0f}, "
+            f"{100 * r['false_alarm_relative_error_ci95_high']:+.0f}] %",
+        ]
+        if cover:
+            row.append(f"{r['hotelling_coverage']:.4f}")
+        tab.add_row(*row)
+    return tab
+
+
+def _cross_validate(args, reader, cv, config, adapt, landmarks, poses, out_dir, force, robot) -> None:
+    from calib.config import load_yaml_model
+    from calib.crossval import cross_validate, write_cv_run
+
+    if cv not in ("robots", "time"):
+        raise UsageError(f"--cv: expected robots or time, got {cv!r}")
+    if not args:
+        raise UsageError("--cv needs the logs to cross-validate")
+    if adapt is not None and adapt <= 0:
+        raise UsageError(f"--adapt: expected a positive number of seconds, got {adapt:g}")
+    loaded, _ = reader.read_many([Path(a) for a in args], robot)
+    target = out_dir or Path("runs") / f"cv_{cv}_{loaded[0].name}"
+    fresh(target, force)
+    detection = all(lg.scans is None and lg.detections is not None for lg in loaded)
+    if detection:
+        from calib.detlevel import DetectionCalibConfig
+
+        cfg = load_yaml_model(DetectionCalibConfig, config)
+    else:
+        from calib.calibrate import CalibrateConfig
+
+        cfg = load_yaml_model(CalibrateConfig, config)
+    res = cross_validate(loaded, cv, config=cfg, adapt=adapt, landmarks_csv=landmarks, poses=poses)
+    figures = write_cv_run(res, target, overwrite=force)
+    out.print(scores_table(f"cross-validation ({cv}) -> {target} ({len(figures)} figures)", res.table, ("fold", "test", "profile")))
+    for prof, s in res.summary.items():
+        if isinstance(s, dict):
+            out.print(summary_table(f"{prof} profile over the folds", s))
 
 
 @reader_options("fmt", "max_backstep", "laser", "range_max", "scan_topic")

@@ -124,7 +124,7 @@ def summary_table(title: str, rows: dict) -> Table:
         if isinstance(v, float):
             v = f"{v:.4g}"
         elif isinstance(v, list):
-            v = ", ".join(str(x) for x in v)
+            v = ", ".join(f"{x:.4g}" if isinstance(x, float) else str(x) for x in v)
         t.add_row(k, str(v))
     return t
 

@@ -79,6 +79,27 @@ def test_model_from_the_bundled_profile():
     assert m.g_true(np.asarray([m.hotelling.mean]))[0] > m.g_false(np.asarray([m.hotelling.mean]))[0]
 
 
+CAMERA = SensorModel(kind="camera", fov=np.deg2rad(60), range_max=6.0)
+
+
+def test_pd_at_for_a_range_table_and_a_range_bearing_grid():
+    rt = PdTable(covariate="range", edges=[0, 2, 4, 6], pd=[0.8, 0.5, 0.2])
+    m = DetectionModel(rt, ClutterParams(rate=1.0, volume=6.0), CAMERA)
+    z = np.array([[1.0, 0.0], [3.0, 0.4], [5.0, -0.4], [5.0, 0.6], [6.5, 0.0]])
+    assert m.pd_at(z).tolist() == [0.8, 0.5, 0.2, 0.0, 0.0]  # 0.6 rad is outside 30 deg; 6.5 m beyond range_max
+    grid = PdTable(covariate="range_bearing", edges=[0, 3, 6], bearing_edges=[-0.5, 0.0, 0.5], pd=[[0.1, 0.2], [0.3, 0.4]])
+    g = DetectionModel(grid, ClutterParams(rate=1.0, volume=6.0), SensorModel(kind="camera", fov=1.0, range_max=6.0))
+    zz = np.array([[[1.0, -0.2], [1.0, 0.2]], [[4.0, -0.2], [4.0, 0.2]]])  # (2, 2, 2): any leading shape
+    np.testing.assert_array_equal(g.pd_at(zz), [[0.1, 0.2], [0.3, 0.4]])
+    assert g.pd_at(np.array([4.0, 0.51])) == 0.0  # beyond the field of view (the grid spans it)
+    with pytest.raises(DataError, match=r"P_D of a n_p table needs the scan \(pd_points\)"):
+        model().pd_at(z)
+    with pytest.raises(DataError, match=r"z must have shape \(..., 2\)"):
+        m.pd_at(np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="pd has shape \\(2, 3\\) for a 2x2 table"):
+        PdTable(covariate="range_bearing", edges=[0, 3, 6], bearing_edges=[-0.5, 0.0, 0.5], pd=[[0.1, 0.2, 0.3], [0.3, 0.4, 0.5]])
+
+
 def test_pd_points_buffer_band_at_the_edges_of_the_field_of_view():
     """A 90 deg camera to 10 m, measured noise 0.1 m / 0.01 rad: the band is 2 sigma of that noise
     combined with the feature's own spread, at the range limit and at both bearing edges."""
@@ -103,3 +124,18 @@ def test_pd_points_buffer_band_at_the_edges_of_the_field_of_view():
     pd, buf = const.pd_points(np.zeros((1, 3)), mu, cov)
     np.testing.assert_allclose(pd[0], [0.9, 0.9, 0.0, 0.9, 0.0, 0.9, 0.0])
     assert not buf.any()
+
+
+def test_pd_points_of_a_range_bearing_grid_keep_the_edge_cells_value_in_the_band():
+    """A grid is reached through pd_points as through pd_at; a feature just beyond a bearing edge,
+    within the buffer band, gets the edge cell's P_D (so a detection can still update it)."""
+    grid = PdTable(covariate="range_bearing", edges=[0, 3, 6], bearing_edges=[-0.5, 0.0, 0.5], pd=[[0.1, 0.2], [0.3, 0.4]])
+    sensor = SensorModel(kind="camera", fov=1.0, range_max=6.0)
+    from profiles.schema import MeasurementNoise
+
+    g = DetectionModel(grid, ClutterParams(rate=1.0, volume=6.0), sensor, noise=MeasurementNoise(range_sigma=0.05, bearing_sigma=0.01))
+    ang = np.array([-0.2, 0.2, 0.51, 0.7])
+    mu = np.column_stack([4.0 * np.cos(ang), 4.0 * np.sin(ang)])[None]
+    pd, buf = g.pd_points(np.zeros((1, 3)), mu, np.tile(np.eye(2) * 1e-6, (1, 4, 1, 1)))
+    np.testing.assert_allclose(pd[0], [0.3, 0.4, 0.4, 0.0])
+    np.testing.assert_array_equal(buf[0], [False, False, True, False])

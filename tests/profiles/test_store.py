@@ -4,6 +4,7 @@ import subprocess
 import sys
 import textwrap
 
+import numpy as np
 import pytest
 import yaml
 
@@ -63,7 +64,7 @@ def test_bad_profiles_are_rejected_with_the_field_path(tmp_path, edit, match):
 
 def test_other_schema_versions_are_refused_by_name(tmp_path):
     d = make_profile().model_dump(mode="json")
-    for v, match in ((2, "schema_version 2 is newer than this detcal reads"), (0, "schema_version 0 is not supported")):
+    for v, match in ((3, "schema_version 3 is newer than this detcal reads"), (0, "schema_version 0 is not supported")):
         d["schema_version"] = v
         (tmp_path / "v.yaml").write_text(yaml.safe_dump(d))
         with pytest.raises(DataError, match=match):
@@ -137,3 +138,97 @@ def test_killed_writer_leaves_no_partial_profile(tmp_path):
     assert leftovers and all(n.startswith(".") and n.endswith(".part") for n in leftovers)
     with_env = {e.path for e in registry()}
     assert not any(p.name.startswith(".") for p in with_env)
+
+
+def v2_profile() -> DetectorProfile:
+    d = make_profile().model_dump(mode="json")
+    d["schema_version"] = 2
+    d["detector"] = {"kind": "external", "association_gate": 1.0}
+    d["sensor"] = {"kind": "camera", "fov": 1.2, "range_max": 6.0}
+    d.pop("hotelling")
+    d["pd"] = {
+        "covariate": "range_bearing", "edges": [0, 3, 6], "bearing_edges": [-0.6, 0.0, 0.6], "pd": [[0.1, 0.2], [0.3, 0.4]],
+        "model": "additive_logit",
+        "selection": {"folds": "sensors (2)", "candidates": ["range", "additive_logit"], "loglik": [-0.6, -0.5], "items": 10, "chosen": "additive_logit"},
+    }
+    d["clutter"] = {
+        "rate": 0.5, "volume": 7.2, "count_model": "negative_binomial", "size": 1.5,
+        "dispersion_test": {"test": "lr", "statistic": 30.0, "dof": 1, "p_value": 1e-8},
+        "density": {"range_edges": [0, 6], "bearing_edges": [-0.6, 0.6], "density": [[1 / 7.2]], "smoothing": 0.0},
+    }
+    return DetectorProfile.model_validate(d)
+
+
+def test_schema_1_profiles_load_and_keep_their_bytes(tmp_path):
+    p = make_profile(schema_version=1)
+    text = dump_profile(p)
+    assert text.startswith("schema_version: 1\n") and "count_model" not in text and "bearing_edges" not in text
+    f = tmp_path / "old.yaml"
+    f.write_text(text)
+    back = load_profile_file(f)
+    assert back.clutter.count_model == "poisson" and back.pd.model == "binned" and dump_profile(back) == text
+    d = yaml.safe_load(text)
+    d["clutter"]["count_model"] = "negative_binomial"
+    d["clutter"]["size"] = 2.0
+    f.write_text(yaml.safe_dump(d))
+    with pytest.raises(DataError, match="old.yaml: .*clutter.count_model needs schema_version 2"):
+        load_profile_file(f)
+
+
+def test_schema_2_profiles_round_trip(tmp_path):
+    p = v2_profile()
+    path, _ = save_profile(p, tmp_path)
+    back = load_profile_file(path)
+    assert back == p and dump_profile(back) == path.read_text()
+    assert back.clutter.count_pmf(np.arange(3)).sum() < 1 and back.clutter.count_variance == pytest.approx(0.5 + 0.25 / 1.5)
+
+
+@pytest.mark.parametrize(
+    ("edit", "match"),
+    [
+        (lambda d: d["clutter"]["density"].update(density=[[1.0]]), r"clutter.density: Value error, density integrates to 7.2 over the grid, not 1"),
+        (lambda d: d["clutter"].update(size=None), r"clutter: Value error, size is given exactly when the count model is negative_binomial"),
+        (lambda d: d["pd"].pop("bearing_edges"), r"pd: Value error, bearing_edges are given exactly when the covariate is range_bearing"),
+        (lambda d: d["pd"]["selection"].update(chosen="grid"), r"pd.selection: Value error, chosen 'grid' is not one of the candidates"),
+        (lambda d: d["pd"].update(counts=[[1, 2]]), r"pd: Value error, counts has shape \(1, 2\) for a 2x2 table"),
+    ],
+)
+def test_bad_schema_2_fields_name_their_path(tmp_path, edit, match):
+    d = v2_profile().model_dump(mode="json")
+    edit(d)
+    f = tmp_path / "bad.yaml"
+    f.write_text(yaml.safe_dump(d))
+    with pytest.raises(DataError, match="bad.yaml: " + match):
+        load_profile_file(f)
+
+
+@pytest.mark.parametrize(
+    ("edit", "match"),
+    [
+        (lambda d: d["pd"].update(model="cells_shrunk"), r"pd: Value error, a cells_shrunk table needs its shrinkage"),
+        (lambda d: d["pd"].update(shrinkage=5.0), r"pd: Value error, shrinkage belongs to cells_shrunk and partial_pooling tables"),
+        (lambda d: d["pd"]["selection"].update(loglik=[-0.5]), r"pd.selection: Value error, loglik has 1 entries for 2 candidates"),
+        (lambda d: d["clutter"].update(space="xy"), r"clutter: Value error, a clutter density is over range and bearing"),
+        (lambda d: d["detector"].update(kind="circle2d"), r"\(top level\): Value error, a range_bearing P_D table is for detection-level sensors"),
+        (
+            lambda d: d.update(sensors={"names": ["a", "b"], "pairs": [1], "pd_observed": [0.1, 0.2], "pd_predicted": [0.1, 0.2], "frames": [1, 1],
+                                        "clutter_rate": [0.1, 0.1], "pd_logit_offset": [0, 0], "pd_logit_sd": 0.0, "pd_between_sd": 0.0, "clutter_between_sd": 0.0}),
+            r"sensors: Value error, pairs has 1 entries for 2 sensors",
+        ),
+    ],
+)
+def test_more_bad_schema_2_fields(tmp_path, edit, match):
+    d = v2_profile().model_dump(mode="json")
+    edit(d)
+    f = tmp_path / "bad.yaml"
+    f.write_text(yaml.safe_dump(d))
+    with pytest.raises(DataError, match="bad.yaml: " + match):
+        load_profile_file(f)
+
+
+def test_table_lookups_refuse_the_wrong_covariates():
+    p = v2_profile()
+    with pytest.raises(ValueError, match="a range_bearing table needs range and bearing: use lookup_rb"):
+        p.pd.lookup(np.array([1.0]))
+    with pytest.raises(ValueError, match="a n_p table cannot be looked up by range and bearing"):
+        make_profile().pd.lookup_rb(np.array([1.0]), np.array([0.0]))

@@ -1,0 +1,91 @@
+"""``detcal selfcal``: calibrate a detector against a SLAM run's own map, iterated (no landmark truth)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from calib.cli.common import ReaderArgs, fresh, input_refs, out, positive, reader_options, summary_table
+from profiles.errors import UsageError
+
+
+@reader_options()
+def selfcal_cmd(
+    log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A detection-level log with odometry (no landmark truth needed).")],
+    reader: ReaderArgs,
+    profile_ref: Annotated[str, typer.Option("--profile", help="The starting profile (e.g. a nominal one): name@version or a file.")],
+    config: Annotated[Path | None, typer.Option(help="YAML SLAM settings (see detcal slam run).")] = None,
+    iterations: Annotated[int, typer.Option(help="SLAM runs at most.")] = 5,
+    tolerance: Annotated[float, typer.Option(help="Stop when P_D (absolute) and noise and clutter (relative) change by less than this.")] = 0.02,
+    seed: Annotated[int, typer.Option(help="Filter seed of every run.")] = 0,
+    particles: Annotated[int | None, typer.Option(help="Particles (default: the config's).")] = None,
+    name: Annotated[str | None, typer.Option(help="Name of the measured profile (default: <log name>-selfcal).")] = None,
+    version: Annotated[str, typer.Option("--version", help="Its version MAJOR.MINOR.PATCH.")] = "1.0.0",
+    out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/selfcal_<name>@<version>).")] = None,
+    profiles_dir: Annotated[Path | None, typer.Option(help="Where to save the profile (default: the user profile folder).")] = None,
+    force: Annotated[bool, typer.Option(help="Replace an existing run folder and profile version.")] = False,
+) -> None:
+    """Self-calibration: run SLAM, measure P_D against range (unoccluded map features), clutter, noise and the
+    odometry's steering offset against the run's own map and trajectory, run again, until nothing changes."""
+    from calib.cli.calibrate import typed_command
+    from calib.cli.slam import slam_config
+    from calib.config import load_yaml_model
+    from calib.progress import progress
+    from calib.selfcal import SelfCalConfig, profile_change, self_calibrate, write_selfcal_run
+    from profiles.profile import NAME_RE, SEMVER_RE
+    from profiles.store import resolve, save_profile
+    from slam_runtime.run import check_inputs
+    from slam_runtime.selfcal import self_calibration
+
+    positive("--iterations", iterations)
+    positive("--particles", particles)
+    if tolerance <= 0:
+        raise UsageError(f"--tolerance: expected a positive number, got {tolerance}")
+    if not SEMVER_RE.match(version):
+        raise UsageError(f"--version: {version!r} is not MAJOR.MINOR.PATCH")
+    cfg = slam_config(config, None, particles, None)
+    start = resolve(profile_ref)
+    if start.pd.covariate != "range":
+        raise UsageError(f"profile {start.ref}: self-calibration measures P_D against range; this profile has a {start.pd.covariate} table")
+    log = reader.read(log_path)
+    if log.detections is None or log.scans is not None:
+        raise UsageError(f"{log.name}: self-calibration takes a detection-level log (detections, no scans)")
+    check_inputs(log, start)
+    prof_name = name or f"{log.name.lower().replace('_', '-')}-selfcal"
+    if not NAME_RE.match(prof_name):
+        raise UsageError(f"--name: {prof_name!r} must match [a-z0-9][a-z0-9._-]*")
+    target = out_dir or Path("runs") / f"selfcal_{prof_name}@{version}"
+    fresh(target, force)
+    refs = input_refs(log_path, log)
+    command = typed_command("selfcal")
+    scfg = SelfCalConfig()
+
+    def measure(lg, traj, map_xy, map_w, prior, k):
+        c = self_calibrate(
+            lg, traj, map_xy, map_w, prior, scfg, name=prof_name, version=version, run=f"iteration {k} of this self-calibration",
+            iteration=k, input_refs=refs, command=command,
+        )
+        return c.profile, c.summary
+
+    history = self_calibration(log, start, cfg, seed, measure, profile_change, iterations=iterations, tolerance=tolerance, progress=progress)
+    final = history[-1].measured
+    from slam_runtime.report import write_slam_run
+
+    last = history[-1]
+    settings = {"log": log_path.name, "inputs": [r.model_dump() for r in refs], "profile": last.profile.ref, "seed": seed,
+                "settings": last.config.model_dump(mode="json")}
+    write_selfcal_run(log, history, target, overwrite=force, last_run=lambda folder: write_slam_run(log, last.result, folder, settings))
+    saved, status = save_profile(final, profiles_dir, force=force)
+    rows = {
+        "profile": f"{final.ref} ({status}: {saved})",
+        "run folder": str(target),
+        "iterations": len(history),
+        "converged": bool(last.change < tolerance),
+        "last change": last.change,
+        **{k: v for k, v in last.result.metrics.items() if k.startswith(("trajectory_rmse", "odometry_rmse", "ms_per_step_median"))},
+        **({"steering offset [rad]": last.bias["steer_offset"], "speed scale": last.bias["speed_scale"]} if last.bias else {}),
+        "P_D table": ", ".join(f"{e:g}:{v:.2f}" for e, v in zip(final.pd.edges[:-1], final.pd.pd, strict=True)),
+    }
+    out.print(summary_table(f"self-calibration of {log.name}", rows))

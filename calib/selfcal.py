@@ -1,0 +1,327 @@
+"""Self-calibration: detection statistics measured against a SLAM run's own map and trajectory.
+
+A detection-level log without landmark truth (Victoria Park: tree detections,
+odometry and GPS) cannot be calibrated against truth. Instead a SLAM run's
+trajectory and map are taken as the truth, and the detector's statistics are
+measured against them exactly as a calibration would (thesis ch. 4 and 6):
+
+* **association**: at every frame, the map features inside the sensor's field
+  of view (seen from the run's sensor pose) and the frame's detections, placed
+  in the world frame, are matched by an optimal assignment (Euclidean cost,
+  ``gate`` metres at most); a matched detection is true, the rest are false
+  alarms;
+* **P_D against range** (eq. 6.2 with range as the covariate): one pair per
+  (frame, feature in view) with its range, detected or not; features hidden
+  behind a nearer mapped tree (the n_p idea applied to the map: the nearer
+  trunk's angular extent covers the farther one's centre) are counted apart,
+  so the table is that of unoccluded trees and the occluded share is reported;
+* **clutter**: the unmatched detections per frame, a Poisson rate with
+  Pearson's test and its dispersion, kappa over range x bearing;
+* **noise**: robust spread (1.4826 MAD) and median bias of the matched
+  detections' range and bearing residuals.
+
+The profile it writes says in its description and provenance that it was
+measured against a SLAM run, which run, and which iteration. Iterating (run
+SLAM with the profile, measure again) is driven by ``detcal selfcal``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from pydantic import BaseModel, ConfigDict, Field
+from scipy.optimize import linear_sum_assignment
+
+from calib import __version__
+from calib.calibrate import created_now
+from calib.fits import ClutterFit, PdFitConfig, clutter_params, fit_clutter, fit_pd_table
+from detectors.geometry import compose
+from detectors.logs import SensorLog
+from profiles.errors import DataError
+from profiles.profile import DetectorProfile, DetectorSpec, InputRef, Provenance
+from profiles.schema import MeasurementNoise, SensorModel
+
+
+class SelfCalConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    gate: float = Field(default=1.5, gt=0.0, description="a detection matches a map feature within this [m]")
+    map_weight: float = Field(
+        default=0.2, gt=0.0, description="map components of this weight or more are features (a feature missed twice at P_D 0.6 keeps 0.16 of its weight)"
+    )
+    radius: float | None = Field(
+        default=None, gt=0.0, description="trunk radius for the occlusion test when the log has no diameters [m] (None: point landmarks, no occlusion)"
+    )
+    pd: PdFitConfig = PdFitConfig(min_count=100, range_bin=5.0, zero_below=0.0)
+
+
+@dataclass
+class SelfCalibration:
+    profile: DetectorProfile
+    pairs: pd.DataFrame  # frame, feature, range, bearing, occluded, detected
+    detections: pd.DataFrame  # frame, range, bearing, feature or -1, range/bearing residuals
+    clutter: ClutterFit
+    summary: dict
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    return np.mod(a + np.pi, 2 * np.pi) - np.pi
+
+
+def measure(log: SensorLog, trajectory: np.ndarray, map_xy: np.ndarray, sensor: SensorModel, cfg: SelfCalConfig):
+    """Pairs and labelled detections of every frame against the map.
+
+    trajectory (T, 3): vehicle poses at the log's frames (world frame); map_xy (K, 2).
+    """
+    d = log.detections
+    if d is None:
+        raise DataError(f"log {log.name!r} has no detections to self-calibrate")
+    n_frames = d.n_frames
+    if trajectory.shape[0] != n_frames:
+        raise DataError(f"the trajectory has {trajectory.shape[0]} poses for the log's {n_frames} frames")
+    if map_xy.shape[0] == 0:
+        raise DataError("the SLAM map is empty: nothing to measure the detector against")
+    m = sensor.mount
+    sp = compose(trajectory, np.array([m.x, m.y, m.theta]))
+    fov, rmax = sensor.field_of_view, sensor.range_max
+    if fov is None or rmax is None:
+        raise DataError("the sensor model needs a field of view and range_max")
+    # trunk radius per feature: half the median diameter of its matched detections (filled after matching)
+    diam = np.asarray(d.descriptors["diameter"], dtype=np.float64) if "diameter" in d.descriptors else None
+    off = d.frame_slices()
+    rows = {"frame": [], "feature": [], "range": [], "bearing": []}
+    det_feat = np.full(len(d), -1, dtype=np.int64)
+    for f in range(n_frames):
+        rel = map_xy - sp[f, :2]
+        rr = np.hypot(rel[:, 0], rel[:, 1])
+        bb = _wrap(np.arctan2(rel[:, 1], rel[:, 0]) - sp[f, 2])
+        view = np.flatnonzero((rr <= rmax) & (rr >= sensor.range_min) & (np.abs(bb) <= fov / 2))
+        rows["frame"].append(np.full(view.size, f))
+        rows["feature"].append(view)
+        rows["range"].append(rr[view])
+        rows["bearing"].append(bb[view])
+        a, b = int(off[f]), int(off[f + 1])
+        if b == a or view.size == 0:
+            continue
+        zr, zb = d.range[a:b], d.bearing[a:b]
+        ang = sp[f, 2] + zb
+        world = np.column_stack([sp[f, 0] + zr * np.cos(ang), sp[f, 1] + zr * np.sin(ang)])
+        cost = np.hypot(*(world[:, None, :] - map_xy[view][None, :, :]).transpose(2, 0, 1))
+        big = cfg.gate * 10.0
+        r, c = linear_sum_assignment(np.where(cost <= cfg.gate, cost, big))
+        ok = cost[r, c] <= cfg.gate
+        det_feat[a + r[ok]] = view[c[ok]]
+    pairs = pd.DataFrame({k: np.concatenate(v) for k, v in rows.items()})
+    frame_of = d.frame
+    matched = det_feat >= 0
+    key = pd.MultiIndex.from_arrays([frame_of[matched], det_feat[matched]])
+    pairs["detected"] = pd.MultiIndex.from_arrays([pairs["frame"], pairs["feature"]]).isin(key)
+    # occlusion by the map's own trees: a nearer feature whose angular half-width covers this one's bearing
+    radius = np.full(map_xy.shape[0], cfg.radius if cfg.radius is not None else 0.0)
+    if diam is not None and matched.any():
+        med = pd.Series(diam[matched]).groupby(det_feat[matched]).median()
+        radius[med.index.to_numpy()] = np.clip(med.to_numpy() / 2, 0.05, 2.0)
+    occluded = np.zeros(len(pairs), dtype=bool)
+    fr = pairs["frame"].to_numpy()
+    starts = np.searchsorted(fr, np.arange(n_frames + 1))
+    rng_all, brg_all, feat_all = pairs["range"].to_numpy(), pairs["bearing"].to_numpy(), pairs["feature"].to_numpy()
+    for f in range(n_frames if (diam is not None or cfg.radius is not None) else 0):  # point landmarks occlude nothing
+        a, b = starts[f], starts[f + 1]
+        if b - a < 2:
+            continue
+        r, br, rad = rng_all[a:b], brg_all[a:b], radius[feat_all[a:b]]
+        half = np.arcsin(np.clip(rad / np.maximum(r, 1e-6), 0.0, 1.0))  # angular half-width of each trunk
+        ahead = r[None, :] < r[:, None] - 2 * rad[None, :]  # [i, j]: j is nearer than i by more than its trunk
+        cover = np.abs(_wrap(br[:, None] - br[None, :])) < half[None, :]
+        occluded[a:b] = (ahead & cover).any(axis=1)
+    pairs["occluded"] = occluded
+    zr_hat = np.full(len(d), np.nan)
+    zb_hat = np.full(len(d), np.nan)
+    if matched.any():
+        rel = map_xy[det_feat[matched]] - sp[frame_of[matched], :2]
+        zr_hat[matched] = np.hypot(rel[:, 0], rel[:, 1])
+        zb_hat[matched] = _wrap(np.arctan2(rel[:, 1], rel[:, 0]) - sp[frame_of[matched], 2])
+    dets = pd.DataFrame(
+        {
+            "frame": frame_of,
+            "range": d.range,
+            "bearing": d.bearing,
+            "feature": det_feat,
+            "range_residual": d.range - zr_hat,
+            "bearing_residual": _wrap(d.bearing - zb_hat),
+        }
+    )
+    return pairs, dets
+
+
+def noise_of(dets: pd.DataFrame) -> MeasurementNoise | None:
+    t = dets[dets["feature"] >= 0]
+    if len(t) < 10:
+        return None
+    out = {}
+    for col, key in (("range_residual", "range"), ("bearing_residual", "bearing")):
+        x = t[col].to_numpy()
+        med = float(np.median(x))
+        out[f"{key}_bias"] = med
+        out[f"{key}_sigma"] = max(float(1.4826 * np.median(np.abs(x - med))), 1e-6)
+    return MeasurementNoise(**out, samples=len(t))
+
+
+def self_calibrate(
+    log: SensorLog,
+    trajectory: np.ndarray,
+    map_xy: np.ndarray,
+    map_w: np.ndarray | None,
+    prior: DetectorProfile,
+    cfg: SelfCalConfig,
+    *,
+    name: str,
+    version: str,
+    run: str = "",
+    iteration: int = 0,
+    input_refs: list[InputRef] | None = None,
+    command: str = "",
+) -> SelfCalibration:
+    """The profile measured against a SLAM run (its trajectory at the log's frames and its map).
+
+    map_w (K,): the components' weights (None: every row of map_xy is a feature); the
+    components of weight >= ``cfg.map_weight`` are the features. The sensor model (field of
+    view, range limit, mount) is the prior profile's: what is not seen cannot be measured.
+    """
+    if map_w is not None:
+        map_xy = np.asarray(map_xy)[np.asarray(map_w) >= cfg.map_weight]
+    sensor = prior.sensor
+    pairs, dets = measure(log, trajectory, map_xy, sensor, cfg)
+    free = pairs[~pairs["occluded"]]
+    table = fit_pd_table(free["range"].to_numpy(), free["detected"].to_numpy(), "range", cfg.pd)
+    table = table.model_copy(update={"clamping": table.clamping + "; unoccluded (frame, map feature) pairs of a SLAM run"})
+    counts = np.bincount(dets["frame"].to_numpy()[dets["feature"].to_numpy() < 0], minlength=log.detections.n_frames)
+    clut = fit_clutter(counts)
+    volume = sensor.field_of_view * (sensor.range_max - sensor.range_min)
+    noise = noise_of(dets)
+    desc = (
+        f"Self-calibrated against SLAM run {run or '(in memory)'} (iteration {iteration}): P_D of unoccluded map features "
+        "against range, clutter and noise measured with the run's map and trajectory as the truth; no landmark truth was used."
+    )
+    matched = dets["feature"].to_numpy() >= 0
+    diam = log.detections.descriptors.get("diameter")
+    occ_r = float(np.median(np.asarray(diam)[matched]) / 2) if diam is not None and matched.any() else cfg.radius
+    occ_r = None if occ_r is None else float(np.clip(occ_r, 0.05, 2.0))
+    profile = DetectorProfile(
+        name=name,
+        version=version,
+        description=desc,
+        detector=DetectorSpec(kind="external", association_gate=cfg.gate, occluder_radius=occ_r),
+        sensor=sensor,
+        pd=table,
+        clutter=clutter_params(clut, "range_bearing", volume),
+        noise=noise,
+        provenance=Provenance(
+            inputs=input_refs or [],
+            detcal_version=__version__,
+            command=command,
+            parameters={**cfg.model_dump(mode="json"), "slam_run": run, "iteration": iteration, "prior": prior.ref},
+            created=created_now(),
+        ),
+    )
+    matched = dets["feature"] >= 0
+    summary = {
+        "occluder_radius_m": profile.detector.occluder_radius,
+        "log": log.name,
+        "frames": int(log.detections.n_frames),
+        "map_features": int(map_xy.shape[0]),
+        "detections": len(dets),
+        "matched_detections": int(matched.sum()),
+        "false_alarms_per_frame": clut.rate,
+        "clutter_p_value": clut.p_value,
+        "clutter_dispersion": clut.dispersion,
+        "pairs_in_view": len(pairs),
+        "occluded_share": float(pairs["occluded"].mean()),
+        "pd_unoccluded": float(free["detected"].mean()) if len(free) else float("nan"),
+        "pd_occluded": float(pairs.loc[pairs["occluded"], "detected"].mean()) if pairs["occluded"].any() else float("nan"),
+        "range_sigma_m": noise.range_sigma if noise else float("nan"),
+        "bearing_sigma_rad": noise.bearing_sigma if noise else float("nan"),
+    }
+    return SelfCalibration(profile, pairs, dets, clut, summary)
+
+
+def profile_change(a: DetectorProfile, b: DetectorProfile) -> float:
+    """Largest change between two self-calibrated profiles: in P_D over the common range bins, and in
+    the noise sigmas and clutter rate relative to their size."""
+    ra, rb = np.asarray(a.pd.edges[:-1]), np.asarray(b.pd.edges[:-1])
+    grid = np.union1d(ra, rb) + 1e-9
+    d = float(np.max(np.abs(a.pd.lookup(grid) - b.pd.lookup(grid)))) if grid.size else 0.0
+    rel = []
+    if a.noise is not None and b.noise is not None:
+        rel += [abs(a.noise.range_sigma - b.noise.range_sigma) / b.noise.range_sigma, abs(a.noise.bearing_sigma - b.noise.bearing_sigma) / b.noise.bearing_sigma]
+    if b.clutter.rate > 0:
+        rel.append(abs(a.clutter.rate - b.clutter.rate) / b.clutter.rate)
+    return max([d, *rel])
+
+
+def write_selfcal_run(log: SensorLog, history: list, out, *, overwrite: bool = False, last_run=None) -> list[str]:
+    """The run folder of ``detcal selfcal``.
+
+    profile.yaml (the profile measured last), slam.yaml (the settings of the last run with the
+    measured odometry biases, for ``detcal slam run --config``), iterations.csv (one row per SLAM
+    run: what it used, what it scored against the log's reference, what was measured),
+    profiles/iteration_K.yaml (every measured profile), pairs.csv.gz (the last measurement's
+    frame x feature pairs), pd_iterations.png; ``last_run(folder)`` may write the last SLAM run
+    into ``last_run/`` (the CLI passes the SLAM run-folder writer).
+    """
+    from calib.config import dump_yaml
+    from calib.io.atomic import atomic_output
+    from profiles.store import dump_profile
+
+    rows = []
+    for it in history:
+        m, s = it.result.metrics, it.summary
+        row = {"iteration": it.index, "profile_used": it.profile.ref, "change": it.change}
+        row.update({k: v for k, v in m.items() if isinstance(v, int | float) and not isinstance(v, bool)})
+        row.update({f"measured_{k}": v for k, v in s.items() if isinstance(v, int | float) and not isinstance(v, bool)})
+        row.update({f"bias_{k}": v for k, v in it.bias.items()})
+        rows.append(row)
+    last = history[-1]
+    with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
+        tmp.mkdir()
+        (tmp / "profile.yaml").write_text(dump_profile(last.measured))
+        cfg = last.next_config if last.next_config is not None else last.config
+        (tmp / "slam.yaml").write_text(dump_yaml(cfg.model_dump(mode="json")))
+        pd.DataFrame(rows).to_csv(tmp / "iterations.csv", index=False, float_format="%.6g")
+        (tmp / "profiles").mkdir()
+        for it in history:
+            (tmp / "profiles" / f"iteration_{it.index}.yaml").write_text(dump_profile(it.measured))
+        (tmp / "summary.yaml").write_text(dump_yaml({"log": log.name, "iterations": len(history), "last": rows[-1]}))
+        _plot_iterations(history, tmp / "pd_iterations.png")
+        if last_run is not None:
+            last_run(tmp / "last_run")
+    return ["pd_iterations.png"]
+
+
+def _plot_iterations(history: list, path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
+    for it in history:
+        e = np.asarray(it.measured.pd.edges)
+        a.step(e[:-1], it.measured.pd.pd, where="post", label=f"iteration {it.index}")
+    e = np.asarray(history[0].profile.pd.edges)
+    a.step(e[:-1], history[0].profile.pd.pd, where="post", color="k", ls="--", label="starting profile")
+    a.set_xlabel("range [m]")
+    a.set_ylabel("P_D (unoccluded map features)")
+    a.legend(fontsize=7)
+    a.grid(alpha=0.3)
+    keys = [k for k in history[0].result.metrics if k.startswith("trajectory_rmse_vs_")]
+    for k in keys:
+        b.plot([it.index for it in history], [it.result.metrics[k] for it in history], "o-", label=k.replace("_", " "))
+    b.set_xlabel("iteration")
+    b.set_ylabel("trajectory RMSE [m]")
+    b.legend(fontsize=7)
+    b.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,91 @@
+"""Self-calibration against a SLAM run's own map: the simulator's statistics come back without its truth."""
+
+import numpy as np
+import pytest
+import yaml
+
+from calib.selfcal import SelfCalConfig, profile_change, self_calibrate
+from calib.sim.rfs import RfsSimConfig, simulate_rfs, truth_profile
+from profiles.schema import ClutterParams
+from tests.calib.test_cli import assert_one_line_error, run
+
+SIM = RfsSimConfig(steps=300, pd=0.6, clutter_intensity=2.0 / (2.0 * 2 * np.pi))  # P_D 0.6, 2 false alarms per scan
+
+
+@pytest.fixture(scope="module")
+def log():
+    return simulate_rfs(SIM, 5)
+
+
+def nominal():
+    """A wrong starting profile: P_D 0.9, 0.5 false alarms per scan (the noise is the sensor's)."""
+    t = truth_profile(SIM)
+    return t.model_copy(update={"pd": t.pd.model_copy(update={"pd": [0.9]}), "clutter": ClutterParams(rate=0.5, volume=t.clutter.volume)})
+
+
+def test_measured_against_the_true_path_and_map_the_statistics_are_the_simulators(log):
+    """With the truth as the 'SLAM run' the measurement is a calibration: ~5,000 (frame, landmark)
+    pairs give P_D to +-0.02 (3 binomial std), 300 frames the clutter rate to +-10 %, and the
+    residuals the noise to +-5 %."""
+    c = self_calibrate(log, log.reference["ground_truth"].poses, log.landmarks.xy, None, truth_profile(SIM), SelfCalConfig(gate=0.1), name="x", version="1.0.0")
+    assert c.profile.pd.pd[0] == pytest.approx(0.6, abs=0.02)
+    assert c.profile.clutter.rate == pytest.approx(2.0, rel=0.1)
+    assert c.profile.noise.range_sigma == pytest.approx(np.sqrt(5e-4), rel=0.05)
+    assert c.profile.noise.bearing_sigma == pytest.approx(np.sqrt(5e-5), rel=0.05)
+    assert "SLAM run" in c.profile.description
+
+
+def test_the_loop_recovers_pd_and_clutter_from_a_wrong_start(log):
+    """RB-PHD-SLAM with 20 particles from the wrong profile, three rounds: P_D within 0.05 of the truth; the
+    clutter rate moves from 0.5 to within [0.9, 1.6] x the truth (above it: detections of the few landmarks
+    the run merged with a neighbour a few cm away count as clutter, about one per scan here); the noise
+    measured against the run is the sensor's plus the run's own error, so between 1x and 2.5x the truth."""
+    from pathlib import Path
+
+    from calib.config import load_yaml_model
+    from slam_runtime.config import SlamConfig, override
+    from slam_runtime.selfcal import self_calibration
+
+    cfg = override(load_yaml_model(SlamConfig, Path(__file__).resolve().parents[2] / "benchmarks/configs/rfs_sim.yaml"), particles=20)
+
+    def measure(lg, traj, xy, w, prior, k):
+        c = self_calibrate(lg, traj, xy, w, prior, SelfCalConfig(gate=0.3), name="x", version="1.0.0", iteration=k)
+        return c.profile, c.summary
+
+    hist = self_calibration(log, nominal(), cfg, 0, measure, profile_change, iterations=3)
+    last = hist[-1].measured
+    assert hist[0].change > 1.0  # the wrong start is far off
+    assert last.pd.pd[0] == pytest.approx(0.6, abs=0.05)
+    assert 0.9 * 2.0 <= last.clutter.rate <= 1.6 * 2.0
+    assert np.sqrt(5e-4) <= last.noise.range_sigma <= 2.5 * np.sqrt(5e-4)
+    assert np.sqrt(5e-5) <= last.noise.bearing_sigma <= 2.5 * np.sqrt(5e-5)
+
+
+def test_selfcal_command_writes_its_folder_and_the_profile(tmp_path, capsys, log):
+    from calib.io.native import write_native
+    from profiles.store import dump_profile
+
+    lp = write_native(simulate_rfs(SIM.model_copy(update={"steps": 120}), 6), tmp_path / "sim.dlog")
+    (tmp_path / "start.yaml").write_text(dump_profile(nominal()))
+    cfg = tmp_path / "slam.yaml"
+    cfg.write_text("particles: 5\nfilter: {kind: rbphd, noise_inflation: 10.0, weighting: marginal}\n")
+    args = ["selfcal", str(lp), "--profile", str(tmp_path / "start.yaml"), "--config", str(cfg), "--iterations", "2"]
+    code, out, err = run(capsys, *args, "--out", str(tmp_path / "sc"), "--profiles-dir", str(tmp_path / "profiles"), "--name", "sim-selfcal")
+    assert code == 0, err
+    names = sorted(p.name for p in (tmp_path / "sc").iterdir())
+    assert names == ["iterations.csv", "last_run", "pd_iterations.png", "profile.yaml", "profiles", "slam.yaml", "summary.yaml"]
+    prof = yaml.safe_load((tmp_path / "sc/profile.yaml").read_text())
+    assert prof["name"] == "sim-selfcal" and prof["pd"]["covariate"] == "range"
+    assert (tmp_path / "profiles").is_dir() and "sim-selfcal@1.0.0" in out
+    # errors: a laser log, a starting profile with an n_p table
+    from calib.sim.run import simulate_to
+    from tests.conftest import small_park_config
+
+    simulate_to(tmp_path / "park", 2, small_park_config())
+    code, _, err = run(capsys, "selfcal", str(tmp_path / "park/log.dlog"), "--profile", str(tmp_path / "start.yaml"), "--out", str(tmp_path / "x"))
+    assert code == 2
+    assert_one_line_error(err, "self-calibration takes a detection-level log")
+    code, _, err = run(capsys, "selfcal", str(lp), "--profile", "sim-park-laser", "--out", str(tmp_path / "x"))
+    assert code == 2
+    assert_one_line_error(err, "self-calibration measures P_D against range")
+    assert not (tmp_path / "x").exists()
