@@ -138,6 +138,18 @@ def override(cfg: SlamConfig, **changes) -> SlamConfig:
         raise UsageError(f"{'.'.join(str(x) for x in e['loc'])}: {e['msg']}") from None
 
 
+def with_filter(cfg: SlamConfig, kind: str | None) -> SlamConfig:
+    """``cfg`` with the map filter ``kind``; the settings the two filters share (e.g. survival and birth of
+    LMB and delta-GLMB) carry over, the others take the new filter's defaults."""
+    if kind is None or kind == cfg.filter.kind:
+        return cfg
+    target = {"rbphd": RBPHDConfig, "lmb": LMBConfig, "glmb": GLMBConfig}.get(kind)
+    if target is None:
+        raise UsageError(f"filter.kind: {kind!r} is not available (expected one of {', '.join(FILTER_KINDS)})")
+    shared = {k: v for k, v in cfg.filter.model_dump().items() if k != "kind" and k in target.model_fields}
+    return override(cfg, **{"filter": {**shared, "kind": kind}})
+
+
 # ---------------------------------------------------------------------- factory
 def vehicle_model(kind: str, noise: MotionNoise, vehicle=None):
     """The vehicle model that odometry of ``kind`` drives."""

@@ -20,26 +20,48 @@ One step (:meth:`GLMB.update`, eqs. 11-17):
   (:meth:`detectors.model.DetectionModel.pd_features`), kappa(z) from its
   clutter intensity (divided by the descriptor likelihood ratio when there is
   one, eq. 2.26 with 5.6 of the thesis);
-* survival (eqs. 7-8, 14): P_S = ``survival`` (0.95) for a track in the field
-  of view (P_D > 0), ``survival_outside`` (1) out of it, so a mapped landmark
-  stays in the map when it leaves the view; a track in the buffer zone
-  (thesis eq. 3.21) neither dies nor pays for a miss;
+* survival (eqs. 7-8, 14): P_S = ``survival`` for a track in the field of
+  view (P_D > 0), ``survival_outside`` (1) out of it, so a mapped landmark
+  stays in the map when it leaves the view; the paper takes 0.95 in view, the
+  default is 1 (static landmarks: with 0.95 per scan a landmark missed twice is
+  believed gone with probability 0.42); a track in the buffer zone (thesis
+  eq. 3.21) neither dies nor pays for a miss;
 * the costs eta (eqs. 5, 13, 15, 27) of every (track, measurement) pair of all
   particles in one numpy pass (only the tracks that can be seen, inside the
   gate); the Gibbs sampler (:mod:`slam_runtime.gibbs`, compiled) draws the
   children of every hypothesis, starting at its optimal assignment;
 * the children's tracks are EKF updates (eqs. 17, 26-27, 30) of the pairs
   that were drawn, computed once per distinct (track, measurement) pair;
-* children below ``prune`` (1e-5, the paper's value) are dropped, at most
-  ``max_hypotheses`` are kept (the cap; :attr:`capped_steps` counts the steps at
-  which it bound), and tracks no hypothesis holds are removed;
 * the particle's log-likelihood is the log of the normalisation constant
   (eq. 25): the sum of the unnormalised weights of all the children drawn.
+  Every particle's chains draw the same random stream in a step (common random
+  numbers), so particles whose maps and poses agree draw the same hypotheses
+  and their weights differ by what differs between them, not by sampling luck;
+* reduction (:func:`slam_runtime.gibbs.reduce_hypotheses`): the versions of
+  one label under different association histories whose Gaussians lie within
+  squared Mahalanobis distance ``merge`` (4) of each other are merged (moment
+  match; eq. 29 with the mixture reduced to one component), hypotheses that
+  then coincide are one; ``merge: 0`` keeps every version, the exact filter;
+* tracks the sensor could not see this step (P_D = 0: out of view or occluded)
+  leave the hypotheses as independent Bernoulli components (existence = the
+  weight of the hypotheses that held them, density = the moment match of their
+  versions), and rejoin every hypothesis as candidates of that existence when
+  they come back into view (``release_unseen``). The exact delta-GLMB leaves
+  an unseen track's existence unchanged and independent of new evidence; with
+  a few tens of hypotheses it cannot hold the 2^n combinations of n unseen
+  uncertain tracks, and the truncation lets their existences random-walk to 0
+  or 1 (measured on the glmb-paper scenario: false landmarks of existence 1
+  and true ones lost). ``release_unseen: false`` is the exact filter;
+* hypotheses below ``prune`` (1e-5, the paper's value) are dropped, at most
+  ``max_hypotheses`` are kept (the cap; :attr:`capped_steps` counts the steps
+  at which it bound), and tracks no hypothesis holds are removed; released
+  tracks below ``prune_released`` are removed.
 
 The map estimate (sec. III-B): the maximum a posteriori cardinality n of the
-particle's cardinality distribution, then the heaviest hypothesis of
-cardinality n; each of its tracks is returned with its label's existence
-probability (the summed weight of the hypotheses that hold the label).
+particle's hypotheses, then the heaviest hypothesis of cardinality n, each of
+its tracks with its label's existence probability (the summed weight of the
+hypotheses that hold the label); and the released tracks of existence >=
+``map_threshold``.
 
 The filter is generic in the feature model (``dim_x``, ``dim_z``,
 ``predict_sensor``, ``inverse_sensor``, ``innovation``).
@@ -73,7 +95,9 @@ class LabelledSettings(BaseModel):
     """Settings shared by the labelled map filters (LMB, delta-GLMB)."""
 
     model_config = ConfigDict(extra="forbid")
-    survival: float = Field(default=0.95, gt=0.0, le=1.0, description="P_S of a feature in the field of view (P_D > 0), per step")
+    survival: float = Field(
+        default=1.0, gt=0.0, le=1.0, description="P_S of a feature in the field of view (P_D > 0), per step (the paper: 0.95; landmarks are static)"
+    )
     survival_outside: float = Field(default=1.0, gt=0.0, le=1.0, description="P_S of a feature out of the field of view")
     birth_unassociated: float = Field(default=0.01, gt=0.0, lt=1.0, description="birth probability from a measurement outside every track's gate")
     birth_associated: float = Field(default=0.005, gt=0.0, lt=1.0, description="birth probability from a measurement some track could explain")
@@ -353,6 +377,68 @@ class LabelledFilter(MapFilter):
             maps = replace(maps, tracks=Tracks(t.mu, t.cov + q * np.eye(self.feature.dim_x), t.label))
         return maps
 
+    def pose_proposal(
+        self, maps, xbar: np.ndarray, q: np.ndarray, meas: Measurements, *, share: float = 0.5, iterations: int = 3
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A Gaussian approximation of the optimal importance density of each particle's pose (FastSLAM 2.0,
+        as RB-PHD's): the motion prior N(xbar, q) (P, 3), (P, 3, 3) updated by the frame's measurements
+        that the particle's map explains, each by its likeliest track when that track takes at least
+        ``share`` of it (r P_D g(z) against kappa(z) + the sum over tracks, g with the prior's pose
+        uncertainty in its covariance), with an iterated EKF
+        (re-linearised ``iterations`` times). Returns the mean (P, 3), covariance (P, 3, 3) and the number
+        of measurements used (P,)."""
+        fm = self.feature
+        t, ex = self._map_tracks(maps)
+        z, rz = self._noise(meas)
+        p, m = xbar.shape[0], z.shape[0]
+        if m == 0 or t.label.shape[1] == 0:
+            return xbar, q, np.zeros(p, dtype=np.int64)
+        sp = fm.sensor_pose(xbar)
+        pd, _ = self.detection.pd_features(sp, t.mu, t.cov, meas, ex)
+        seen = (pd > 0) & (ex > 0) & t.valid
+        js = int(seen.sum(axis=1).max())
+        if js == 0:
+            return xbar, q, np.zeros(p, dtype=np.int64)
+        rows = np.arange(p)[:, None]
+        sel = np.argsort(~seen, axis=1, kind="stable")[:, :js]
+        in_s = seen[rows, sel]
+        mu_s, cov_s = t.mu[rows, sel], t.cov[rows, sel]
+        w_s = np.where(in_s, ex[rows, sel] * np.minimum(pd[rows, sel], 1.0), 0.0)
+        zhat, hl = fm.predict_sensor(sp[:, None, :], mu_s)
+        s_pair = matmul(hl, matmul(cov_s, transpose(hl)))[:, :, None] + rz[None, None]  # (P, Js, M, dz, dz)
+        # which track explains a measurement is decided with the prior's pose uncertainty included (the
+        # marginal innovation covariance of FastSLAM 2.0's data association)
+        hx = fm.pose_jacobian(xbar[:, None, :], mu_s)  # (P, Js, dz, 3)
+        s_sel = s_pair + matmul(hx, matmul(q[:, None], transpose(hx)))[:, :, None]
+        nu = fm.innovation(z[None, None], zhat[:, :, None])
+        m2 = quad(inv(s_sel), nu)
+        dz = fm.dim_z
+        lik = np.where(m2 <= self.cfg.gate, np.exp(-0.5 * m2) / np.sqrt((2 * np.pi) ** dz * np.maximum(det(s_sel), 1e-300)), 0.0) * w_s[..., None]
+        kappa = np.exp(self._log_kappa(z, meas))
+        best = np.argmax(lik, axis=1)  # (P, M) the likeliest track of each measurement
+        lb = np.take_along_axis(lik, best[:, None, :], axis=1)[:, 0]
+        use = lb > share * (kappa[None, :] + lik.sum(axis=1))
+        n_used = use.sum(axis=1)
+        if not use.any():
+            return xbar, q, n_used
+        mu_b = mu_s[rows, best]  # (P, M, dx)
+        s_inv = np.where(use[..., None, None], inv(s_pair[rows, best, np.arange(m)[None, :]]), 0.0)
+        q_reg = q + np.eye(3) * 1e-12
+        q_inv = np.linalg.inv(q_reg)
+        x, cov = xbar.copy(), q_reg
+        for _ in range(iterations):
+            zh, _ = fm.predict(x[:, None, :], mu_b)
+            hx = fm.pose_jacobian(x[:, None, :], mu_b)  # (P, M, dz, 3)
+            r = fm.innovation(np.broadcast_to(z, zh.shape).copy(), zh)
+            dx = x - xbar
+            dx[:, 2] = np.mod(dx[:, 2] + np.pi, 2 * np.pi) - np.pi
+            r = r + (hx @ dx[:, None, :, None])[..., 0]  # iterated EKF: linearise at x, expand about xbar
+            hts = transpose(hx) @ s_inv
+            cov = np.linalg.inv(q_inv + (hts @ hx).sum(axis=1))
+            x = xbar + (cov @ (hts @ r[..., None]).sum(axis=1))[..., 0]
+            x[:, 2] = np.mod(x[:, 2] + np.pi, 2 * np.pi) - np.pi
+        return x, 0.5 * (cov + transpose(cov)), n_used
+
     def _begin(self, poses: np.ndarray, meas: Measurements):
         z, rz = self._noise(meas)
         sp = self.feature.sensor_pose(np.asarray(poses, dtype=np.float64))
@@ -390,7 +476,8 @@ class GLMB(LabelledFilter):
         sl = self._slots(both, np.concatenate([tr.valid.astype(np.float64), maps.free_r], axis=1), maps.births)
         s = sl.valid.shape[1]
         with tm("pd"):
-            pd, buf = self.detection.pd_features(sp, sl.mu, sl.cov, meas)
+            ex = np.concatenate([self._slot_existence(maps), maps.free_r, maps.births.r], axis=1)
+            pd, buf = self.detection.pd_features(sp, sl.mu, sl.cov, meas, ex)
         with tm("costs"):
             c = self._costs(sl, sp, z, rz, meas.cov is not None, log_kappa, pd, buf)
             active = np.zeros((p, s), dtype=bool)
@@ -443,7 +530,23 @@ class GLMB(LabelledFilter):
         self.step += 1
         return GLMBMaps(tracks, logw, member, free, free_r, births), res.loglik
 
+    @staticmethod
+    def _slot_existence(maps: GLMBMaps) -> np.ndarray:
+        """(P, T) the summed weight of the hypotheses that hold each track (version)."""
+        return np.einsum("ph,pht->pt", np.exp(maps.logw), maps.member.astype(np.float64))
+
+    def _map_tracks(self, maps: GLMBMaps) -> tuple[Tracks, np.ndarray]:
+        tr, fr = maps.tracks, maps.free
+        both = Tracks(np.concatenate([tr.mu, fr.mu], axis=1), np.concatenate([tr.cov, fr.cov], axis=1), np.concatenate([tr.label, fr.label], axis=1))
+        return both, np.concatenate([self._slot_existence(maps), maps.free_r], axis=1)
+
     # ------------------------------------------------------------------ estimates
+    def components(self, maps: GLMBMaps, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Particle i's every track (versions in the hypotheses, released ones) and its existence."""
+        t, r = self._map_tracks(maps)
+        keep = t.valid[i] & (r[i] > 0)
+        return t.mu[i][keep], r[i][keep]
+
     def existence(self, maps: GLMBMaps, i: int) -> np.ndarray:
         """(T,) existence probability of the label of each of particle i's tracks in the hypotheses."""
         w = np.exp(maps.logw[i])

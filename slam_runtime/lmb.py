@@ -12,7 +12,7 @@ resulting delta-GLMB is approximated by an LMB again (Reuter et al. 2014,
 eq. 20): each label's existence is the summed weight of the hypotheses that
 hold it, and its density the mixture of its updated versions, moment-matched to
 one Gaussian. Tracks out of view keep their existence and density. Tracks of
-existence below ``prune`` are removed (the paper prunes LMB-SLAM's features at
+existence below ``prune_tracks`` are removed (the paper prunes LMB-SLAM's features at
 0.08; the default keeps weaker tracks, which a landmark born under heavy
 clutter needs: one detection lifts a 0.01 birth to about 0.02 at 15 false
 alarms per scan). The particle's log-likelihood is the log of the
@@ -40,7 +40,7 @@ class LMBConfig(LabelledSettings):
     """Settings of the LMB map filter (``filter: {kind: lmb, ...}``)."""
 
     kind: Literal["lmb"] = "lmb"
-    prune: float = Field(default=1e-3, gt=0.0, lt=1.0, description="tracks of smaller existence probability are removed")
+    prune_tracks: float = Field(default=1e-3, gt=0.0, lt=1.0, description="tracks of smaller existence probability are removed")
 
 
 @dataclass
@@ -82,7 +82,7 @@ class LMB(LabelledFilter):
         sl = self._slots(maps.tracks, maps.r, maps.births)
         s = sl.valid.shape[1]
         with tm("pd"):
-            pd, buf = self.detection.pd_features(sp, sl.mu, sl.cov, meas)
+            pd, buf = self.detection.pd_features(sp, sl.mu, sl.cov, meas, sl.r)
         with tm("costs"):
             c = self._costs(sl, sp, z, rz, meas.cov is not None, log_kappa, pd, buf)
             member = np.zeros((p, 1, s), dtype=bool)
@@ -113,7 +113,7 @@ class LMB(LabelledFilter):
             r_all = np.where(active, r_new.reshape(p, s), sl.r)
             mu_all = np.where(active[..., None], m_new.reshape(p, s, d), sl.mu)
             cov_all = np.where(active[..., None, None], c_new.reshape(p, s, d, d), sl.cov)
-            keep = sl.valid & (r_all >= self.cfg.prune)
+            keep = sl.valid & (r_all >= self.cfg.prune_tracks)
             cnt = keep.sum(axis=1)
             order = np.argsort(~keep, axis=1, kind="stable")[:, : int(cnt.max()) if p else 0]
             rows = np.arange(p)[:, None]
@@ -127,6 +127,14 @@ class LMB(LabelledFilter):
         births = self._births(sp, z, rz, c.explained)
         self.step += 1
         return LMBMaps(tracks, r, births), res.loglik
+
+    def _map_tracks(self, maps: LMBMaps) -> tuple[Tracks, np.ndarray]:
+        return maps.tracks, maps.r
+
+    def components(self, maps: LMBMaps, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Particle i's every track and its existence."""
+        keep = maps.tracks.valid[i]
+        return maps.tracks.mu[i][keep], maps.r[i][keep]
 
     def labels(self, maps: LMBMaps, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Particle i's map estimate with labels: (labels (K,), states (K, dx), existence (K,)), r >= map_threshold."""

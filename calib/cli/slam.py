@@ -19,7 +19,7 @@ PD_MODES = ("profile", "constant")
 def slam_config(config: Path | None, filter_: str | None, particles: int | None, pd_mode: str | None):
     """The settings file (or the defaults) with the command-line overrides, validated."""
     from calib.config import load_yaml_model
-    from slam_runtime.config import FILTER_KINDS, SlamConfig, override
+    from slam_runtime.config import FILTER_KINDS, SlamConfig, override, with_filter
 
     if filter_ is not None and filter_ not in FILTER_KINDS:
         raise UsageError(f"--filter: expected one of {', '.join(FILTER_KINDS)}, got {filter_!r}")
@@ -27,7 +27,7 @@ def slam_config(config: Path | None, filter_: str | None, particles: int | None,
     if pd_mode is not None and pd_mode not in PD_MODES:
         raise UsageError(f"--pd-mode: expected one of {', '.join(PD_MODES)}, got {pd_mode!r}")
     cfg = load_yaml_model(SlamConfig, config)
-    return override(cfg, particles=particles, **{"filter.kind": filter_, "detection.pd_mode": pd_mode})
+    return override(with_filter(cfg, filter_), particles=particles, **{"detection.pd_mode": pd_mode})
 
 
 @app.command("run")
@@ -123,7 +123,7 @@ def slam_sweep_cmd(
     for m in modes:
         if m not in PD_MODES:
             raise UsageError(f"--pd-mode: expected one of {', '.join(PD_MODES)}, got {m!r}")
-    from slam_runtime.config import FILTER_KINDS, override
+    from slam_runtime.config import FILTER_KINDS, override, with_filter
 
     base = slam_config(config, None, None, None)
     kinds = list(dict.fromkeys(filters or [base.filter.kind]))
@@ -150,7 +150,7 @@ def slam_sweep_cmd(
             for f in kinds:
                 for m in modes:
                     for n in counts:
-                        cfg = override(base, particles=n, **{"filter.kind": f, "detection.pd_mode": m})
+                        cfg = override(with_filter(base, f), particles=n, **{"detection.pd_mode": m})
                         for sd in seeds_:
                             name = f"{i:02d}_{log.name}_{prof.ref}_{f}_{m}_p{n}_s{sd}"
                             labels = {"log": log.name, "profile": prof.ref, "filter": f, "pd_mode": m, "particles": n, "seed": sd}

@@ -205,7 +205,7 @@ def test_joint_lmb_update_matches_the_enumeration():
     _, exist = _summary(children, total)
     tr = Tracks(np.stack([MU["A"], MU["B"]])[None], np.stack([COV["A"], COV["B"]])[None], np.array([[LAB["A"], LAB["B"]]]))
     births = Births(MU["b"][None, None], COV["b"][None, None], np.array([[RB]]), np.array([LAB["b"]]))
-    mf = LMB(fm, _det(), LMBConfig(samples=20000, gate=1e6, survival=PS, prune=1e-12), rng=np.random.default_rng(1))
+    mf = LMB(fm, _det(), LMBConfig(samples=20000, gate=1e6, survival=PS, prune_tracks=1e-12), rng=np.random.default_rng(1))
     maps, ll = mf.update(LMBMaps(tr, np.array([[0.9, 0.4]]), births), POSE[None], Measurements(z))
     assert 0.0 <= np.log(total) - ll[0] < 1e-3
     inv = {v: k for k, v in LAB.items()}
