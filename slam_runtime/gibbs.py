@@ -28,7 +28,10 @@ hypotheses in proportion to sqrt(w) (their Algorithm 2); duplicate samples of
 one prior are counted once, and children of different priors that are the same
 labelled hypothesis (the same set of track versions) are merged by adding their
 weights. The sum of the children's weights is the normalisation constant of
-eq. 25, the particle's measurement likelihood.
+eq. 25, the particle's measurement likelihood. Every particle's chains start
+from the same seed (common random numbers), so particles whose maps and costs
+agree draw the same children and their weights differ only by what differs
+between them.
 
 Why compiled: the sweep is sequential by nature (each gamma_i is drawn given
 the current values of all the others, so no two draws of one chain can be
@@ -225,7 +228,8 @@ def _sample_option(e_d, e_m, e_row, gl, ng, taken, k, u01):  # pragma: no cover 
 def joint_update(seed, logw, member, act, nact, l_death, l_miss, l_det, total, prune, cap):  # pragma: no cover - compiled
     """Gibbs-sampled joint prediction/update of the labelled maps of P particles.
 
-    seed: seed of the compiled generator (drawn from the run's Generator);
+    seed: seed of the compiled generator (drawn from the run's Generator), the same for every particle
+    (common random numbers: particles whose inputs agree draw the same children);
     logw (P, H): normalised log weights of the prior hypotheses (-inf: empty slot);
     member (P, H, S) bool: slot s is a candidate of hypothesis h (its tracks, and the births);
     act (P, A) int64: slot of each active candidate (P_D > 0 or birth), nact (P,) how many;
