@@ -44,6 +44,8 @@ from calib.fits import (
     roc_curves,
 )
 from calib.label import Labelled, label_log
+from calib.landmarks import CloudLandmarkConfig
+from calib.rangenoise import RangeNoise, RangeNoiseConfig, estimate_range_noise
 from detectors.circle import descriptor_matrix
 from detectors.geometry import compose, interpolate_poses
 from detectors.logs import SensorLog
@@ -77,6 +79,10 @@ class CalibrateConfig(BaseModel):
     clutter_space: Literal["range_bearing", "xy"] = "range_bearing"
     clutter: ClutterModelConfig = ClutterModelConfig()
     poses: Literal["auto", "reference", "icp"] = Field(default="auto", description="where scan poses come from")
+    cloud_landmarks: CloudLandmarkConfig = CloudLandmarkConfig()
+    range_noise: RangeNoiseConfig = Field(
+        default=RangeNoiseConfig(), description="how sigma_r is estimated when the log does not state it and --range-sigma is not given"
+    )
 
 
 @dataclass
@@ -92,6 +98,7 @@ class Calibration:
     landmarks: list[tuple[np.ndarray, np.ndarray, np.ndarray]]
     gated: np.ndarray  # (D,) detection passes the Hotelling gate
     summary: dict = field(default_factory=dict)
+    range_noise: RangeNoise | None = None  # when sigma_r was estimated from the scans
 
 
 def created_now() -> str:
@@ -101,12 +108,17 @@ def created_now() -> str:
     return t.strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
-def scan_sensor_poses(log: SensorLog, source: str) -> tuple[np.ndarray, str]:
-    """(S, 3) sensor poses in the world frame for every scan, and where they came from."""
+def pose_source(log: SensorLog, source: str) -> str:
+    """Where the scan poses of ``log`` will come from: ``reference`` (its ground truth) or ``icp``."""
     use_ref = source in ("auto", "reference") and "ground_truth" in log.reference
     if source == "reference" and not use_ref:
         raise UsageError(f"log {log.name!r} has no ground-truth poses; use --poses icp")
-    if use_ref:
+    return "reference" if use_ref else "icp"
+
+
+def scan_sensor_poses(log: SensorLog, source: str) -> tuple[np.ndarray, str]:
+    """(S, 3) sensor poses in the world frame for every scan, and where they came from."""
+    if pose_source(log, source) == "reference":
         ref = log.reference["ground_truth"]
         if log.scans.stamp[0] < ref.stamp[0] or log.scans.stamp[-1] > ref.stamp[-1]:
             raise DataError(f"log {log.name!r}: scans extend beyond the ground-truth poses")
@@ -127,8 +139,46 @@ def scan_sensor_poses(log: SensorLog, source: str) -> tuple[np.ndarray, str]:
     return compose(veh, np.array([m.x, m.y, m.theta])), src
 
 
+def landmark_source(landmarks_csv: Path | str | None) -> str:
+    """``log`` (the log's own truth), ``cloud`` or ``csv`` (the file is one of the inputs)."""
+    if landmarks_csv is None:
+        return "log"
+    return "cloud" if str(landmarks_csv) == "cloud" else "csv"
+
+
+def range_sigma_source(logs: list[SensorLog], given: bool) -> str:
+    """``option`` (--range-sigma), ``log`` (the log states it) or ``estimated`` (from the registered scans)."""
+    if given:
+        return "option"
+    return "log" if all(lg.sensor is not None and lg.sensor.range_sigma is not None for lg in logs) else "estimated"
+
+
+def parameters(logs: list[SensorLog], cfg: CalibrateConfig, landmarks_csv: Path | str | None, range_sigma_given: bool = False) -> dict:
+    """The provenance parameters of a laser calibration: the config and every choice the data made.
+
+    Known before the work (the request a rerun is compared by, see ``profiles.store.check_save``).
+    """
+    return {
+        **cfg.model_dump(mode="json"),
+        "pose_source": [pose_source(lg, cfg.poses) for lg in logs],
+        "landmarks": landmark_source(landmarks_csv),
+        "range_sigma_source": range_sigma_source(logs, range_sigma_given),
+    }
+
+
+def with_range_sigma(log: SensorLog, sigma: float) -> SensorLog:
+    """``log`` with its sensor's sigma_r set (validated)."""
+    import dataclasses
+
+    return dataclasses.replace(log, sensor=type(log.sensor).model_validate({**log.sensor.model_dump(), "range_sigma": sigma}))
+
+
 def log_landmarks(
-    log: SensorLog, landmarks_csv: Path | str | None, sensor_poses: np.ndarray | None = None, params: CircleDetectorParams | None = None
+    log: SensorLog,
+    landmarks_csv: Path | str | None,
+    sensor_poses: np.ndarray | None = None,
+    params: CircleDetectorParams | None = None,
+    cloud: CloudLandmarkConfig | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(ids (L,), xy (L, 2), radius (L,)) from a CSV (columns id, x, y, radius), the log, or
     ``"cloud"``: circles that recur in the registered scans (:mod:`calib.landmarks`)."""
@@ -137,19 +187,9 @@ def log_landmarks(
 
         if sensor_poses is None:
             raise UsageError("landmarks from the cloud need the scan poses")
-        return landmarks_from_cloud(log, sensor_poses, params or CircleDetectorParams())
+        return landmarks_from_cloud(log, sensor_poses, params or CircleDetectorParams(), cloud)
     if landmarks_csv is not None:
-        try:
-            t = pd.read_csv(landmarks_csv)
-        except (OSError, ValueError) as exc:
-            raise DataError(f"{landmarks_csv}: cannot read landmarks ({exc})") from None
-        missing = {"id", "x", "y", "radius"} - set(t.columns)
-        if missing:
-            raise DataError(f"{landmarks_csv}: missing columns {sorted(missing)} (need id, x, y, radius)")
-        bad = t[["x", "y", "radius"]].isna().any(axis=1) | (t["radius"] <= 0)
-        if bad.any():
-            raise DataError(f"{landmarks_csv}:{int(np.flatnonzero(bad)[0]) + 2}: x, y must be numbers and radius > 0")
-        return t["id"].to_numpy(np.int64), t[["x", "y"]].to_numpy(np.float64), t["radius"].to_numpy(np.float64)
+        return read_landmarks_csv(Path(landmarks_csv))
     if log.landmarks is None:
         raise UsageError(f"log {log.name!r} has no landmark truth; pass --landmarks FILE.csv (id, x, y, radius) or --landmarks cloud")
     lm = log.landmarks
@@ -158,11 +198,29 @@ def log_landmarks(
     return lm.ids, lm.xy, lm.radius
 
 
+def read_landmarks_csv(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(ids (L,), xy (L, 2), radius (L,)) from a CSV with columns id, x, y, radius (world frame, metres)."""
+    try:
+        t = pd.read_csv(path)
+    except (OSError, ValueError) as exc:
+        raise DataError(f"{path}: cannot read landmarks ({' '.join(str(exc).split())})") from None
+    missing = {"id", "x", "y", "radius"} - set(t.columns)
+    if missing:
+        raise DataError(f"{path}: missing columns {sorted(missing)} (need id, x, y, radius)")
+    num = t[["id", "x", "y", "radius"]].apply(pd.to_numeric, errors="coerce")
+    bad = ~np.isfinite(num.to_numpy(np.float64)).all(axis=1) | (num["radius"] <= 0).to_numpy() | (num["id"] % 1 != 0).to_numpy()
+    if bad.any():
+        raise DataError(f"{path}:{int(np.flatnonzero(bad)[0]) + 2}: id must be an integer, x, y numbers and radius > 0")
+    ids = num["id"].to_numpy(np.int64)
+    if np.unique(ids).size != ids.size:
+        raise DataError(f"{path}: landmark ids are not unique")
+    return ids, num[["x", "y"]].to_numpy(np.float64), num["radius"].to_numpy(np.float64)
+
+
 def _check_same_sensor(logs: list[SensorLog]) -> SensorModel:
     s0 = logs[0].sensor
     for lg in logs[1:]:
-        s = lg.sensor
-        if (s.n_beams, s.angle_min, s.angle_increment) != (s0.n_beams, s0.angle_min, s0.angle_increment):
+        if lg.sensor.layouts() != s0.layouts():
             raise UsageError(f"logs {logs[0].name!r} and {lg.name!r} have different beam geometries; calibrate them separately")
     return s0
 
@@ -187,22 +245,34 @@ def calibrate(
     landmarks_csv: Path | None = None,
     input_refs: list[InputRef] | None = None,
     command: str = "",
+    range_sigma_given: bool = False,
 ) -> Calibration:
+    """Calibrate the circle detector on laser logs with truth (steps in the module docstring).
+
+    sigma_r: the logs' own (or ``--range-sigma``, set on the logs by the reader,
+    ``range_sigma_given``); when they state none it is estimated from the
+    registered scans (:mod:`calib.rangenoise`).
+    """
     if not logs:
         raise UsageError("no logs to calibrate")
     for lg in logs:
         if lg.scans is None or lg.sensor is None:
             raise UsageError(f"log {lg.name!r} has no laser scans; calibrate detection-level logs apart from laser logs")
     sensor = _check_same_sensor(logs)
-    if sensor.range_sigma is None:
-        raise DataError("the sensor model has no range_sigma; the occlusion test of the ray tracer needs it")
     if sensor.range_max is None:
         raise DataError("the sensor model has no range_max")
+    params = parameters(logs, cfg, landmarks_csv, range_sigma_given)
+    placed = [scan_sensor_poses(lg, cfg.poses) for lg in logs]
+    noise = None
+    if params["range_sigma_source"] == "estimated":
+        noise = estimate_range_noise(logs, [sp for sp, _ in placed], cfg.range_noise)
+        logs = [with_range_sigma(lg, noise.range_sigma) for lg in logs]
+        sensor = logs[0].sensor
     det_tables, pair_tables, poses, lms, sources = [], [], [], [], []
     offset = 0
     for k, lg in enumerate(logs):
-        sp, src = scan_sensor_poses(lg, cfg.poses)
-        ids, xy, r = log_landmarks(lg, landmarks_csv, sp, cfg.detector)
+        sp, src = placed[k]
+        ids, xy, r = log_landmarks(lg, landmarks_csv, sp, cfg.detector, cfg.cloud_landmarks)
         lab = label_log(lg, sp, ids, xy, r, cfg.detector, gate=cfg.gate, k_sigma=cfg.k_sigma)
         d = lab.detections.assign(log=k)
         p = lab.pairs.assign(log=k)
@@ -279,7 +349,7 @@ def calibrate(
             inputs=input_refs if input_refs is not None else [r for lg in logs for r in _log_digest(lg)],
             detcal_version=__version__,
             command=command,
-            parameters={**cfg.model_dump(mode="json"), "pose_source": sources},
+            parameters=params,
             created=created_now(),
             seed=seeds.pop() if len(seeds) == 1 else None,
         ),
@@ -289,6 +359,9 @@ def calibrate(
         "logs": [lg.name for lg in logs],
         "scans": int(sum(len(lg.scans) for lg in logs)),
         "pose_source": sources,
+        "landmarks": int(sum(len(ids) for ids, _, _ in lms)),
+        "range_sigma_m": float(sensor.range_sigma),
+        "range_sigma_source": params["range_sigma_source"],
         "detections": len(dets),
         "true_detections": n_true,
         "true_inside_ellipsoid": float(gated[true].mean()) if n_true else float("nan"),
@@ -310,4 +383,6 @@ def calibrate(
         "hotelling_gamma": hot.gamma,
         "hotelling_gamma_method": cfg.gamma,
     }
-    return Calibration(profile, cfg, Labelled(dets, pairs), hot, rc, clut, logs, poses, lms, gated, summary)
+    if noise is not None:
+        summary["range_noise"] = noise.summary()
+    return Calibration(profile, cfg, Labelled(dets, pairs), hot, rc, clut, logs, poses, lms, gated, summary, noise)

@@ -44,17 +44,36 @@ class DetectConfig(BaseModel):
     k_sigma: float = Field(default=3.0, gt=0.0, description="occlusion tolerance of the ray tracer, in sigma_r")
 
 
+def detect_config(profile_ref: str | None, config: Path | None) -> tuple[DetectConfig, PdTable | None]:
+    """The detector settings of ``detcal detect``: a profile's detector, gate and n_p table, or a config file."""
+    from calib.config import load_yaml_model
+    from profiles.errors import UsageError
+
+    if profile_ref is None:
+        return load_yaml_model(DetectConfig, config), None
+    if config is not None:
+        raise UsageError("--profile and --config both set the detector; give one")
+    from profiles.store import resolve
+
+    prof = resolve(profile_ref)
+    if prof.detector.kind != "circle2d":
+        raise UsageError(f"profile {prof.ref} is for an external detector, not the circle detector")
+    hot = None if prof.hotelling is None else HotellingParams.model_validate(prof.hotelling.model_dump(include=set(HotellingParams.model_fields)))
+    cfg = DetectConfig(detector=prof.detector.circle, hotelling=hot, k_sigma=prof.detector.k_sigma)
+    return cfg, prof.pd if prof.pd.covariate == "n_p" else None
+
+
 def run_detector(log: SensorLog, cfg: DetectConfig, *, show_progress: bool = True) -> CircleDetections:
     """Detections of every scan of ``log`` (chunked so memory stays flat)."""
     if log.scans is None or log.sensor is None:
         raise DataError(f"log {log.name!r} has no laser scans to detect circles in")
-    ang = log.sensor.angles()
     n = len(log.scans)
     parts = []
     chunks = range(0, n, CHUNK)
     it = progress(chunks, len(chunks), "detecting") if show_progress else chunks
     for a in it:
-        d = detect_circles(log.scans.ranges[a : a + CHUNK], ang, cfg.detector, cfg.hotelling, log.sensor.range_sigma)
+        rows = slice(a, a + CHUNK)
+        d = detect_circles(log.scans.ranges[rows], log.scan_angles(rows), cfg.detector, cfg.hotelling, log.sensor.range_sigma)
         parts.append(d.offset(a))
     return CircleDetections.concat(parts)
 

@@ -87,6 +87,9 @@ def _need(log: SensorLog) -> None:
         raise DataError(f"log {log.name!r} has no detections")
     if log.landmarks is None or "ground_truth" not in log.reference:
         raise DataError(f"log {log.name!r} needs landmark truth and ground-truth poses for a detection-level calibration")
+    from calib.truth import check_within_truth
+
+    check_within_truth(log)  # a detection outside the truth's time span would get a clamped, wrong pose
     if "subject" not in log.detections.descriptors:
         raise DataError(f"log {log.name!r}: detections carry no identity (descriptor 'subject')")
 
@@ -97,6 +100,14 @@ def sensor_id(log: SensorLog) -> str:
     if robot is not None:
         return f"robot{robot}"
     return re.sub(r"[^a-z0-9._-]+", "-", log.name.lower()).strip("-") or "sensor"
+
+
+def sensor_names(logs: list[SensorLog]) -> list[str]:
+    """One distinct name per log's sensor (numbered when two logs share one)."""
+    names = [sensor_id(lg) for lg in logs]
+    if len(set(names)) != len(names):
+        names = [f"{n}-{k + 1}" for k, n in enumerate(names)]
+    return names
 
 
 def _sensor_poses(log: SensorLog, stamp: np.ndarray) -> np.ndarray:
@@ -275,9 +286,7 @@ def calibrate_detections(
         raise UsageError("no logs to calibrate")
     for lg in logs:
         _need(lg)
-    names = [sensor_id(lg) for lg in logs]
-    if len(set(names)) != len(names):
-        names = [f"{n}-{k + 1}" for k, n in enumerate(names)]
+    names = sensor_names(logs)
     period = cfg.frame_period or frame_period(logs)
     remap, evidence = audit_identities(logs, cfg.gate, cfg.audit)
     truths = pd.concat([true_detections(lg, cfg.gate, remap) for lg in logs], ignore_index=True)
@@ -448,35 +457,43 @@ def input_refs_for(log: SensorLog) -> list[InputRef]:
 
 
 def write_detection_run(cal: DetectionCalibration, out, *, overwrite: bool = False) -> list[str]:
-    from calib.config import dump_yaml
     from calib.io.atomic import atomic_output
+
+    with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
+        return fill_detection_run(cal, tmp)
+
+
+def fill_detection_run(cal: DetectionCalibration, folder) -> list[str]:
+    """Create ``folder`` with profile.yaml (and sensors/ with the per-sensor profiles), summary.yaml,
+    config.yaml, pairs.csv.gz and the figures; returns the figure names."""
+    from calib.config import dump_yaml
     from calib.report import plot_clutter, plot_clutter_density, plot_pd, plot_pd_grid, plot_sensors
     from profiles.store import dump_profile
 
     figures = []
-    with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
-        tmp.mkdir()
-        (tmp / "profile.yaml").write_text(dump_profile(cal.profile))
-        if cal.members:
-            (tmp / "sensors").mkdir()
-            for m in cal.members:
-                (tmp / "sensors" / f"{m.name}@{m.version}.yaml").write_text(dump_profile(m))
-        (tmp / "summary.yaml").write_text(dump_yaml(cal.summary))
-        if cal.config is not None:
-            (tmp / "config.yaml").write_text(dump_yaml(cal.config.model_dump(mode="json")))
-        cal.pairs.to_csv(tmp / "pairs.csv.gz", index=False, float_format="%.9g", compression={"method": "gzip", "mtime": 0})
-        if cal.profile.pd.two_d:
-            plot_pd_grid(cal.profile.pd, cal.pairs, tmp / "pd_range_bearing.png")
-            figures.append("pd_range_bearing.png")
-        else:
-            plot_pd(cal, tmp / "pd_vs_range.png")
-            figures.append("pd_vs_range.png")
-        plot_clutter(cal, tmp / "clutter.png")
-        figures.append("clutter.png")
-        if cal.profile.clutter.density is not None:
-            plot_clutter_density(cal.profile.clutter, tmp / "clutter_density.png")
-            figures.append("clutter_density.png")
-        if len(cal.names) > 1:
-            plot_sensors(cal, tmp / "sensors.png")
-            figures.append("sensors.png")
+    tmp = folder
+    tmp.mkdir()
+    (tmp / "profile.yaml").write_text(dump_profile(cal.profile))
+    if cal.members:
+        (tmp / "sensors").mkdir()
+        for m in cal.members:
+            (tmp / "sensors" / f"{m.name}@{m.version}.yaml").write_text(dump_profile(m))
+    (tmp / "summary.yaml").write_text(dump_yaml(cal.summary))
+    if cal.config is not None:
+        (tmp / "config.yaml").write_text(dump_yaml(cal.config.model_dump(mode="json")))
+    cal.pairs.to_csv(tmp / "pairs.csv.gz", index=False, float_format="%.9g", compression={"method": "gzip", "mtime": 0})
+    if cal.profile.pd.two_d:
+        plot_pd_grid(cal.profile.pd, cal.pairs, tmp / "pd_range_bearing.png")
+        figures.append("pd_range_bearing.png")
+    else:
+        plot_pd(cal, tmp / "pd_vs_range.png")
+        figures.append("pd_vs_range.png")
+    plot_clutter(cal, tmp / "clutter.png")
+    figures.append("clutter.png")
+    if cal.profile.clutter.density is not None:
+        plot_clutter_density(cal.profile.clutter, tmp / "clutter_density.png")
+        figures.append("clutter_density.png")
+    if len(cal.names) > 1:
+        plot_sensors(cal, tmp / "sensors.png")
+        figures.append("sensors.png")
     return figures

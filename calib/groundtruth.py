@@ -74,7 +74,8 @@ def registered_cloud(log: SensorLog, poses: np.ndarray, every: int = 1) -> np.nd
     m = log.sensor.mount
     sp = compose(poses[::every], np.array([m.x, m.y, m.theta]))
     r = log.scans.ranges[::every].astype(np.float64)
-    a = sp[:, 2:3] + log.sensor.angles()[None, :]
+    ang = log.scan_angles(slice(None, None, every))
+    a = sp[:, 2:3] + (ang if ang.ndim == 2 else ang[None, :])
     x, y = sp[:, 0:1] + r * np.cos(a), sp[:, 1:2] + r * np.sin(a)
     ok = np.isfinite(x)
     return np.column_stack([x[ok], y[ok]])

@@ -97,7 +97,10 @@ def odometry_poses(log: SensorLog) -> np.ndarray:
 
 
 def scan_points(ranges: np.ndarray, angles: np.ndarray, normal_gap: float, max_range: float | None):
-    """Points (N, 2) of one scan in the sensor frame and their normals (N, 2) (NaN where none)."""
+    """Points (N, 2) of one scan in the sensor frame and their normals (N, 2) (NaN where none).
+
+    ranges (B,), angles (B,) (a NaN angle, past the scan's own beams, is no return).
+    """
     r = ranges.astype(np.float64)
     if max_range is not None:
         r = np.where(r <= max_range, r, np.nan)
@@ -110,7 +113,7 @@ def scan_points(ranges: np.ndarray, angles: np.ndarray, normal_gap: float, max_r
     n = np.column_stack([-t[:, 1], t[:, 0]])
     n /= np.maximum(np.hypot(n[:, 0], n[:, 1]), 1e-12)[:, None]
     n[~ok] = np.nan
-    valid = np.isfinite(r)
+    valid = np.isfinite(p[:, 0])
     return p[valid], n[valid]
 
 
@@ -186,13 +189,13 @@ def icp_ground_truth(
     cfg = cfg or IcpConfig()
     if log.scans is None or log.sensor is None:
         raise DataError(f"log {log.name!r} has no laser scans to align")
-    ang = log.sensor.angles()
     mount = np.array([log.sensor.mount.x, log.sensor.mount.y, log.sensor.mount.theta])
     odo = odometry_poses(log)
     n = len(log.scans)
     pts, nrm = [], []
+    ang = log.scan_angles()  # (B,), or (S, B) for a laser of several beam layouts
     for k in range(n):  # per-scan geometry, cheap; kept for the loop search
-        p, q = scan_points(log.scans.ranges[k], ang, cfg.normal_gap, cfg.max_range)
+        p, q = scan_points(log.scans.ranges[k], ang[k] if ang.ndim == 2 else ang, cfg.normal_gap, cfg.max_range)
         # points and normals in the vehicle frame
         pv = _to_world(mount, p, q)
         pts.append(pv[0])

@@ -101,14 +101,15 @@ def support(
     is within ``tol`` of the measured range. Without this, a clutter circle whose
     centre happens to fall within the gate of a tree (about 3 % of false
     detections in a park of one tree per 100 m^2 and a 1 m gate) is labelled true.
-    Vectorised over all returns of all K candidates: scan/first/last (K,), centre (K, 2), radius (K,).
+    Vectorised over all returns of all K candidates: scan/first/last (K,), centre (K, 2), radius (K,);
+    angles (B,) shared or (S, B) per scan.
     """
     lens = last - first + 1
     rep = np.repeat(np.arange(scan.size), lens)
     within = np.arange(lens.sum()) - np.repeat(np.cumsum(lens) - lens, lens)
     beam = first[rep] + within
     pose = sensor_poses[scan[rep]]
-    a = pose[:, 2] + angles[beam]
+    a = pose[:, 2] + (angles[scan[rep], beam] if angles.ndim == 2 else angles[beam])
     m = centre[rep] - pose[:, :2]
     proj = np.cos(a) * m[:, 0] + np.sin(a) * m[:, 1]
     d2 = np.einsum("ij,ij->i", m, m) - proj * proj
@@ -134,7 +135,7 @@ def label_log(
         raise DataError(f"log {log.name!r} has no laser scans")
     if log.sensor.range_sigma is None:
         raise DataError(f"log {log.name!r}: the sensor model has no range_sigma; pass --range-sigma")
-    ang = log.sensor.angles()
+    ang = log.scan_angles()  # (B,), or (S, B) for a laser of several beam layouts
     det = detect_circles(log.scans.ranges, ang, params, range_sigma=log.sensor.range_sigma)
     sp = sensor_poses[det.scan]
     world = compose(sp, np.column_stack([det.x, det.y, np.zeros(len(det))]))

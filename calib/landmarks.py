@@ -46,7 +46,7 @@ def landmarks_from_cloud(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(ids (L,), xy (L, 2), radius (L,)) of the circles that recur across the scans."""
     cfg = cfg or CloudLandmarkConfig()
-    det = detect_circles(log.scans.ranges, log.sensor.angles(), params, range_sigma=log.sensor.range_sigma)
+    det = detect_circles(log.scans.ranges, log.scan_angles(), params, range_sigma=log.sensor.range_sigma)
     keep = (det.convexity > 0) & (det.radius >= cfg.min_radius) & (det.radius <= cfg.max_radius) & (det.n_points >= cfg.min_points)
     det = det.select(keep)
     if len(det) == 0:

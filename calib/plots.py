@@ -24,10 +24,10 @@ MAX_DRAWN_RADIUS = 3.0  # circles fitted to walls are huge: list them, do not dr
 def plot_scan_detections(log: SensorLog, det: CircleDetections, k: int, table: PdTable, k_sigma: float, path: Path) -> None:
     """One scan in the sensor frame: returns coloured by cluster, fitted circles, and the P_D field."""
     s = log.sensor
-    ang = s.angles()
+    ang = log.scan_angles(k)
     r = log.scans.ranges[k].astype(np.float64)
-    ok = np.isfinite(r)
     x, y = r * np.cos(ang), r * np.sin(ang)
+    ok = np.isfinite(x)
     reach = float(np.nanmax(r)) if ok.any() else float(s.range_max or 10.0)
     reach = min(reach, float(s.range_max or reach), PLOT_REACH)
     xs = np.linspace(-reach, reach, 241)

@@ -243,10 +243,10 @@ def plot_descriptors(cal: Calibration, path: Path, max_points: int = 4000) -> No
 def plot_map(cal: Calibration, path: Path, k: int = 0, every: int = 10) -> None:
     """The registered point cloud of log k with the sensor trajectory and the landmarks."""
     lg, sp = cal.logs[k], cal.poses[k]
-    ang = lg.sensor.angles()
     rows = np.arange(0, len(lg.scans), every)
+    ang = lg.scan_angles(rows)
     r = lg.scans.ranges[rows].astype(np.float64)
-    a = sp[rows, 2:3] + ang[None, :]
+    a = sp[rows, 2:3] + (ang if ang.ndim == 2 else ang[None, :])
     x = sp[rows, 0:1] + r * np.cos(a)
     y = sp[rows, 1:2] + r * np.sin(a)
     ok = np.isfinite(x)
@@ -277,6 +277,6 @@ def write_report(cal: Calibration, folder: Path) -> list[str]:
     lg = cal.logs[0]
     k = len(lg.scans) // 3
     prof = cal.profile
-    det = detect_circles(lg.scans.ranges[k : k + 1], lg.sensor.angles(), prof.detector.circle, prof.hotelling, lg.sensor.range_sigma)
+    det = detect_circles(lg.scans.ranges[k : k + 1], lg.scan_angles(k), prof.detector.circle, prof.hotelling, lg.sensor.range_sigma)
     plot_scan_detections(lg, det.offset(k), k, prof.pd, prof.detector.k_sigma, folder / "pd_field.png")
     return ["pd_vs_np.png", "roc.png", "clutter.png", "descriptors.png", "map.png", "pd_field.png"]

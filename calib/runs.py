@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pandas as pd
+
 from calib.calibrate import Calibration
 from calib.config import dump_yaml
 from calib.io.atomic import atomic_output
@@ -13,15 +15,23 @@ GZ = {"method": "gzip", "mtime": 0}  # fixed header time: same tables, same byte
 
 
 def write_calibration_run(cal: Calibration, out: Path, *, overwrite: bool = False) -> list[str]:
-    """profile.yaml, config.yaml, summary.yaml, detections.csv.gz, pairs.csv.gz and the report figures."""
+    """The run folder of :func:`fill_calibration_run`, written atomically."""
+    with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
+        figures = fill_calibration_run(cal, tmp)
+    return figures
+
+
+def fill_calibration_run(cal: Calibration, folder: Path) -> list[str]:
+    """Create ``folder`` with profile.yaml, config.yaml, summary.yaml, detections.csv.gz, pairs.csv.gz,
+    range_noise.csv (when sigma_r was estimated) and the report figures; returns the figure names."""
     from calib.report import write_report
 
-    with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
-        tmp.mkdir()
-        (tmp / "profile.yaml").write_text(dump_profile(cal.profile))
-        (tmp / "config.yaml").write_text(dump_yaml(cal.config.model_dump(mode="json")))
-        (tmp / "summary.yaml").write_text(dump_yaml(cal.summary))
-        cal.labelled.detections.to_csv(tmp / "detections.csv.gz", index=False, float_format="%.9g", compression=GZ)
-        cal.labelled.pairs.to_csv(tmp / "pairs.csv.gz", index=False, float_format="%.9g", compression=GZ)
-        figures = write_report(cal, tmp)
-    return figures
+    folder.mkdir()
+    (folder / "profile.yaml").write_text(dump_profile(cal.profile))
+    (folder / "config.yaml").write_text(dump_yaml(cal.config.model_dump(mode="json")))
+    (folder / "summary.yaml").write_text(dump_yaml(cal.summary))
+    cal.labelled.detections.to_csv(folder / "detections.csv.gz", index=False, float_format="%.9g", compression=GZ)
+    cal.labelled.pairs.to_csv(folder / "pairs.csv.gz", index=False, float_format="%.9g", compression=GZ)
+    if cal.range_noise is not None:
+        pd.DataFrame(cal.range_noise.summary()["bands"]).to_csv(folder / "range_noise.csv", index=False, float_format="%.6g")
+    return write_report(cal, folder)

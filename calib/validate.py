@@ -24,6 +24,7 @@ One row per held-out log and one for all of them together.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -129,8 +130,10 @@ def held_out_laser(profile: DetectorProfile, log: SensorLog, *, landmarks_csv: P
     if log.scans is None or log.sensor is None:
         raise DataError(f"log {log.name!r} has no laser scans")
     s, ps = log.sensor, profile.sensor
-    if (s.n_beams, s.angle_min, s.angle_increment) != (ps.n_beams, ps.angle_min, ps.angle_increment):
+    if s.layouts() != ps.layouts():
         raise UsageError(f"log {log.name!r} has another beam geometry than profile {profile.ref}")
+    if s.range_sigma is None:  # a real log rarely states its noise: the profile's is the one it was calibrated with
+        log = dataclasses.replace(log, sensor=type(s).model_validate({**s.model_dump(), "range_sigma": ps.range_sigma}))
     sp, src = scan_sensor_poses(log, poses)
     ids, xy, r = log_landmarks(log, landmarks_csv, sp, profile.detector.circle)
     lab = label_log(log, sp, ids, xy, r, profile.detector.circle, gate=profile.detector.association_gate, k_sigma=profile.detector.k_sigma)

@@ -136,7 +136,8 @@ class CircleDetections:
 def segment(ranges: np.ndarray, angles: np.ndarray, jump: float, min_points: int, max_points: int | None = None):
     """Cluster consecutive returns of each scan.
 
-    ranges (N, B) float, NaN = no return; angles (B,) sensor frame.
+    ranges (N, B) float, NaN = no return; angles (B,) sensor frame, shared by all
+    scans, or (N, B) one row per scan (NaN past a scan's own beams: no return).
     returns (scan (P,), beam (P,), label (P,), x (P,), y (P,)) for the P returns that
     belong to kept clusters, with ``label`` in 0..K-1 numbering clusters in scan/beam order.
     """
@@ -146,7 +147,7 @@ def segment(ranges: np.ndarray, angles: np.ndarray, jump: float, min_points: int
     n, b = ranges.shape
     c, s = np.cos(angles), np.sin(angles)
     x, y = ranges * c, ranges * s
-    ok = np.isfinite(ranges)
+    ok = np.isfinite(x)  # a NaN range or a NaN angle (past a scan's own beams) is no return
     # a break before beam j when j or j-1 is missing or they are more than `jump` apart
     gap = np.hypot(np.diff(x, axis=1), np.diff(y, axis=1))
     brk = np.ones((n, b), dtype=bool)
@@ -328,7 +329,9 @@ def detect_circles(
 ) -> CircleDetections:
     """Run the detector on a batch of scans.
 
-    ranges (N, B) or (B,) float, NaN = no return; angles (B,) sensor frame.
+    ranges (N, B) or (B,) float, NaN = no return; angles (B,) sensor frame, or
+    (N, B) per scan for a laser of several beam layouts
+    (:meth:`detectors.logs.SensorLog.scan_angles`; NaN past a scan's beams).
     With ``hotelling`` the detections outside its ellipsoid are dropped; the
     squared Mahalanobis distance is reported either way when a model is given.
 
@@ -348,8 +351,8 @@ def detect_circles(
     if ranges.ndim == 1:
         ranges = ranges[None]
     angles = np.asarray(angles, dtype=np.float64)
-    if ranges.shape[1] != angles.size:
-        raise DataError(f"ranges: {ranges.shape[1]} beams per scan but {angles.size} beam angles")
+    if angles.shape not in ((ranges.shape[1],), ranges.shape):
+        raise DataError(f"ranges: shape {ranges.shape} but beam angles of shape {angles.shape} (expected ({ranges.shape[1]},) or {ranges.shape})")
     scan, beam, label, x, y = segment(ranges, angles, params.jump, params.min_points, params.max_points)
     k = int(label.max()) + 1 if label.size else 0
     if k == 0:

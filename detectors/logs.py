@@ -32,7 +32,7 @@ from typing import NamedTuple
 import numpy as np
 
 from profiles.errors import DataError
-from profiles.schema import Mount, SensorModel, Vehicle  # noqa: F401  (re-exported: part of the log model)
+from profiles.schema import BeamGeometry, Mount, SensorModel, Vehicle  # noqa: F401  (re-exported: part of the log model)
 
 NS = 1_000_000_000
 
@@ -57,9 +57,18 @@ def wrap_angle(a: np.ndarray | float) -> np.ndarray:
     return np.where(w == -np.pi, np.pi, w)
 
 
-def seconds_to_stamp(t: np.ndarray | float) -> np.ndarray:
-    """Float seconds -> int64 nanoseconds (rounded to the nearest ns)."""
-    return np.rint(np.asarray(t, dtype=np.float64) * NS).astype(np.int64)
+#: Largest |time| an int64 nanosecond stamp holds, in seconds (about 292 years).
+MAX_SECONDS = 9.2e9
+
+
+def seconds_to_stamp(t: np.ndarray | float, what: str = "time") -> np.ndarray:
+    """Float seconds -> int64 nanoseconds (rounded to the nearest ns); a DataError beyond +-292 years or for NaN."""
+    t = np.asarray(t, dtype=np.float64)
+    bad = ~(np.abs(t) < MAX_SECONDS)
+    if bad.any():
+        i = int(np.flatnonzero(bad.ravel())[0])
+        raise DataError(f"{what}[{i}]: {t.ravel()[i]!r} s is not a time (finite, within +-{MAX_SECONDS:.3g} s)")
+    return np.rint(t * NS).astype(np.int64)
 
 
 def _check_stamp(stamp: np.ndarray, what: str) -> np.ndarray:
@@ -94,12 +103,17 @@ class ScanBatch:
     intensities: (N, B) float32 or None
     odom_pose:   (N, 3) float64 or None -- the odometry pose logged with each
                  scan (CARMEN ``FLASER``), odometry frame
+    geometry:    (N,) int32 or None -- for a laser with several beam layouts
+                 (``SensorModel.geometries``), the layout of each scan; B is
+                 then the widest count and a scan's ranges past its own count
+                 are NaN. Use :meth:`SensorLog.scan_angles` for the angles.
     """
 
     stamp: np.ndarray
     ranges: np.ndarray
     intensities: np.ndarray | None = None
     odom_pose: np.ndarray | None = None
+    geometry: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         stamp = _check_stamp(self.stamp, "scans")
@@ -120,6 +134,11 @@ class ScanBatch:
             object.__setattr__(self, "intensities", inten)
         if self.odom_pose is not None:
             object.__setattr__(self, "odom_pose", _check_rows(self.odom_pose, stamp.size, 3, "scans.odom_pose"))
+        if self.geometry is not None:
+            g = np.asarray(self.geometry)
+            if g.shape != (stamp.size,) or (g.size and (g.dtype.kind not in "iu" or g.min() < 0)):
+                raise DataError(f"scans.geometry: expected ({stamp.size},) non-negative integers, got shape {g.shape} of {g.dtype}")
+            object.__setattr__(self, "geometry", np.ascontiguousarray(g, dtype=np.int32))
 
     def __len__(self) -> int:
         return int(self.stamp.size)
@@ -376,6 +395,50 @@ class SensorLog:
                     f"scans.ranges: {self.scans.n_beams} beams per scan but the sensor model "
                     f"declares n_beams={self.sensor.n_beams}"
                 )
+            self._check_geometry()
+
+    def _check_geometry(self) -> None:
+        """Per-scan layouts: present exactly when the sensor lists several; ranges NaN past each scan's count."""
+        geoms, idx = self.sensor.geometries, self.scans.geometry
+        if geoms is None:
+            if idx is not None:
+                raise DataError("scans.geometry: the sensor model has one beam geometry, so scans carry none")
+            return
+        if idx is None:
+            raise DataError(f"scans.geometry: the sensor model lists {len(geoms)} beam geometries; each scan must say which it used")
+        if idx.size and idx.max() >= len(geoms):
+            raise DataError(f"scans.geometry[{int(np.argmax(idx))}]: layout {int(idx.max())} but the sensor lists {len(geoms)}")
+        counts = np.array([g.n_beams for g in geoms], dtype=np.int64)[idx]
+        past = np.arange(self.scans.n_beams)[None, :] >= counts[:, None]
+        bad = np.flatnonzero((past & ~np.isnan(self.scans.ranges)).any(axis=1))
+        if bad.size:
+            i = int(bad[0])
+            raise DataError(f"scans.ranges[{i}]: readings past the scan's {int(counts[i])} beams (pad with NaN)")
+
+    @property
+    def uniform_beams(self) -> bool:
+        """True when every scan has the sensor's one beam layout (``sensor.angles()`` applies)."""
+        return self.sensor is None or self.sensor.geometries is None
+
+    def scan_angles(self, rows: int | slice | np.ndarray | None = None) -> np.ndarray:
+        """Beam angles of scans, sensor frame [rad]; the one accessor for per-scan beam geometry.
+
+        rows: an int -> (B,) that scan's angles; a slice, an index array or None
+        (every scan) -> (B,) shared by all rows when the laser has one layout,
+        else (R, B) one row per scan. Past a scan's own beam count the angle is
+        NaN (its ranges are NaN there too), which every consumer (detector, ray
+        tracer) treats as no beam.
+        """
+        if self.scans is None or self.sensor is None:
+            raise DataError(f"log {self.name!r} has no laser scans")
+        if self.sensor.geometries is None:
+            return self.sensor.angles()
+        table = np.full((len(self.sensor.geometries), self.scans.n_beams), np.nan)
+        for k, g in enumerate(self.sensor.geometries):
+            table[k, : g.n_beams] = g.angles()
+        if isinstance(rows, int | np.integer):
+            return table[self.scans.geometry[rows]]
+        return table[self.scans.geometry if rows is None else self.scans.geometry[rows]]
 
     def streams(self) -> list[str]:
         out = []

@@ -150,24 +150,28 @@ class DetectionModel:
         centres: np.ndarray,
         radii: np.ndarray,
         lateral: np.ndarray | None = None,
+        angles: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """P_D (L,) and buffer-zone flags (L,) of landmarks seen from one sensor pose.
 
         sensor_pose (3,) world; ranges (B,) the current scan; centres (L, 2) world;
         radii (L,) or scalar; lateral (L,) spread [m] for the buffer rule (e.g. 2
         standard deviations of the position across the line of sight); without it
-        only the 0 < P_D < 0.5 rule applies.
+        only the 0 < P_D < 0.5 rule applies. angles (B,): the scan's beam angles,
+        needed for a laser of several beam layouts (``SensorLog.scan_angles(i)``);
+        default the sensor's one layout.
         """
         s = self.sensor
+        angles = s.angles() if angles is None else np.asarray(angles, dtype=np.float64)
         if lateral is None:
             n_p, _ = count_unoccluded(
-                np.asarray(sensor_pose)[None], s.angles(), np.asarray(ranges)[None], centres, radii,
+                np.asarray(sensor_pose)[None], angles, np.asarray(ranges)[None], centres, radii,
                 range_sigma=float(s.range_sigma), k_sigma=self.k_sigma, range_max=s.range_max,
             )
             pd = self.pd_of_np(n_p[0])
             return pd, (pd > 0) & (pd < 0.5)
         return buffer_zone(
-            sensor_pose, s.angles(), ranges, centres, radii, lateral, self.pd_of_np,
+            sensor_pose, angles, ranges, centres, radii, lateral, self.pd_of_np,
             samples=self.buffer_samples, range_sigma=float(s.range_sigma), k_sigma=self.k_sigma, range_max=s.range_max,
         )
 
@@ -336,13 +340,11 @@ class DetectionModel:
         ok = z[..., 0] >= s.range_min
         if s.range_max is not None:
             ok &= z[..., 0] <= s.range_max
-        fov = s.field_of_view
-        if fov is not None:
-            if s.angle_min is not None and s.angle_increment is not None and s.n_beams is not None:
-                lo = min(s.angle_min, s.angle_min + s.angle_increment * (s.n_beams - 1))
-                ok &= (z[..., 1] >= lo) & (z[..., 1] <= lo + fov)
-            else:
-                ok &= np.abs(z[..., 1]) <= fov / 2
+        span = s.angle_span()  # over every beam layout of the laser
+        if span is not None:
+            ok &= (z[..., 1] >= span[0]) & (z[..., 1] <= span[1])
+        elif s.fov is not None:
+            ok &= np.abs(z[..., 1]) <= s.fov / 2
         return ok
 
     def clutter_intensity(self, z: np.ndarray) -> np.ndarray:

@@ -34,7 +34,9 @@ def count_unoccluded(
 ) -> tuple[np.ndarray, np.ndarray]:
     """n_p and the number of expected hits for every (scan, landmark) pair.
 
-    sensor_poses (S, 3) world frame; angles (B,) sensor frame;
+    sensor_poses (S, 3) world frame; angles (B,) sensor frame, or (S, B) one row
+    per scan for a laser of several beam layouts (NaN past a scan's own beams:
+    no beam there, see :meth:`detectors.logs.SensorLog.scan_angles`);
     ranges (S, B) measured, NaN = no return (a (B,) scan is shared by all poses);
     centres (L, 2) world frame, shared by all poses, or (S, L, 2): one set per pose
     (the maps of a particle filter); radii (L,) or scalar.
@@ -50,7 +52,8 @@ def count_unoccluded(
     centres = centres if per_pose else centres.reshape(-1, 2)
     l_ = centres.shape[-2]
     radii = np.broadcast_to(np.asarray(radii, dtype=np.float64), (l_,))
-    s, b = poses.shape[0], angles.size
+    s, b = poses.shape[0], angles.shape[-1]
+    per_scan_angles = angles.ndim == 2
     n_p = np.zeros((s, l_), dtype=np.int32)
     n_exp = np.zeros((s, l_), dtype=np.int32)
     if s == 0 or l_ == 0:
@@ -60,7 +63,7 @@ def count_unoccluded(
     step = max(1, _CHUNK // max(1, b * l_))
     for a in range(0, s, step):  # chunks of scans; inside, all beams x landmarks at once
         sl = slice(a, min(s, a + step))
-        exp = expected_ranges(poses[sl], angles, centres[sl] if per_pose else centres, radii)  # (s', B, L)
+        exp = expected_ranges(poses[sl], angles[sl] if per_scan_angles else angles, centres[sl] if per_pose else centres, radii)  # (s', B, L)
         hit = np.isfinite(exp) & (exp <= rmax)
         occl = hit & (meas[sl, :, None] < exp - tol)  # NaN compares False: a missing return does not occlude
         n_exp[sl] = hit.sum(axis=1)
@@ -71,10 +74,12 @@ def count_unoccluded(
 def expected_ranges(sensor_poses: np.ndarray, angles: np.ndarray, centres: np.ndarray, radii: np.ndarray) -> np.ndarray:
     """(S, B, L) range at which each beam would first cross each circle (inf where it misses).
 
+    angles (B,) shared or (S, B) per pose (a NaN angle is no beam: inf);
     centres (L, 2) shared by all poses or (S, L, 2) one set per pose.
     """
     poses = np.atleast_2d(sensor_poses)
-    a = poses[:, 2:3] + angles[None, :]  # (S, B) world beam angles
+    angles = np.asarray(angles, dtype=np.float64)
+    a = poses[:, 2:3] + (angles if angles.ndim == 2 else angles[None, :])  # (S, B) world beam angles
     dirs = np.stack([np.cos(a), np.sin(a)], axis=-1)  # (S, B, 2)
     m = (centres if centres.ndim == 3 else centres[None, :, :]) - poses[:, None, :2]  # (S, L, 2)
     proj = np.einsum("sbk,slk->sbl", dirs, m)  # along-beam distance of the closest approach
@@ -204,15 +209,18 @@ def expected_unoccluded(
     feature's radius is not known; a generous one keeps a large trunk's own
     surface from counting as its occluder.
 
-    sensor_poses (S, 3); angles (B,) evenly spaced, sensor frame; ranges (B,) shared or
-    (S, B); centres (S, L, 2) -> (S, L) float.
+    sensor_poses (S, 3); angles (B,) evenly spaced, sensor frame (trailing NaN angles,
+    past the beams of a scan of a laser with several layouts, are dropped with
+    their ranges); ranges (B,) shared or (S, B); centres (S, L, 2) -> (S, L) float.
     """
     angles = np.asarray(angles, dtype=np.float64)
-    n_beams = angles.size
+    n_beams = int(np.isfinite(angles).sum())
+    width = angles.size
+    angles = angles[:n_beams]
     angle_min, angle_increment = float(angles[0]), float(angles[1] - angles[0]) if n_beams > 1 else 1.0
     poses = np.atleast_2d(np.asarray(sensor_poses, dtype=np.float64))
     centres = np.asarray(centres, dtype=np.float64).reshape(poses.shape[0], -1, 2)
-    meas = np.asarray(ranges, dtype=np.float64).reshape(-1, n_beams)
+    meas = np.asarray(ranges, dtype=np.float64).reshape(-1, width)[:, :n_beams]
     s, l_ = centres.shape[:2]
     if s == 0 or l_ == 0:
         return np.zeros((s, l_))

@@ -9,7 +9,7 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_serializer, model_validator
 
 from profiles.errors import DataError
 
@@ -39,36 +39,104 @@ class Vehicle(Strict):
     encoder_offset: float = Field(default=0.0, ge=0.0)
 
 
+class BeamGeometry(Strict):
+    """One beam layout of a 2D laser: beam ``i`` points at ``angle_min + i * angle_increment`` (sensor frame, radians)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    n_beams: int = Field(ge=1)
+    angle_min: float = Field(allow_inf_nan=False)
+    angle_increment: float = Field(allow_inf_nan=False)
+
+    def angles(self) -> np.ndarray:
+        """(n_beams,) float64 radians, sensor frame."""
+        return self.angle_min + self.angle_increment * np.arange(self.n_beams, dtype=np.float64)
+
+    def span(self) -> tuple[float, float]:
+        """(lowest, highest) beam angle [rad]."""
+        end = self.angle_min + self.angle_increment * (self.n_beams - 1)
+        return min(self.angle_min, end), max(self.angle_min, end)
+
+
 class SensorModel(Strict):
     """What the sensor is and how it is mounted.
 
     For a 2D laser, beam ``i`` points at ``angle_min + i * angle_increment``
-    (sensor frame, radians). Detection-only sensors (a camera, a vendor's tree
-    extractor) give ``fov`` instead of a beam geometry.
+    (sensor frame, radians). A laser whose scans do not all share one beam
+    layout (interlaced scanners that alternate 180 and 181 beams or start
+    angles; CARMEN ``ROBOTLASER1`` lines that carry their own geometry) lists
+    its layouts in ``geometries`` instead; ``n_beams`` is then the widest
+    count (the width of the scan arrays) and each scan says which layout it
+    used (:meth:`detectors.logs.SensorLog.scan_angles`). Detection-only
+    sensors (a camera, a vendor's tree extractor) give ``fov`` instead of a
+    beam geometry.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
     kind: Literal["laser2d", "lidar3d", "camera", "detector"] = "laser2d"
     n_beams: int | None = Field(default=None, ge=1)
-    angle_min: float | None = None
-    angle_increment: float | None = None
-    range_min: float = Field(default=0.0, ge=0.0)
-    range_max: float | None = Field(default=None, gt=0.0)
-    range_sigma: float | None = Field(default=None, ge=0.0)
+    angle_min: float | None = Field(default=None, allow_inf_nan=False)
+    angle_increment: float | None = Field(default=None, allow_inf_nan=False)
+    range_min: float = Field(default=0.0, ge=0.0, allow_inf_nan=False)
+    range_max: float | None = Field(default=None, gt=0.0, allow_inf_nan=False)
+    range_sigma: float | None = Field(default=None, ge=0.0, allow_inf_nan=False)
     fov: float | None = Field(default=None, gt=0.0, le=2 * np.pi + 1e-9)
     mount: Mount = Mount()
+    geometries: tuple[BeamGeometry, ...] | None = Field(
+        default=None, description="beam layouts of a laser whose scans differ (written only when there are several)"
+    )
+
+    @model_validator(mode="after")
+    def _geometries(self) -> SensorModel:
+        if self.geometries is None:
+            return self
+        if len(self.geometries) < 2:
+            raise ValueError("geometries lists two or more beam layouts (a single one goes in n_beams, angle_min, angle_increment)")
+        if self.angle_min is not None or self.angle_increment is not None:
+            raise ValueError("with geometries, the angles are per scan: leave angle_min and angle_increment unset")
+        width = max(g.n_beams for g in self.geometries)
+        if self.n_beams != width:
+            raise ValueError(f"with geometries, n_beams is the widest layout's count ({width}), got {self.n_beams}")
+        return self
+
+    @model_serializer(mode="wrap")
+    def _omit_single_geometry(self, handler):
+        data = handler(self)
+        if isinstance(data, dict) and data.get("geometries") is None:
+            data.pop("geometries", None)  # absent rather than null: logs and profiles of one layout keep their bytes
+        return data
 
     def angles(self) -> np.ndarray:
-        """Beam angles in the sensor frame, (B,) float64 radians."""
+        """Beam angles in the sensor frame, (B,) float64 radians (a laser with one beam layout)."""
+        if self.geometries is not None:
+            raise DataError(
+                f"the scans of this laser use {len(self.geometries)} beam geometries; "
+                "take each scan's angles from the log (SensorLog.scan_angles)"
+            )
         if self.n_beams is None or self.angle_min is None or self.angle_increment is None:
             raise DataError(f"sensor model of kind {self.kind!r} has no beam geometry")
         return self.angle_min + self.angle_increment * np.arange(self.n_beams, dtype=np.float64)
 
+    def layouts(self) -> tuple[BeamGeometry, ...]:
+        """Every beam layout of the laser (one for most lasers; none without a beam geometry)."""
+        if self.geometries is not None:
+            return self.geometries
+        if self.n_beams is None or self.angle_min is None or self.angle_increment is None:
+            return ()
+        return (BeamGeometry(n_beams=self.n_beams, angle_min=self.angle_min, angle_increment=self.angle_increment),)
+
+    def angle_span(self) -> tuple[float, float] | None:
+        """(lowest, highest) beam angle [rad] over every layout; None without a beam geometry."""
+        spans = [g.span() for g in self.layouts()]
+        if not spans:
+            return None
+        return min(a for a, _ in spans), max(b for _, b in spans)
+
     @property
     def field_of_view(self) -> float | None:
         """Angular width [rad] covered by the beams (or ``fov``)."""
-        if self.n_beams is not None and self.angle_increment is not None:
-            return abs(self.angle_increment) * (self.n_beams - 1)
+        span = self.angle_span()
+        if span is not None:
+            return span[1] - span[0]
         return self.fov
 
 

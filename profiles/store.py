@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,7 +24,7 @@ import yaml
 from pydantic import ValidationError
 
 from profiles.atomic import atomic_output
-from profiles.errors import DataError, UsageError
+from profiles.errors import DataError, DetcalError, UsageError
 from profiles.profile import SCHEMA_VERSION, SUPPORTED_SCHEMAS, V2_FIELDS, DetectorProfile, semver_key
 
 BUILTIN = Path(__file__).resolve().parent / "builtin"
@@ -39,6 +40,36 @@ def user_dirs() -> list[Path]:
 
 def _field_path(loc: tuple) -> str:
     return ".".join(str(p) for p in loc) or "(top level)"
+
+
+#: How the parameters recorded in ``provenance.parameters`` are validated, per detector kind: the
+#: detcal version whose records they describe, and factories of pydantic models refusing unknown
+#: keys -- one per way this detcal makes profiles of that kind (calibration, self-calibration, a
+#: simulator's truth). The calibrating package registers them (``calib`` does on import);
+#: ``profiles`` cannot import it.
+PARAMETER_MODELS: dict[str, tuple[str, list[Callable[[], type]]]] = {}
+
+
+def register_parameters(kind: str, detcal_version: str, *models: Callable[[], type]) -> None:
+    """Validate the recorded parameters of ``kind`` profiles made by ``detcal_version``: they must fit one of ``models``."""
+    PARAMETER_MODELS[kind] = (detcal_version, list(models))
+
+
+def _check_parameters(prof: DetectorProfile, where: str) -> None:
+    known = PARAMETER_MODELS.get(prof.detector.kind)
+    if known is None or known[0] != prof.provenance.detcal_version or not prof.provenance.parameters:
+        return  # none recorded (a profile written by hand), or by another detcal version: kept as recorded
+    closest = None
+    for factory in known[1]:
+        try:
+            factory().model_validate(prof.provenance.parameters)
+            return
+        except ValidationError as exc:
+            if closest is None or exc.error_count() < closest.error_count():
+                closest = exc
+    e = closest.errors()[0]
+    msg = "unknown key" if e["type"] == "extra_forbidden" else e["msg"]
+    raise DataError(f"{where}: provenance.parameters.{_field_path(e['loc'])}: {msg}") from None
 
 
 def parse_profile(data: object, where: str) -> DetectorProfile:
@@ -60,27 +91,49 @@ def parse_profile(data: object, where: str) -> DetectorProfile:
             f"{', '.join(map(str, SUPPORTED_SCHEMAS))} and has no migration from it"
         )
     try:
-        return DetectorProfile.model_validate(data)
+        prof = DetectorProfile.model_validate(data)
     except ValidationError as exc:
         errs = exc.errors()
         e = errs[0]
         msg = "unknown key" if e["type"] == "extra_forbidden" else e["msg"]
         more = f" (and {len(errs) - 1} more)" if len(errs) > 1 else ""
         raise DataError(f"{where}: {_field_path(e['loc'])}: {msg}{more}") from None
+    _check_parameters(prof, where)
+    return prof
 
 
 def load_profile_file(path: str | Path) -> DetectorProfile:
     path = Path(path)
     if not path.is_file():
         raise UsageError(f"{path}: no such profile file")
-    text = path.read_text(encoding="utf-8")
+    return parse_profile(read_document(path), str(path))
+
+
+def read_document(path: Path) -> object:
+    """A YAML (or ``.json``) document; unreadable text is a DataError naming the file (and line)."""
     try:
-        data = json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise DataError(f"{path}: not UTF-8 text (byte {exc.start})") from None
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    try:
+        return json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
     except (yaml.YAMLError, json.JSONDecodeError) as exc:
         mark = getattr(exc, "problem_mark", None)
-        line = f":{mark.line + 1}" if mark is not None else ""
-        raise DataError(f"{path}{line}: not valid YAML/JSON ({getattr(exc, 'problem', exc)})") from None
-    return parse_profile(data, str(path))
+        line = f":{mark.line + 1}" if mark is not None else (f":{exc.lineno}" if isinstance(exc, json.JSONDecodeError) else "")
+        raise DataError(f"{path}{line}: not valid YAML/JSON ({getattr(exc, 'problem', None) or getattr(exc, 'msg', exc)})") from None
+    except (RecursionError, ValueError) as exc:
+        raise DataError(f"{path}: not valid YAML/JSON ({type(exc).__name__})") from None
+
+
+def looks_like_profile(path: Path) -> bool:
+    """True for a file detcal wrote as a profile (YAML or JSON with schema_version, name and version); ``--force`` may replace it."""
+    try:
+        data = read_document(path)
+    except DataError:
+        return False
+    return isinstance(data, dict) and {"schema_version", "name", "version"} <= set(data)
 
 
 def dump_profile(profile: DetectorProfile, fmt: str = "yaml") -> str:
@@ -104,40 +157,125 @@ def profile_filename(profile: DetectorProfile) -> str:
     return f"{profile.name}@{profile.version}.yaml"
 
 
+#: Provenance fields that say when and how a profile was made, not what it holds.
+_NOT_CONTENT = ("created", "command")
+
+
 def same_content(a: DetectorProfile, b: DetectorProfile) -> bool:
-    """Equal in everything but the creation time."""
+    """Equal in everything but the creation time and the command line (its output options do not change the content)."""
     da, db = a.model_dump(mode="json"), b.model_dump(mode="json")
-    da["provenance"].pop("created"), db["provenance"].pop("created")
+    for k in _NOT_CONTENT:
+        da["provenance"].pop(k), db["provenance"].pop(k)
     return da == db
+
+
+def bundled(name: str, version: str) -> Path | None:
+    """The bundled profile file of ``name@version``, if there is one."""
+    p = BUILTIN / f"{name}@{version}.yaml"
+    return p if p.is_file() else None
+
+
+@dataclass(frozen=True)
+class Request:
+    """What identifies a profile before it is computed: name@version, description, inputs and parameters.
+
+    Two calibrations of the same request give the same profile (up to the
+    creation time and command line), so a rerun is no conflict; another
+    request under an existing name@version is refused before any work.
+    """
+
+    name: str
+    version: str
+    description: str
+    inputs: list
+    parameters: dict
+    detcal_version: str
+    seed: int | None
+    derived: tuple[str, ...] = ()  # parameters the work derives from inputs and config (compared as the content, later)
+
+    @classmethod
+    def of(cls, p: DetectorProfile, derived: tuple[str, ...] = ()) -> Request:
+        v = p.provenance
+        params = {k: x for k, x in v.parameters.items() if k not in derived}
+        return cls(p.name, p.version, p.description, list(v.inputs), params, v.detcal_version, v.seed, tuple(derived))
+
+    @property
+    def ref(self) -> str:
+        return f"{self.name}@{self.version}"
+
+
+def same_request(a: Request, b: Request) -> bool:
+    return a == b
+
+
+def check_save(request: Request, folder: str | Path | None = None, *, force: bool = False) -> tuple[Path, str]:
+    """What saving the profile of ``request`` will do, decided before any work: (path, ``"write"``,
+    ``"replace"``, ``"unchanged"`` or ``"bundled"``); a conflict is a UsageError."""
+    folder = Path(folder) if folder is not None else user_dirs()[0]
+    path = folder / f"{request.name}@{request.version}.yaml"
+    builtin = bundled(request.name, request.version)
+    if builtin is not None and folder.resolve() != BUILTIN.resolve():
+        old = _load_or_none(builtin)
+        if old is not None and same_request(Request.of(old, request.derived), request):
+            return builtin, "bundled"
+        raise UsageError(
+            f"profile {request.ref} is bundled with detcal with other content; a user profile of that name and version "
+            "would shadow it: choose another --name or --version"
+        )
+    if not path.exists():
+        return path, "write"
+    old = _load_or_none(path)
+    if old is not None and same_request(Request.of(old, request.derived), request) and not force:
+        return path, "unchanged"
+    if not force:
+        raise UsageError(f"{path}: profile {request.ref} exists with other content; bump the version (--version) or use --force")
+    return path, "replace"
+
+
+def _load_or_none(path: Path) -> DetectorProfile | None:
+    try:
+        return load_profile_file(path)
+    except DetcalError:
+        return None
 
 
 def save_profile(profile: DetectorProfile, folder: str | Path | None = None, *, force: bool = False) -> tuple[Path, str]:
     """Write ``<folder>/<name>@<version>.yaml`` atomically.
 
     An existing version is never replaced unless ``force``; when it holds the same
-    profile (all but the creation time) nothing is written. Returns the path and
-    ``"written"``, ``"replaced"`` or ``"unchanged"``.
+    profile (all but the creation time and command line) nothing is written. A
+    user profile never shadows a bundled one of the same name@version: the same
+    content is left to the bundled file, other content is refused. Returns the
+    path and ``"written"``, ``"replaced"``, ``"unchanged"`` or ``"unchanged (bundled)"``.
     """
-    folder = Path(folder) if folder is not None else user_dirs()[0]
-    path = folder / profile_filename(profile)
-    status = "written"
-    if path.exists():
-        try:
-            old = load_profile_file(path)
-        except DataError:
-            old = None
-        if old is not None and same_content(old, profile) and not force:
-            return path, "unchanged"
-        if not force:
-            raise UsageError(f"{path}: profile {profile.ref} exists with other content; bump the version (--version) or use --force")
-        status = "replaced"
-    text = dump_profile(profile)
-    with atomic_output(path, overwrite=force) as tmp:
-        with open(tmp, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
+    path, status = final_status(profile, folder, force)
+    if status in ("unchanged", "unchanged (bundled)"):
+        return path, status
+    with atomic_output(path, overwrite=force, owned=looks_like_profile) as tmp:
+        write_profile_text(profile, tmp)
     return path, status
+
+
+def write_profile_text(profile: DetectorProfile, path: Path) -> None:
+    """The profile's YAML into ``path`` (a temporary of an atomic output), flushed to disk."""
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write(dump_profile(profile))
+        fh.flush()
+        os.fsync(fh.fileno())
+
+
+def final_status(profile: DetectorProfile, folder: str | Path | None, force: bool, derived: tuple[str, ...] = ()) -> tuple[Path, str]:
+    """(path, ``"written"``, ``"replaced"``, ``"unchanged"`` or ``"unchanged (bundled)"``) for a finished profile."""
+    path, plan = check_save(Request.of(profile, derived), folder, force=force)
+    if plan == "bundled":
+        if not same_content(load_profile_file(path), profile):
+            raise UsageError(f"profile {profile.ref} is bundled with detcal with other content; choose another --name or --version")
+        return path, "unchanged (bundled)"
+    if plan == "unchanged":
+        if same_content(load_profile_file(path), profile):
+            return path, "unchanged"
+        raise UsageError(f"{path}: profile {profile.ref} exists with other content; bump the version (--version) or use --force")
+    return path, {"write": "written", "replace": "replaced"}[plan]
 
 
 @dataclass(frozen=True)
@@ -146,12 +284,19 @@ class Entry:
     version: str
     path: Path
     origin: str  # builtin | user
+    shadowed_by: Path | None = None  # another file of the same name@version that resolve() picks instead
 
 
 def registry() -> list[Entry]:
-    """Every profile file of the registry (not validated; see :func:`resolve`)."""
-    out = []
-    for origin, folders in (("builtin", [BUILTIN]), ("user", user_dirs())):
+    """Every profile file of the registry (not validated; see :func:`resolve`).
+
+    When several files hold the same name@version (a user profile left beside a
+    bundled one, or the same one in two user folders), the one :func:`resolve`
+    picks is the first user folder's, then the bundled one; the others say
+    which file shadows them.
+    """
+    found = []
+    for origin, folders in (("user", user_dirs()), ("builtin", [BUILTIN])):
         for folder in folders:
             if not folder.is_dir():
                 continue
@@ -163,8 +308,13 @@ def registry() -> list[Entry]:
                     semver_key(version)
                 except ValueError:
                     continue
-                out.append(Entry(name, version, f, origin))
-    return out
+                found.append(Entry(name, version, f, origin))
+    winner: dict[tuple[str, str], Path] = {}
+    out = []
+    for e in found:  # precedence: the order found (user folders in order, then bundled)
+        first = winner.setdefault((e.name, e.version), e.path)
+        out.append(e if first == e.path else Entry(e.name, e.version, e.path, e.origin, first))
+    return sorted(out, key=lambda e: (e.origin != "builtin", e.name, semver_key(e.version), str(e.path)))
 
 
 def resolve(ref: str | Path) -> DetectorProfile:
@@ -174,12 +324,12 @@ def resolve(ref: str | Path) -> DetectorProfile:
     if p.suffix in (".yaml", ".yml", ".json") and (p.exists() or os.sep in ref_s):
         return load_profile_file(p)
     name, _, version = ref_s.partition("@")
-    cands = [e for e in registry() if e.name == name and (not version or e.version == version)]
+    entries = registry()
+    cands = [e for e in entries if e.name == name and (not version or e.version == version) and e.shadowed_by is None]
     if not cands:
-        known = sorted({f"{e.name}@{e.version}" for e in registry()})
+        known = sorted({f"{e.name}@{e.version}" for e in entries})
         raise UsageError(f"no profile {ref_s!r}; known: {', '.join(known) or 'none'}")
-    # newest version; a user profile shadows a bundled one of the same version
-    best = max(cands, key=lambda e: (semver_key(e.version), e.origin == "user"))
+    best = max(cands, key=lambda e: semver_key(e.version))
     prof = load_profile_file(best.path)
     if (prof.name, prof.version) != (best.name, best.version):
         raise DataError(f"{best.path}: holds {prof.ref}, but its file name says {best.name}@{best.version}")

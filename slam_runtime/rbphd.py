@@ -19,9 +19,9 @@ All particles are processed together (:mod:`slam_runtime.gm`):
   birth hypotheses are exempt;
 * the particle's measurement likelihood (sec. 3.1.4, eq. 3.13): the
   multi-feature strategy by default (empty-set, single-feature and the
-  single-cluster ``marginal`` likelihood as options); p(Z | M, x) given the
-  chosen features takes each feature as detected at most once, with no two
-  features competing for one measurement;
+  single-cluster ``marginal`` likelihood as options), evaluated at every
+  feature of weight >= map_threshold; p(Z | M, x) given those features is
+  approximated by a Poisson process of intensity kappa(z) + sum_m P_D(m) g(z | m);
 * Vo & Ma pruning and merging with a cap (reported when it binds).
 """
 
@@ -53,7 +53,6 @@ class RBPHDConfig(BaseModel):
     gate: float = Field(default=16.0, gt=0.0, description="squared Mahalanobis distance beyond which a measurement does not update a component")
     landmark_noise: float = Field(default=0.0, ge=0.0, description="landmark position variance added per second [m^2/s]")
     weighting: Literal["multi_feature", "marginal", "empty_set", "single_feature"] = "multi_feature"
-    eval_points: int = Field(default=15, ge=1, description="features at most that the multi-feature weighting evaluates")
     map_threshold: float = Field(default=0.5, gt=0.0, description="a component of this weight or more is a map feature")
 
 
@@ -303,25 +302,24 @@ class RBPHD(MapFilter):
             pick = np.argmax(upd.w, axis=1)[:, None]
             chosen = np.ones((p, 1), dtype=bool)
         else:
-            # the heaviest features of weight >= map_threshold that can be seen (as the C++ RFS-SLAM library)
-            cand = np.where((upd.w >= cfg.map_threshold) & (pd_upd > 0), upd.w, -1.0)
-            k = int(min(cfg.eval_points, max(1, (cand > 0).sum(axis=1).max())))
-            pick = np.argsort(-cand, axis=1, kind="stable")[:, :k]
-            chosen = np.take_along_axis(cand, pick, axis=1) > 0
+            k = max(1, int((upd.w >= cfg.map_threshold).sum(axis=1).max()))
+            pick = np.argsort(-upd.w, axis=1, kind="stable")[:, :k]
+            chosen = np.take_along_axis(upd.w, pick, axis=1) >= cfg.map_threshold
         pts = upd.mu[rows, pick]  # (P, K, 2)
         pd_m = np.where(chosen, pd_upd[rows, pick], 0.0)
         v_minus = prior.density(pts) if prior.shape[1] else np.zeros(pts.shape[:2])
         v_plus = upd.density(pts)
         ratio = np.where(chosen, np.log(np.maximum(v_minus, 1e-300)) - np.log(np.maximum(v_plus, 1e-300)), 0.0).sum(axis=1)
-        # log p(Z | M, x) relative to clutter alone, each chosen feature detected at most once and no two
-        # competing for a measurement (exact when their gates do not overlap):
-        # sum_m log(1 - P_D(m) + P_D(m) sum_z g(z | m) / kappa(z))
-        s_m = np.zeros(pts.shape[:2])
+        # log p(Z | M, x) ~ a Poisson process of intensity kappa + sum_m P_D g(z | m), relative to clutter alone.
+        # Measured against taking each chosen feature as detected at most once (a Bernoulli per feature): on the
+        # cluttered park the Poisson form is more forgiving of a P_D that is wrong for one feature (a bush
+        # ray-traced as visible), and the calibrated profile's map OSPA and path were clearly better with it
+        lik = -pd_m.sum(axis=1)
         if z.shape[0]:
             zh, _ = self.feature.predict_sensor(sp[:, None, :], pts)
             nu = self.feature.innovation(z[None, None, :, :], zh[:, :, None, :])
             m2 = quad(inv(rz)[None, None], nu)
             g = np.where(m2 <= cfg.gate, gaussian(m2, det(rz)[None, None], self.feature.dim_z), 0.0)
-            s_m = (g / np.maximum(kappa, 1e-300)[None, None, :]).sum(axis=2)  # (P, K)
-        lik = np.where(chosen, np.log(np.maximum(1.0 - pd_m + pd_m * s_m, 1e-300)), 0.0).sum(axis=1)
+            lam = (pd_m[..., None] * g).sum(axis=1)  # (P, M)
+            lik += np.log1p(lam / np.maximum(kappa[None, :], 1e-300)).sum(axis=1)
         return base + ratio + lik

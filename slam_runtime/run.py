@@ -68,17 +68,21 @@ def check_inputs(log: SensorLog, profile) -> None:
 
 
 def _same_beams(profile, sensor) -> None:
-    p = profile.sensor
-    same = p.n_beams == sensor.n_beams and np.isclose(p.angle_min, sensor.angle_min, atol=1e-6) and np.isclose(
-        p.angle_increment, sensor.angle_increment, atol=1e-9
-    )
-    if not same:
-        raise UsageError(
-            f"profile {profile.ref} was calibrated for {p.n_beams} beams from {np.degrees(p.angle_min):.2f} deg every "
-            f"{np.degrees(p.angle_increment):.4f} deg; this log's laser has {sensor.n_beams} from "
-            f"{np.degrees(sensor.angle_min):.2f} deg every {np.degrees(sensor.angle_increment):.4f} deg "
-            "(calibrate a profile for this laser with detcal calibrate)"
-        )
+    """An n_p table holds only for the beam layouts it was measured with: the log's must be among them."""
+    theirs = profile.sensor.layouts()
+    for g in sensor.layouts():
+        if not any(
+            g.n_beams == t.n_beams and np.isclose(g.angle_min, t.angle_min, atol=1e-6) and np.isclose(g.angle_increment, t.angle_increment, atol=1e-9)
+            for t in theirs
+        ):
+            t = theirs[0]
+            raise UsageError(
+                f"profile {profile.ref} was calibrated for {t.n_beams} beams from {np.degrees(t.angle_min):.2f} deg every "
+                f"{np.degrees(t.angle_increment):.4f} deg"
+                + (f" (and {len(theirs) - 1} more layouts)" if len(theirs) > 1 else "")
+                + f"; this log's laser has {g.n_beams} from {np.degrees(g.angle_min):.2f} deg every {np.degrees(g.angle_increment):.4f} deg "
+                "(calibrate a profile for this laser with detcal calibrate)"
+            )
 
 
 @dataclass

@@ -6,8 +6,9 @@ vehicle model) and the frame's :class:`slam_runtime.mapfilter.Measurements`.
 One source per kind of log, so the runner does not care which filter runs:
 
 * :class:`ScanCircles` -- laser scans: the profile's circle detector on each
-  scan (with its Hotelling gate), each detection's own fit covariance, the
-  descriptor likelihood ratio (eq. 5.6), and the scan for ray-traced P_D;
+  scan (with its Hotelling gate, and the scan's own beam layout), each
+  detection's own fit covariance, the descriptor likelihood ratio (eq. 5.6),
+  and the scan with its beam angles for ray-traced P_D;
 * :class:`LoggedDetections` -- detection-level logs (Victoria Park, UTIAS):
   the log's detections; where the log labels them (UTIAS ``target``: 1
   landmark, 2 another robot, 0 unknown barcode), only the landmark ones.
@@ -87,7 +88,6 @@ class ScanCircles:
         self.params = profile.detector.circle
         self.detection = detection
         sensor = log.sensor if log.sensor is not None else profile.sensor
-        self.angles = sensor.angles()
         self.range_sigma = sensor.range_sigma
         self.hot = None
         if profile.hotelling is not None:
@@ -98,13 +98,14 @@ class ScanCircles:
         from detectors.circle import detect_circles
 
         scan = self.log.scans.ranges[frame.rows]
-        det = detect_circles(scan, self.angles, self.params, self.hot, self.range_sigma)
+        angles = self.log.scan_angles(frame.rows)  # this scan's own beam layout (NaN past its beams)
+        det = detect_circles(scan, angles, self.params, self.hot, self.range_sigma)
         z = np.column_stack([det.range, det.bearing])
         ratio = None
         if self.ratio:
             desc = det.descriptors(tuple(self.hot.names))
             ratio = self.detection.g_true(desc) / np.maximum(self.detection.g_false(desc), 1e-300)
-        return Measurements(z, det.cov, ratio, scan, self.angles)
+        return Measurements(z, det.cov, ratio, scan, angles)
 
 
 def frames(log: SensorLog, measure, max_frames: int | None = None) -> Iterator[FrameInput]:

@@ -63,6 +63,9 @@ def main(argv: list[str] | None = None) -> int:
 
     Usage errors found by the option parser are reported by typer itself (exit 2).
     """
+    from calib.cli import common
+
+    common.ARGV = list(sys.argv[1:] if argv is None else argv)
     try:
         app(args=argv, prog_name="detcal")
     except SystemExit as exc:
@@ -71,6 +74,10 @@ def main(argv: list[str] | None = None) -> int:
     except DetcalError as exc:
         error_line(str(exc))
         return exc.exit_code
+    except OSError as exc:  # the system refused a read or write (permissions, a full disk): not a bug of ours
+        where = f"{exc.filename}: " if exc.filename else ""
+        error_line(f"{where}{exc.strerror or exc}")
+        return 1
     except KeyboardInterrupt:
         sys.stderr.write("detcal: interrupted\n")
         return 130

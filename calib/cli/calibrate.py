@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import os
 import shlex
-import sys
 from pathlib import Path
 from typing import Annotated
 
 import typer
 from rich.table import Table
 
-from calib.cli.common import ReaderArgs, fresh, out, reader_options, summary_table
+from calib.cli.common import ReaderArgs, fresh, input_refs, out, reader_options, summary_table, warn
 from profiles.errors import UsageError
 
 POSE_SOURCES = ("auto", "reference", "icp")
@@ -26,11 +25,13 @@ def check_poses(poses: str | None) -> None:
 
 def typed_command(name: str) -> str:
     """The command as typed; absolute paths lose their folders (a profile names inputs by file name and hash)."""
-    words = [Path(a).name if os.path.isabs(a) else a for a in sys.argv[2:]]
+    from calib.cli.common import ARGV
+
+    words = [Path(a).name if os.path.isabs(a) else a for a in ARGV[1:]]
     return " ".join([f"detcal {name}", *(shlex.quote(w) for w in words)])
 
 
-@reader_options("fmt", "max_backstep", "laser", "range_max", "scan_topic", "truth_topic")
+@reader_options("fmt", "max_backstep", "laser", "range_max", "range_sigma", "scan_topic", "truth_topic")
 def calibrate_cmd(
     reader: ReaderArgs,
     logs: Annotated[list[Path] | None, typer.Argument(metavar="[LOG]...", help="Logs with truth; none: the embedded default park log.")] = None,
@@ -52,69 +53,65 @@ def calibrate_cmd(
 ) -> None:
     """Calibrate a detector on logs with truth -> a profile and a report.
 
-    Laser logs: the circle detector, P_D against n_p, Hotelling ellipsoid, Poisson clutter.
+    Laser logs: the circle detector, P_D against n_p, Hotelling ellipsoid, Poisson clutter;
+    sigma_r from the log, --range-sigma, or estimated from the registered scans.
     Detection-level logs (UTIAS): P_D against range, clutter from non-landmark detections.
     """
-    from calib.calibrate import CalibrateConfig, calibrate
-    from calib.config import load_yaml_model
-    from calib.default import DEFAULT_PROFILE_NAME, default_log
-    from calib.io.common import file_digest
-    from calib.runs import write_calibration_run
-    from profiles.profile import NAME_RE, SEMVER_RE, InputRef
-    from profiles.store import save_profile
+    from calib.pipeline import CalibrationJob, check_name, run_calibration
 
     check_poses(poses)
-    if not SEMVER_RE.match(version):
-        raise UsageError(f"--version: {version!r} is not MAJOR.MINOR.PATCH")
+    check_name(name, version)
+    landmark_ref = landmark_input(landmarks)
     if logs:
         loaded, paths = reader.read_many(logs, robot)
         prof_name = name or loaded[0].name.lower().replace("_", "-")
     else:
-        log, path = default_log()
-        loaded = [log]
-        prof_name = name or DEFAULT_PROFILE_NAME
-        paths = [path]
-    refs = [InputRef(name=p.name, sha256=file_digest(p)) for p in dict.fromkeys(paths)]
-    if not NAME_RE.match(prof_name):
-        raise UsageError(f"--name: {prof_name!r} must match [a-z0-9][a-z0-9._-]*")
-    target = out_dir or Path("runs") / f"calibrate_{prof_name}@{version}"
-    fresh(target, force)
-    command = typed_command("calibrate")
-    # the logs decide which calibration (and so which config schema) applies
-    if all(lg.scans is None and lg.detections is not None for lg in loaded):
-        from calib.detlevel import DetectionCalibConfig, calibrate_detections, input_refs_for, write_detection_run
+        from calib.default import DEFAULT_PROFILE_NAME, default_log
 
-        dcfg = load_yaml_model(DetectionCalibConfig, config)
-        # robots of one dataset folder share files (Barcodes.dat, ...): each file once
-        refs = list({(r.name, r.sha256): r for lg in loaded for r in input_refs_for(lg)}.values()) or refs
-        cal = calibrate_detections(
-            loaded, dcfg, name=prof_name, version=version, description=description, input_refs=refs, command=command, per_sensor=per_sensor
-        )
-        if per_sensor and not cal.members:
-            raise UsageError("--per-sensor needs logs of at least two sensors (e.g. --robot 1 --robot 2)")
-        figures = write_detection_run(cal, target, overwrite=force)
-    else:
-        if per_sensor:
-            raise UsageError("--per-sensor applies to detection-level logs (laser logs are pooled)")
-        cfg = load_yaml_model(CalibrateConfig, config)
-        if poses is not None:
-            cfg = cfg.model_copy(update={"poses": poses})
-        cal = calibrate(
-            loaded, cfg, name=prof_name, version=version, description=description, landmarks_csv=landmarks, input_refs=refs, command=command
-        )
-        figures = write_calibration_run(cal, target, overwrite=force)
-    saved, status = save_profile(cal.profile, profiles_dir, force=force)
-    members = [save_profile(m, profiles_dir, force=force) for m in getattr(cal, "members", [])]
-    p = cal.profile
+        log, path = default_log()
+        loaded, paths, prof_name = [log], [path], name or DEFAULT_PROFILE_NAME
+    refs = unique_refs([r for p, lg in zip(paths, loaded, strict=True) for r in input_refs(p, lg)] + landmark_ref)
+    job = CalibrationJob(
+        loaded, refs, prof_name, version, out_dir, profiles_dir, description, config, landmarks, poses, force,
+        typed_command("calibrate"), reader.options.range_sigma is not None, per_sensor,
+    )  # fmt: skip
+    done = run_calibration(job)
+    for note in done.notes:
+        warn(note)
+    p = done.profile
     rows = {
-        "profile": f"{p.ref} ({status}: {saved})",
-        "run folder": f"{target} ({len(figures)} figures)",
-        **({"per-sensor profiles": ", ".join(f"{path.stem} ({st})" for path, st in members)} if members else {}),
-        **{k: v for k, v in cal.summary.items() if k not in ("logs",)},
+        "profile": f"{p.ref} ({done.profile_status}: {done.profile_path})",
+        "run folder": f"{done.run_folder} ({done.run_status}" + (f", {len(done.figures)} figures)" if done.figures else ")"),
+        **({"per-sensor profiles": ", ".join(f"{path.stem} ({st})" for path, st in done.members)} if done.members else {}),
+        **{k: v for k, v in done.summary.items() if k not in ("logs", "range_noise")},
     }
     if not p.pd.two_d:
         rows["P_D table"] = ", ".join(f"{int(e) if float(e).is_integer() else e}:{v:.2f}" for e, v in zip(p.pd.edges[:-1], p.pd.pd, strict=True))
-    out.print(summary_table(f"calibration of {', '.join(cal.summary['logs'])}", rows))
+    out.print(summary_table(f"calibration of {', '.join(done.summary['logs'])}", rows))
+
+
+def landmark_input(landmarks: Path | None) -> list:
+    """A landmark CSV is an input of the profile (name and sha256); ``cloud`` is not a file."""
+    if landmarks is None or str(landmarks) == "cloud":
+        return []
+    from calib.calibrate import read_landmarks_csv
+    from calib.io.common import file_digest
+    from profiles.profile import InputRef
+
+    if not landmarks.is_file():
+        raise UsageError(f"--landmarks: {landmarks}: no such file (give a CSV of id, x, y, radius, or `cloud`)")
+    read_landmarks_csv(landmarks)  # a bad file is refused before any work
+    return [InputRef(name=landmarks.name, sha256=file_digest(landmarks))]
+
+
+def unique_refs(refs: list) -> list:
+    """Each input once (a dataset folder read for several robots hashes the same files)."""
+    seen, outl = set(), []
+    for r in refs:
+        if (r.name, r.sha256) not in seen:
+            seen.add((r.name, r.sha256))
+            outl.append(r)
+    return outl
 
 
 @reader_options("fmt", "max_backstep", "laser", "range_max", "scan_topic", "truth_topic")
@@ -148,20 +145,17 @@ def validate_cmd(
         raise UsageError("--config and --adapt go with --cv")
     if len(args) < 2:
         raise UsageError("validate needs a PROFILE and at least one LOG (or --cv robots|time with logs)")
-    from calib.validate import validate, write_validation_run
+    from calib.pipeline import run_validation
     from profiles.store import resolve
 
+    landmark_input(landmarks)
     prof = resolve(args[0])
     loaded, _ = reader.read_many([Path(a) for a in args[1:]], robot)
     target = out_dir or Path("runs") / f"validate_{prof.ref}_{loaded[0].name}"
     fresh(target, force)
-    if prof.detector.kind == "external":
-        from calib.detlevel import validate_detections
-
-        v = validate_detections(prof, loaded)
-    else:
-        v = validate(prof, loaded, landmarks_csv=landmarks, poses=poses)
-    write_validation_run(v, target, overwrite=force)
+    v, notes = run_validation(prof, loaded, landmarks=landmarks, poses=poses, out=target, force=force)
+    for note in notes:
+        warn(note)
     out.print(summary_table(f"validation of {prof.ref} on {', '.join(lg.name for lg in loaded)} -> {target}", v.summary))
     if len(loaded) > 1:
         out.print(scores_table("per held-out log (ECE noise: what a calibrated model would show)", v.per_log, ("log",)))

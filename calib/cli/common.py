@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import sys
 import typing
 from collections.abc import Callable
 from pathlib import Path
@@ -24,6 +25,9 @@ from profiles.errors import UsageError
 
 out = Console(highlight=False, markup=False)  # file names may hold brackets
 
+#: The arguments of the running command (set by :func:`calib.cli.main`), for provenance.
+ARGV: list[str] = []
+
 READER_OPTIONS: dict[str, tuple[type, object, typer.models.OptionInfo]] = {
     "fmt": (
         str | None,
@@ -33,6 +37,11 @@ READER_OPTIONS: dict[str, tuple[type, object, typer.models.OptionInfo]] = {
     "max_backstep": (float, 1.0, typer.Option(help="Tolerated step back in time within a stream [s]; such records are re-sorted. 0 = strict.")),
     "laser": (str, "front", typer.Option(help="CARMEN: which laser, front or rear.")),
     "range_max": (float | None, None, typer.Option(help="CARMEN: readings at or above this [m] are no return (default: the log's saturation value).")),
+    "range_sigma": (
+        float | None,
+        None,
+        typer.Option(help="Laser range noise sigma_r [m], replacing the log's (calibrate estimates it from the scans when the log has none)."),
+    ),
     "robot": (int, 1, typer.Option(help="UTIAS: which robot (1-5).")),
     "scan_topic": (str | None, None, typer.Option(help="Bags: the LaserScan topic.")),
     "odom_topic": (str | None, None, typer.Option(help="Bags: the nav_msgs/Odometry topic.")),
@@ -90,7 +99,9 @@ class ReaderArgs:
         from calib.io.registry import read_log
 
         opts = self.options if robot is None else self.options.model_copy(update={"robot": robot})
-        return read_log(path, self.fmt, opts)
+        log = read_log(path, self.fmt, opts)
+        warn_untimed(path, log)
+        return log
 
     def read_many(self, paths: list[Path], robots: list[int] | None = None) -> tuple[list, list[Path]]:
         """Logs from paths; a UTIAS dataset folder gives one log per requested robot (each robot once)."""
@@ -105,10 +116,26 @@ class ReaderArgs:
         return loaded, used
 
 
-def fresh(target: Path, force: bool) -> None:
-    """Refuse to replace an existing output unless --force was given."""
-    if target.exists() and not force:
-        raise UsageError(f"{target}: already exists (use --force to replace it)")
+def warn(message: str) -> None:
+    """One plain-text warning line on stderr."""
+    sys.stderr.write(f"detcal: warning: {' '.join(message.split())}\n")
+    sys.stderr.flush()
+
+
+def warn_untimed(path: Path, log) -> None:
+    """Say how many records of a log had no time and were placed by their order (CARMEN ODOM lines stamped 0)."""
+    for stream, n in dict(log.source.get("untimed", {})).items():
+        warn(f"{path}: {n} {stream} records are stamped 0 (no time); placed by their order in the file")
+
+
+def fresh(target: Path, force: bool, *, directory: bool = True, owned=None) -> None:
+    """Refuse an existing output unless --force was given and it is of the same kind and written by detcal.
+
+    Checked before any work; the writer checks again when it moves its output into place.
+    """
+    from profiles.atomic import check_replaceable
+
+    check_replaceable(target, overwrite=force, directory=directory, owned=owned)
 
 
 def positive(flag: str, value: int | None) -> None:
@@ -130,9 +157,7 @@ def summary_table(title: str, rows: dict) -> Table:
 
 
 def input_refs(path: Path, log) -> list:
-    """The log's input files with their sha256 (a folder's files as its reader hashed them)."""
-    from calib.detlevel import input_refs_for
-    from calib.io.common import file_digest
-    from profiles.profile import InputRef
+    """The log's input files with their sha256 (see :func:`calib.io.registry.input_refs`)."""
+    from calib.io.registry import input_refs as refs
 
-    return input_refs_for(log) or ([InputRef(name=path.name, sha256=file_digest(path))] if path.is_file() else [])
+    return refs(path, log)

@@ -30,8 +30,10 @@ def info_table(log, path: Path) -> Table:
     span = log.time_span()
     if log.scans is not None:
         s = log.scans
-        finite = np.isfinite(s.ranges)
-        t.add_row("scans", f"{len(s):,}", f"{s.n_beams} beams, {finite.mean() * 100:.1f} % returning")
+        ang = log.scan_angles()
+        beams = np.isfinite(np.broadcast_to(ang, s.ranges.shape))  # a scan's own beams (not the padding of a shorter layout)
+        share = np.isfinite(s.ranges).sum() / max(1, int(beams.sum()))
+        t.add_row("scans", f"{len(s):,}", f"{s.n_beams} beams, {share * 100:.1f} % returning")
     if log.odometry is not None:
         t.add_row("odometry", f"{len(log.odometry):,}", f"{log.odometry.kind}: {', '.join(log.odometry.columns)}")
     for k, r in log.reference.items():
@@ -49,10 +51,18 @@ def info_table(log, path: Path) -> Table:
     sen = log.sensor
     if sen is not None:
         geo = f"{sen.kind}"
-        if sen.n_beams is not None:
+        layouts = sen.layouts()
+        if len(layouts) == 1:
+            g = layouts[0]
             geo += (
-                f", {sen.n_beams} beams from {np.rad2deg(sen.angle_min):.2f} deg every "
-                f"{np.rad2deg(sen.angle_increment):.4f} deg (fov {np.rad2deg(sen.field_of_view):.1f} deg)"
+                f", {g.n_beams} beams from {np.rad2deg(g.angle_min):.2f} deg every "
+                f"{np.rad2deg(g.angle_increment):.4f} deg (fov {np.rad2deg(sen.field_of_view):.1f} deg)"
+            )
+        elif layouts:
+            used = np.bincount(log.scans.geometry, minlength=len(layouts)) if log.scans is not None else np.zeros(len(layouts), int)
+            geo += f", {len(layouts)} beam layouts: " + "; ".join(
+                f"{g.n_beams} beams from {np.rad2deg(g.angle_min):.2f} deg every {np.rad2deg(g.angle_increment):.4f} deg ({n:,} scans)"
+                for g, n in zip(layouts, used, strict=True)
             )
         if sen.range_max is not None:
             geo += f", range {sen.range_min:g}-{sen.range_max:g} m"
@@ -64,6 +74,9 @@ def info_table(log, path: Path) -> Table:
     moved = {k: v for k, v in dict(log.source.get("reordered", {})).items() if v}
     if moved:
         t.add_row("re-sorted", "", ", ".join(f"{k}: {v}" for k, v in moved.items()) + " records were out of time order")
+    untimed = {k: v for k, v in dict(log.source.get("untimed", {})).items() if v}
+    if untimed:
+        t.add_row("untimed", "", ", ".join(f"{k}: {v}" for k, v in untimed.items()) + " records stamped 0, placed by their order")
     return t
 
 
@@ -77,10 +90,14 @@ def log_convert(
     force: Annotated[bool, typer.Option(help="Replace DST if it exists.")] = False,
 ) -> None:
     """Convert a log to detcal's native format or to a ROS 2 bag."""
+    from calib.io.native import is_detcal_log
     from calib.io.registry import output_format, write_log
 
     kind = output_format(dst, to)  # check before the (possibly long) read
-    fresh(dst, force)
+    if kind == "native":
+        fresh(dst, force, directory=False, owned=is_detcal_log)
+    else:
+        fresh(dst, force)
     log = reader.read(src)
     write_log(log, dst, kind, overwrite=force)
     out.print(f"wrote {dst} ({kind}): {', '.join(log.streams())}")

@@ -18,14 +18,14 @@ ProfileArg = Annotated[str, typer.Argument(metavar="PROFILE", help="name or name
 
 @app.command("list")
 def profile_list() -> None:
-    """List the bundled and user profiles (name@version, origin, file)."""
+    """List the bundled and user profiles (name@version, origin, file, and which file wins when several share a name@version)."""
     from profiles.store import registry, user_dirs
 
     t = Table(title="detector profiles (user folders: " + ", ".join(str(d) for d in user_dirs()) + ")")
-    for col in ("profile", "origin", "file"):
-        t.add_column(col)
+    for col in ("profile", "origin", "file", "status"):
+        t.add_column(col, overflow="fold")
     for e in registry():
-        t.add_row(f"{e.name}@{e.version}", e.origin, str(e.path))
+        t.add_row(f"{e.name}@{e.version}", e.origin, str(e.path), "active" if e.shadowed_by is None else f"shadowed by {e.shadowed_by}")
     out.print(t)
 
 
@@ -84,13 +84,13 @@ def profile_export(
 ) -> None:
     """Export a profile as YAML or JSON."""
     from profiles.atomic import atomic_output
-    from profiles.store import dump_profile, resolve
+    from profiles.store import dump_profile, looks_like_profile, resolve
 
     text = dump_profile(resolve(ref), export_fmt)
     if dest is None:
         sys.stdout.write(text)
         return
-    with atomic_output(dest, overwrite=force) as tmp:
+    with atomic_output(dest, overwrite=force, owned=looks_like_profile) as tmp:
         tmp.write_text(text)
     out.print(f"wrote {dest}")
 

@@ -41,6 +41,8 @@ def selfcal_cmd(
 
     positive("--iterations", iterations)
     positive("--particles", particles)
+    if seed < 0:
+        raise UsageError(f"--seed: expected a non-negative integer, got {seed}")
     if tolerance <= 0:
         raise UsageError(f"--tolerance: expected a positive number, got {tolerance}")
     if not SEMVER_RE.match(version):

@@ -54,6 +54,8 @@ def slam_run_cmd(
 
     cfg = slam_config(config, filter_, particles, pd_mode)
     positive("--frames", frames)
+    if seed < 0:
+        raise UsageError(f"--seed: expected a non-negative integer, got {seed}")
     prof = resolve(profile_ref)
     log = reader.read(log_path)
     check_inputs(log, prof)

@@ -24,9 +24,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from pydantic import ValidationError
 
 from calib.io.common import DEFAULT_MAX_BACKSTEP, file_digest, iter_lines, parse_floats, parse_stamp, time_order
-from detectors.logs import Mount, Odometry, ReferencePoses, ScanBatch, SensorLog, SensorModel
+from detectors.logs import BeamGeometry, Mount, Odometry, ReferencePoses, ScanBatch, SensorLog, SensorModel
 from profiles.errors import DataError, UsageError
 
 LASER_TYPES = ("FLASER", "RLASER", "ROBOTLASER1")
@@ -48,16 +49,25 @@ def read_carmen(
     """Read one laser and the odometry of a CARMEN log.
 
     laser: ``front`` (FLASER, or ROBOTLASER1 when the log has no FLASER) or ``rear`` (RLASER).
+
+    Beam geometry per scan: a laser whose lines do not all share one layout
+    (interlaced SICK scanners alternating 180 and 181 beams or start angles;
+    ROBOTLASER1 lines with their own) gives a sensor with several
+    ``geometries`` and each scan's layout (:meth:`SensorLog.scan_angles`).
+
+    ODOM lines stamped 0 (written so by some SLAM tools) have no time: each
+    is placed by its order in the file, its time interpolated by line number
+    between the timed lines around it; ``source["untimed"]`` counts them.
     """
     path = Path(path)
     if laser not in ("front", "rear"):
         raise UsageError(f"--laser: expected 'front' or 'rear', got {laser!r}")
     scan_rows: list[np.ndarray] = []
+    scan_geom: list[tuple[int, float, float]] = []
     scan_stamp: list[int] = []
     scan_line: list[int] = []
     scan_odom: list[np.ndarray] = []
     scan_kind: str | None = None
-    geometry: tuple[float, float] | None = None
     odom_rows: list[np.ndarray] = []
     odom_stamp: list[int] = []
     odom_line: list[int] = []
@@ -65,7 +75,6 @@ def read_carmen(
     true_stamp: list[int] = []
     true_line: list[int] = []
     params: dict[str, str] = {}
-    n_beams: int | None = None
     wanted = {"front": ("FLASER", "ROBOTLASER1"), "rear": ("RLASER",)}[laser]
 
     for lineno, line in iter_lines(path):
@@ -82,15 +91,11 @@ def read_carmen(
                 continue  # a log with FLASER and ROBOTLASER1 for the same laser: keep the first kind
             if kind == "ROBOTLASER1":
                 ranges, odom, stamp, geom = _robotlaser(tok, path, lineno)
-                if geometry is None:
-                    geometry = geom
             else:
                 ranges, odom, stamp = _flaser(tok, path, lineno)
-            if n_beams is None:
-                n_beams = ranges.size
-            elif ranges.size != n_beams:
-                raise DataError(f"{path}:{lineno}: {kind} has {ranges.size} beams, earlier scans have {n_beams}")
+                geom = _sick_geometry(ranges.size)
             scan_rows.append(ranges)
+            scan_geom.append(geom)
             scan_odom.append(odom)
             scan_stamp.append(stamp)
             scan_line.append(lineno)
@@ -110,49 +115,91 @@ def read_carmen(
     if not scan_rows and not odom_rows:
         raise DataError(f"{path}: no {'/'.join(wanted)} or ODOM lines; is this a CARMEN log?")
 
+    untimed = {}
+    if odom_rows:
+        odom_stamp, untimed["odometry"] = _place_untimed(
+            np.array(odom_stamp, dtype=np.int64), np.array(odom_line), np.array(scan_stamp + true_stamp, dtype=np.int64), np.array(scan_line + true_line), path
+        )
     reordered = {}
     scans = sensor = None
     if scan_rows:
         perm, reordered["scan"] = time_order(np.array(scan_stamp), np.array(scan_line), path, str(scan_kind), max_backstep)
-        raw = np.stack(scan_rows)[perm]
+        width = max(r.size for r in scan_rows)
+        raw = np.full((len(scan_rows), width), np.nan)
+        for k, r in enumerate(scan_rows):
+            raw[k, : r.size] = r
+        raw = raw[perm]
         if range_max is None:
             range_max = _param_range_max(params, laser)
         if range_max is None:
-            top = float(raw.max())
-            range_max = top if np.count_nonzero(raw >= top) >= _SATURATION_SHARE * raw.size else np.nextafter(top, np.inf)
+            top = float(np.nanmax(raw))
+            range_max = top if np.count_nonzero(raw >= top) >= _SATURATION_SHARE * np.count_nonzero(np.isfinite(raw)) else np.nextafter(top, np.inf)
         ranges = raw.astype(np.float32)
         ranges[raw >= range_max] = np.nan
-        assert n_beams is not None
-        if geometry is None:
-            inc = np.pi / (n_beams - 1) if n_beams % 2 else np.pi / n_beams
-            geometry = (-np.pi / 2, inc)
+        layouts, which = np.unique(np.array(scan_geom, dtype=[("n", "i8"), ("a", "f8"), ("d", "f8")]), return_inverse=True)
         offset = float(params.get(f"robot_{laser}laser_offset", 0.0) or 0.0)
-        sensor = SensorModel(
-            kind="laser2d",
-            n_beams=n_beams,
-            angle_min=geometry[0],
-            angle_increment=geometry[1],
-            range_min=0.0,
-            range_max=float(range_max),
-            mount=Mount(x=offset, theta=np.pi if laser == "rear" else 0.0),
-        )
-        scans = ScanBatch(np.array(scan_stamp, dtype=np.int64)[perm], ranges, None, np.stack(scan_odom)[perm])
+        common = {"kind": "laser2d", "range_min": 0.0, "range_max": float(range_max), "mount": Mount(x=offset, theta=np.pi if laser == "rear" else 0.0)}
+        try:
+            if layouts.size == 1:
+                sensor = SensorModel(n_beams=width, angle_min=float(layouts[0]["a"]), angle_increment=float(layouts[0]["d"]), **common)
+                geometry = None
+            else:
+                geoms = tuple(BeamGeometry(n_beams=int(g["n"]), angle_min=float(g["a"]), angle_increment=float(g["d"])) for g in layouts)
+                sensor = SensorModel(n_beams=width, geometries=geoms, **common)
+                geometry = which.reshape(-1)[perm]
+        except ValidationError as exc:
+            raise DataError(f"{path}: {scan_kind!s} beam geometry: {exc.errors()[0]['msg']}") from None
+        scans = ScanBatch(np.array(scan_stamp, dtype=np.int64)[perm], ranges, None, np.stack(scan_odom)[perm], geometry)
     odometry = None
     if odom_rows:
-        perm, reordered["odometry"] = time_order(np.array(odom_stamp), np.array(odom_line), path, "ODOM", max_backstep)
-        odometry = Odometry("pose", np.array(odom_stamp, dtype=np.int64)[perm], np.stack(odom_rows)[perm])
+        perm, reordered["odometry"] = time_order(odom_stamp, np.array(odom_line), path, "ODOM", max_backstep)
+        odometry = Odometry("pose", odom_stamp[perm], np.stack(odom_rows)[perm])
     reference = {}
     if true_rows:
         perm, reordered["reference:ground_truth"] = time_order(np.array(true_stamp), np.array(true_line), path, "TRUEPOS", max_backstep)
         reference["ground_truth"] = ReferencePoses("ground_truth", np.array(true_stamp, dtype=np.int64)[perm], np.stack(true_rows)[perm])
-    return SensorLog(
-        name=path.name.split(".")[0],
-        sensor=sensor,
-        scans=scans,
-        odometry=odometry,
-        reference=reference,
-        source={"reader": "carmen", "file": path.name, "sha256": file_digest(path), "laser": laser, "reordered": reordered},
-    )
+    source = {"reader": "carmen", "file": path.name, "sha256": file_digest(path), "laser": laser, "reordered": reordered}
+    if any(untimed.values()):
+        source["untimed"] = {k: v for k, v in untimed.items() if v}
+    return SensorLog(name=path.name.split(".")[0], sensor=sensor, scans=scans, odometry=odometry, reference=reference, source=source)
+
+
+def _sick_geometry(n: int) -> tuple[int, float, float]:
+    """FLASER/RLASER carry no geometry: pi radians from -pi/2, SICK LMS convention (see the module docstring)."""
+    return n, -np.pi / 2, (np.pi / (n - 1) if n % 2 and n > 1 else np.pi / n)
+
+
+#: A log whose clock starts at 0 has its first real stamps within this [ns]; CARMEN logs carry Unix time.
+_CLOCK_FROM_ZERO = 86_400 * 1_000_000_000
+
+
+def _place_untimed(stamps: np.ndarray, lines: np.ndarray, timed: np.ndarray, timed_lines: np.ndarray, path: Path) -> tuple[np.ndarray, int]:
+    """Stamps of records stamped 0 that have no time, from their place in the file.
+
+    A stamp of 0 is "no time" unless the log's clock really starts at 0 (every
+    zero-stamped line comes before the first timed line, and that line's time
+    is within a day). Such a record's time is interpolated by line number
+    between the timed lines around it (clamped to the first and last).
+    Returns (stamps, how many were placed).
+    """
+    zero = stamps == 0
+    if not zero.any():
+        return stamps, 0
+    known_lines = np.concatenate([timed_lines[timed != 0], lines[~zero]])
+    known = np.concatenate([timed[timed != 0], stamps[~zero]])
+    if known.size == 0:
+        if stamps.size == 1:
+            return stamps, 0  # one record at time 0: nothing to place it against
+        raise DataError(f"{path}: every line is stamped 0; the log carries no time")
+    order = np.argsort(known_lines, kind="stable")
+    known_lines, known = known_lines[order], known[order]
+    if lines[zero].max() < known_lines[0] and known[0] <= _CLOCK_FROM_ZERO:
+        return stamps, 0
+    base = int(known[0])
+    est = np.interp(lines[zero], known_lines, (known - base).astype(np.float64))
+    out = stamps.copy()
+    out[zero] = base + np.rint(est).astype(np.int64)
+    return out, int(zero.sum())
 
 
 def _param_range_max(params: dict[str, str], laser: str) -> float | None:
@@ -194,7 +241,7 @@ def _flaser(tok: list[str], path: Path, lineno: int) -> tuple[np.ndarray, np.nda
     return ranges, odom, parse_stamp(tok[2 + n + 6], path, lineno)
 
 
-def _robotlaser(tok: list[str], path: Path, lineno: int) -> tuple[np.ndarray, np.ndarray, int, tuple[float, float]]:
+def _robotlaser(tok: list[str], path: Path, lineno: int) -> tuple[np.ndarray, np.ndarray, int, tuple[int, float, float]]:
     n = _count(tok, 8, path, lineno)
     if len(tok) < 9 + n + 1:
         raise DataError(f"{path}:{lineno}: ROBOTLASER1 is truncated")
@@ -206,4 +253,6 @@ def _robotlaser(tok: list[str], path: Path, lineno: int) -> tuple[np.ndarray, np
     ranges = _ranges(tok[9 : 9 + n], path, lineno)
     rest = 9 + n + 1 + m
     odom = parse_floats(tok[rest + 3 : rest + 6], path, lineno, "robot pose")
-    return ranges, odom, parse_stamp(tok[rest + 11], path, lineno), (float(head[0]), float(head[2]))
+    if not np.isfinite(head).all():
+        raise DataError(f"{path}:{lineno}: ROBOTLASER1 geometry: start angle, field of view and resolution must be finite")
+    return ranges, odom, parse_stamp(tok[rest + 11], path, lineno), (n, float(head[0]), float(head[2]))

@@ -7,11 +7,13 @@ import gzip
 import hashlib
 import io
 import lzma
+import math
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
+from detectors.logs import MAX_SECONDS, seconds_to_stamp
 from profiles.errors import DataError, UsageError
 
 #: Default tolerance for records that step back in time within one stream.
@@ -51,17 +53,32 @@ def iter_lines(path: Path) -> Iterator[tuple[int, str]]:
 
 
 def parse_stamp(token: str, path: Path, lineno: int, what: str = "timestamp") -> int:
-    """Decimal seconds -> int64 ns without going through float, so 6-decimal stamps stay exact."""
+    """Decimal seconds -> int64 ns without going through float, so 6-decimal stamps stay exact.
+
+    Exponent notation goes through float; NaN, infinities and times beyond the
+    int64 range (+-292 years) are refused with the file and line.
+    """
     try:
         if "e" in token or "E" in token:
-            return int(round(float(token) * 1e9))
-        neg = token.startswith("-")
-        body = token[1:] if neg else token
-        sec, _, frac = body.partition(".")
-        ns = int(sec or "0") * 1_000_000_000 + int((frac + "000000000")[:9] or "0")
-        return -ns if neg else ns
-    except ValueError:
+            sec_f = float(token)
+            if math.isnan(sec_f):
+                raise ValueError(token)
+            if not abs(sec_f) < MAX_SECONDS:
+                raise DataError(f"{path}:{lineno}: {what} {token!r} is out of range (at most {MAX_SECONDS:.3g} s)")
+            ns = round(sec_f * 1e9)
+        else:
+            neg = token.startswith("-")
+            body = token[1:] if token[:1] in "+-" else token
+            sec, _, frac = body.partition(".")
+            if not (sec + frac).isascii() or not (sec + frac).isdigit():
+                raise ValueError(token)
+            ns = int(sec or "0") * 1_000_000_000 + int((frac + "000000000")[:9] or "0")
+            ns = -ns if neg else ns
+    except (ValueError, OverflowError):
         raise DataError(f"{path}:{lineno}: {what} {token!r} is not a number") from None
+    if abs(ns) >= MAX_SECONDS * 1e9:
+        raise DataError(f"{path}:{lineno}: {what} {token!r} is out of range (at most {MAX_SECONDS:.3g} s)")
+    return ns
 
 
 def parse_floats(tokens: list[str], path: Path, lineno: int, what: str) -> np.ndarray:
@@ -92,15 +109,22 @@ def time_order(stamps: np.ndarray, lines: np.ndarray, path: Path, what: str, max
     stamps = np.asarray(stamps, dtype=np.int64)
     if stamps.size == 0:
         return np.arange(0), 0
-    back = np.maximum.accumulate(stamps) - stamps
-    worst = int(np.argmax(back))
-    if back[worst] > max_backstep * 1e9:
+    first = _first_backstep(stamps, max_backstep)
+    if first is not None:
+        back = int(np.maximum.accumulate(stamps)[first] - stamps[first])
         raise DataError(
-            f"{path}:{int(lines[worst])}: {what} time goes backwards by {back[worst] / 1e9:.6f} s "
+            f"{path}:{int(lines[first])}: {what} time goes backwards by {back / 1e9:.6f} s "
             f"(more than the tolerated {max_backstep:g} s)"
         )
     perm = np.argsort(stamps, kind="stable")
     return perm, int(np.count_nonzero(perm != np.arange(stamps.size)))
+
+
+def _first_backstep(stamps: np.ndarray, max_backstep: float) -> int | None:
+    """Index of the first record earlier than the latest stamp before it by more than ``max_backstep`` s."""
+    back = np.maximum.accumulate(stamps) - stamps
+    over = np.flatnonzero(back > max_backstep * 1e9)
+    return int(over[0]) if over.size else None
 
 
 def file_digest(path: Path) -> str:
@@ -160,12 +184,21 @@ def table_time_order(stamps: np.ndarray, path: Path, what: str, max_backstep: fl
     try:
         return time_order(stamps, np.full(np.asarray(stamps).size, -1), path, what, max_backstep)
     except DataError:
-        back = np.maximum.accumulate(stamps) - stamps
-        row = int(np.argmax(back))
+        row = _first_backstep(np.asarray(stamps, dtype=np.int64), max_backstep)
+        back = int(np.maximum.accumulate(stamps)[row] - stamps[row])
         raise DataError(
-            f"{path}:{_data_line(path, row)}: {what} time goes backwards by {back[row] / 1e9:.6f} s "
+            f"{path}:{_data_line(path, row)}: {what} time goes backwards by {back / 1e9:.6f} s "
             f"(more than the tolerated {max_backstep:g} s)"
         ) from None
+
+
+def table_stamps(seconds: np.ndarray, path: Path, what: str) -> np.ndarray:
+    """Time column of a table read by :func:`read_table` -> int64 ns; a time out of range names its line."""
+    t = np.asarray(seconds, dtype=np.float64)
+    bad = np.flatnonzero(~(np.abs(t) < MAX_SECONDS))
+    if bad.size:
+        raise DataError(f"{path}:{_data_line(path, int(bad[0]))}: {what}: time {float(t[bad[0]])!r} s is out of range (at most {MAX_SECONDS:.3g} s)")
+    return seconds_to_stamp(t)
 
 
 def index_of(values: np.ndarray, keys: np.ndarray) -> np.ndarray:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -24,9 +25,10 @@ class ReadOptions(BaseModel):
     """Reader options; each reader uses the ones that concern it."""
 
     model_config = ConfigDict(extra="forbid")
-    max_backstep: float = Field(default=DEFAULT_MAX_BACKSTEP, ge=0.0)
+    max_backstep: float = Field(default=DEFAULT_MAX_BACKSTEP, ge=0.0, allow_inf_nan=False)
     laser: str = "front"
-    range_max: float | None = Field(default=None, gt=0.0)
+    range_max: float | None = Field(default=None, gt=0.0, allow_inf_nan=False)
+    range_sigma: float | None = Field(default=None, gt=0.0, allow_inf_nan=False)
     robot: int = 1
     scan_topic: str | None = None
     odom_topic: str | None = None
@@ -53,8 +55,17 @@ def detect_format(path: Path) -> str:
 
 
 def read_log(path: str | Path, fmt: str | None = None, options: ReadOptions | None = None) -> SensorLog:
-    path = Path(path)
+    """The log at ``path`` in format ``fmt`` (default: from the path); ``options.range_sigma`` replaces the sensor's."""
     opt = options or ReadOptions()
+    log = _read(Path(path), fmt, opt)
+    if opt.range_sigma is not None:
+        if log.sensor is None or log.sensor.kind != "laser2d":
+            raise UsageError(f"--range-sigma: {path} has no 2D laser")
+        log = dataclasses.replace(log, sensor=type(log.sensor).model_validate({**log.sensor.model_dump(), "range_sigma": opt.range_sigma}))
+    return log
+
+
+def _read(path: Path, fmt: str | None, opt: ReadOptions) -> SensorLog:
     fmt = fmt or detect_format(path)
     if fmt == "native":
         return read_native(path)
@@ -71,6 +82,28 @@ def read_log(path: str | Path, fmt: str | None = None, options: ReadOptions | No
     if fmt == "kitti":
         return read_kitti(path)
     raise UsageError(f"--format: expected one of {', '.join(FORMATS)}, got {fmt!r}")
+
+
+def input_refs(path: Path, log: SensorLog) -> list:
+    """The input files of a log read from ``path``, with their sha256, for provenance.
+
+    A native log is identified by its content (:func:`calib.io.native.content_digest`:
+    the same on every machine, whatever zlib compressed it); a folder by each
+    file its reader read; any other file by its bytes.
+    """
+    from calib.io.common import file_digest
+    from calib.io.native import content_digest
+    from profiles.profile import InputRef
+
+    path = Path(path)
+    if path.is_file() and is_native(path):
+        return [InputRef(name=path.name, sha256=content_digest(path))]
+    files = log.source.get("files")
+    if isinstance(files, dict) and files:
+        return [InputRef(name=str(k), sha256=str(v)) for k, v in files.items()]
+    if isinstance(log.source.get("sha256"), str) and path.is_file():
+        return [InputRef(name=path.name, sha256=str(log.source["sha256"]))]
+    return [InputRef(name=path.name, sha256=file_digest(path))] if path.exists() else []
 
 
 def output_format(path: Path, fmt: str | None) -> str:

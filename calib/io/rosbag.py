@@ -32,6 +32,7 @@ from rosbags.typesys import Stores, get_typestore
 from calib.io.atomic import atomic_output
 from calib.io.common import DEFAULT_MAX_BACKSTEP, file_digest, time_order
 from detectors.logs import (
+    BeamGeometry,
     Detections,
     Landmarks,
     Odometry,
@@ -139,34 +140,48 @@ def _read_foreign(reader, conns, path, scan_topic, odom_topic, truth_topic, max_
     reordered: dict[str, int] = {}
     scans = sensor = None
     if scan_t is not None:
-        stamps, rows, inten, geom = [], [], [], None
+        stamps, rows, inten, geoms, limits = [], [], [], [], None
         for k, msg in enumerate(_messages(reader, scan_t)):
-            g = (float(msg.angle_min), float(msg.angle_increment), len(msg.ranges), float(msg.range_min), float(msg.range_max))
-            if geom is None:
-                geom = g
-            elif g[2] != geom[2]:
-                raise DataError(f"{path}: {scan_t} message {k} has {g[2]} beams, earlier messages have {geom[2]}")
-            elif g[:2] != geom[:2]:
-                raise DataError(f"{path}: {scan_t} message {k} changes the beam geometry (angle_min/angle_increment)")
+            g = (len(msg.ranges), float(msg.angle_min), float(msg.angle_increment))
+            lim = (float(msg.range_min), float(msg.range_max))
+            if not (np.isfinite(g[1:]).all() and np.isfinite(lim[0])) or g[0] == 0:
+                raise DataError(f"{path}: {scan_t} message {k}: no beams, or a beam angle or range_min that is not finite")
+            limits = lim if limits is None else limits
             r = np.asarray(msg.ranges, dtype=np.float32)
             neg = np.flatnonzero(r < 0)
             if neg.size:
                 raise DataError(f"{path}: {scan_t} message {k} beam {int(neg[0])}: negative range {r[neg[0]]}")
-            r = np.where(np.isfinite(r) & (r >= g[3]) & (r <= g[4]), r, np.float32(np.nan))
+            r = np.where(np.isfinite(r) & (r >= lim[0]) & (r <= lim[1]), r, np.float32(np.nan))
             rows.append(r)
             i = np.asarray(msg.intensities, dtype=np.float32)
             inten.append(i if i.size == r.size else None)
+            geoms.append(g)
             stamps.append(_stamp(msg))
-        if geom is None:
+        if not rows:
             raise DataError(f"{path}: topic {scan_t} has no messages")
         perm, reordered["scan"] = time_order(np.array(stamps), np.arange(len(stamps)), path, f"{scan_t} message", max_backstep)
         has_i = all(i is not None for i in inten)
-        sensor = SensorModel(
-            kind="laser2d", n_beams=geom[2], angle_min=geom[0], angle_increment=geom[1], range_min=geom[3], range_max=geom[4]
-        )
-        scans = ScanBatch(
-            np.array(stamps, dtype=np.int64)[perm], np.stack(rows)[perm], np.stack(inten)[perm] if has_i else None
-        )
+        layouts, which = np.unique(np.array(geoms, dtype=[("n", "i8"), ("a", "f8"), ("d", "f8")]), return_inverse=True)
+        width = int(layouts["n"].max())
+        ranges = np.full((len(rows), width), np.nan, dtype=np.float32)
+        intens = np.full((len(rows), width), np.nan, dtype=np.float32) if has_i else None
+        for k, r in enumerate(rows):
+            ranges[k, : r.size] = r
+            if intens is not None:
+                intens[k, : r.size] = inten[k]
+        rmax = limits[1] if np.isfinite(limits[1]) and limits[1] > 0 else None
+        common = {"kind": "laser2d", "range_min": max(limits[0], 0.0), "range_max": rmax}
+        if layouts.size == 1:
+            sensor = SensorModel(n_beams=width, angle_min=float(layouts[0]["a"]), angle_increment=float(layouts[0]["d"]), **common)
+            geometry = None
+        else:
+            sensor = SensorModel(
+                n_beams=width,
+                geometries=tuple(BeamGeometry(n_beams=int(g["n"]), angle_min=float(g["a"]), angle_increment=float(g["d"])) for g in layouts),
+                **common,
+            )
+            geometry = which.reshape(-1)[perm]
+        scans = ScanBatch(np.array(stamps, dtype=np.int64)[perm], ranges[perm], intens[perm] if intens is not None else None, None, geometry)
     odometry = None
     if odom_t is not None:
         stamps, poses = _poses(reader, odom_t)
@@ -217,6 +232,8 @@ def _topics(log: SensorLog) -> dict[str, str]:
             t["/detcal/scan/intensities"] = ARRAY_TYPE
         if log.scans.odom_pose is not None:
             t["/detcal/scan/odom_pose"] = ARRAY_TYPE
+        if log.scans.geometry is not None:
+            t["/detcal/scan/geometry"] = ARRAY_TYPE
     if log.odometry is not None:
         t["/detcal/odometry"] = ARRAY_TYPE
         if log.odometry.kind in ("pose", "velocity"):
@@ -244,7 +261,7 @@ def write_ros2(log: SensorLog, path: str | Path, *, overwrite: bool = False) -> 
         "source": dict(log.source),
         "odometry_kind": None if log.odometry is None else log.odometry.kind,
         "references": sorted(log.reference),
-        "scan": None if log.scans is None else {"intensities": log.scans.intensities is not None, "odom_pose": log.scans.odom_pose is not None},
+        "scan": None if log.scans is None else _scan_meta(log.scans),
         "detections": None
         if det is None
         else {"n_frames": det.n_frames, "descriptors": {k: str(v.dtype) for k, v in sorted(det.descriptors.items())}},
@@ -278,29 +295,33 @@ def write_ros2(log: SensorLog, path: str | Path, *, overwrite: bool = False) -> 
 
             det_off = det.frame_slices() if det is not None else None
             sensor = log.sensor
+            layouts = sensor.layouts() if sensor is not None else ()
             for ev in log.events():
                 i = ev.index
                 if ev.stream == "scan":
                     s = log.scans
                     assert sensor is not None and s is not None
                     ranges = s.ranges[i]
+                    g = layouts[0] if s.geometry is None else layouts[int(s.geometry[i])]  # each scan with its own beam layout
                     put(
                         "/scan",
                         ev.stamp,
                         T[SCAN_TYPE](
                             header=header(ev.stamp, "laser"),
-                            angle_min=float(sensor.angle_min),
-                            angle_max=float(sensor.angle_min + sensor.angle_increment * (sensor.n_beams - 1)),
-                            angle_increment=float(sensor.angle_increment),
+                            angle_min=float(g.angle_min),
+                            angle_max=float(g.angle_min + g.angle_increment * (g.n_beams - 1)),
+                            angle_increment=float(g.angle_increment),
                             time_increment=0.0,
                             scan_time=0.0,
                             range_min=float(sensor.range_min),
                             range_max=float(sensor.range_max or np.inf),
-                            ranges=ranges,
-                            intensities=s.intensities[i] if s.intensities is not None else np.zeros(0, np.float32),
+                            ranges=ranges[: g.n_beams],
+                            intensities=s.intensities[i, : g.n_beams] if s.intensities is not None else np.zeros(0, np.float32),
                         ),
                     )
                     put("/detcal/scan/ranges", ev.stamp, array(ranges.astype(np.float64), ("scan", "beam")))
+                    if s.geometry is not None:
+                        put("/detcal/scan/geometry", ev.stamp, array(np.array([float(s.geometry[i])]), ("row", "layout")))
                     if s.intensities is not None:
                         put("/detcal/scan/intensities", ev.stamp, array(s.intensities[i].astype(np.float64), ("scan", "beam")))
                     if s.odom_pose is not None:
@@ -318,6 +339,13 @@ def write_ros2(log: SensorLog, path: str | Path, *, overwrite: bool = False) -> 
                     cols = [det.range[a:b], det.bearing[a:b]] + [det.descriptors[k][a:b].astype(np.float64) for k in sorted(det.descriptors)]
                     put("/detcal/detections", ev.stamp, array(np.column_stack(cols).reshape(b - a, len(cols)), ("detection", "field")))
     return path
+
+
+def _scan_meta(s: ScanBatch) -> dict:
+    meta = {"intensities": s.intensities is not None, "odom_pose": s.odom_pose is not None}
+    if s.geometry is not None:  # only for a laser of several beam layouts: other bags keep their metadata
+        meta["geometry"] = True
+    return meta
 
 
 def _odom_msg(T, hdr, values: np.ndarray, o: Odometry, i: int):
@@ -364,7 +392,8 @@ def _read_detcal(reader: AnyReader, meta: dict, path: Path) -> SensorLog:
         st, rows = table("/detcal/scan/ranges")
         inten = np.concatenate(table("/detcal/scan/intensities")[1]) if meta["scan"]["intensities"] else None
         odom = np.concatenate(table("/detcal/scan/odom_pose")[1]) if meta["scan"]["odom_pose"] else None
-        scans = ScanBatch(st, np.concatenate(rows).astype(np.float32), None if inten is None else inten.astype(np.float32), odom)
+        geom = np.concatenate(table("/detcal/scan/geometry")[1]).ravel().astype(np.int32) if meta["scan"].get("geometry") else None
+        scans = ScanBatch(st, np.concatenate(rows).astype(np.float32), None if inten is None else inten.astype(np.float32), odom, geom)
     if meta["odometry_kind"] is not None:
         st, rows = table("/detcal/odometry")
         odometry = Odometry(meta["odometry_kind"], st, np.concatenate(rows))

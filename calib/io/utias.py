@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.io.common import DEFAULT_MAX_BACKSTEP, file_digest, index_of, read_table, table_time_order
-from detectors.logs import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, seconds_to_stamp
+from calib.io.common import DEFAULT_MAX_BACKSTEP, file_digest, index_of, read_table, table_stamps, table_time_order
+from detectors.logs import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel
 from profiles.errors import DataError, UsageError
 
 N_ROBOTS = 5
@@ -45,12 +45,12 @@ def read_utias(path: str | Path, *, robot: int = 1, max_backstep: float = DEFAUL
     landmark_ids = set(lm[:, 0].astype(np.int64).tolist())
 
     odo = read_table(files["Odometry"], 3, "t v omega")
-    ostamp = seconds_to_stamp(odo[:, 0])
+    ostamp = table_stamps(odo[:, 0], files["Odometry"], "t v omega")
     perm, moved_o = table_time_order(ostamp, files["Odometry"], "odometry", max_backstep)
     odometry = Odometry("velocity", ostamp[perm], odo[perm, 1:])
 
     meas = read_table(files["Measurement"], 4, "t barcode range bearing")
-    mstamp = seconds_to_stamp(meas[:, 0])
+    mstamp = table_stamps(meas[:, 0], files["Measurement"], "t barcode range bearing")
     perm, moved_m = table_time_order(mstamp, files["Measurement"], "measurement", max_backstep)
     meas, mstamp = meas[perm], mstamp[perm]
     code = meas[:, 1]
@@ -66,7 +66,7 @@ def read_utias(path: str | Path, *, robot: int = 1, max_backstep: float = DEFAUL
     detections = Detections(frame_stamp, frame, meas[:, 2], meas[:, 3], {"barcode": code, "subject": subject, "target": target})
 
     gt = read_table(files["Groundtruth"], 4, "t x y theta")
-    gstamp = seconds_to_stamp(gt[:, 0])
+    gstamp = table_stamps(gt[:, 0], files["Groundtruth"], "t x y theta")
     perm, moved_g = table_time_order(gstamp, files["Groundtruth"], "ground truth", max_backstep)
     reference = {"ground_truth": ReferencePoses("ground_truth", gstamp[perm], gt[perm, 1:])}
 

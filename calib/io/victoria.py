@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.io.common import DEFAULT_MAX_BACKSTEP, file_digest, read_table, table_time_order
-from detectors.logs import Detections, Mount, Odometry, ReferencePoses, SensorLog, SensorModel, Vehicle, seconds_to_stamp
+from calib.io.common import DEFAULT_MAX_BACKSTEP, file_digest, read_table, table_stamps, table_time_order
+from detectors.logs import Detections, Mount, Odometry, ReferencePoses, SensorLog, SensorModel, Vehicle
 from profiles.errors import UsageError
 
 FILES = ("measurements.dat", "inputs.dat", "gps.dat")
@@ -41,7 +41,7 @@ def read_victoria(path: str | Path, *, max_backstep: float = DEFAULT_MAX_BACKSTE
         if not (path / f).is_file():
             raise UsageError(f"{path / f}: missing; a Victoria Park folder needs {', '.join(FILES)}")
     meas = read_table(path / "measurements.dat", 4, "t range bearing diameter")
-    stamp = seconds_to_stamp(meas[:, 0])
+    stamp = table_stamps(meas[:, 0], path / "measurements.dat", "t range bearing diameter")
     perm, moved_m = table_time_order(stamp, path / "measurements.dat", "measurement", max_backstep)
     meas, stamp = meas[perm], stamp[perm]
     frame_stamp, frame = np.unique(stamp, return_inverse=True)
@@ -49,14 +49,14 @@ def read_victoria(path: str | Path, *, max_backstep: float = DEFAULT_MAX_BACKSTE
         frame_stamp, frame, meas[:, 1], meas[:, 2] - np.pi / 2, {"diameter": meas[:, 3]}
     )
     inputs = read_table(path / "inputs.dat", 3, "t speed steering")
-    istamp = seconds_to_stamp(inputs[:, 0])
+    istamp = table_stamps(inputs[:, 0], path / "inputs.dat", "t speed steering")
     perm, moved_i = table_time_order(istamp, path / "inputs.dat", "input", max_backstep)
     odometry = Odometry("ackermann", istamp[perm], inputs[perm, 1:])
     reference = {}
     moved_g = 0
     if (path / "gps.dat").is_file():
         gps = read_table(path / "gps.dat", 3, "t x y")
-        gstamp = seconds_to_stamp(gps[:, 0])
+        gstamp = table_stamps(gps[:, 0], path / "gps.dat", "t x y")
         perm, moved_g = table_time_order(gstamp, path / "gps.dat", "GPS", max_backstep)
         poses = np.column_stack([gps[perm, 1:], np.full(gps.shape[0], np.nan)])
         reference["gps"] = ReferencePoses("gps", gstamp[perm], poses)

@@ -25,7 +25,7 @@ def test_slam_run_writes_a_reproducible_run_folder(tmp_path, capsys, park_log):
     code, out, err = run(capsys, *args, "--out", str(tmp_path / "a"))
     assert code == 0, err
     names = sorted(p.name for p in (tmp_path / "a").iterdir())
-    assert names == ["config.yaml", "map.csv", "metrics.yaml", "ospa.png", "steps.csv", "timing.png", "trajectory.csv", "trajectory_map.png"]
+    assert names == [".detcal-output", "config.yaml", "map.csv", "metrics.yaml", "ospa.png", "steps.csv", "timing.png", "trajectory.csv", "trajectory_map.png"]
     m = yaml.safe_load((tmp_path / "a/metrics.yaml").read_text())
     assert m["frames"] == 60 and m["landmarks_true"] == 40
     # the truth is known: the filter, started at the true pose, stays within a metre over 12 s

@@ -41,3 +41,17 @@ def test_innovation_wraps_the_bearing():
     w = wrap(a)
     assert (w > -np.pi).all() and (w <= np.pi).all()
     np.testing.assert_allclose(np.cos(w), np.cos(a), atol=1e-12)
+
+
+def test_pose_jacobian_agrees_with_finite_differences():
+    rng = np.random.default_rng(4)
+    fm = RangeBearing(R, np.array([3.78, 0.5, 0.2]))
+    veh = np.column_stack([rng.uniform(-5, 5, (12, 2)), rng.uniform(-3, 3, 12)])
+    lm = rng.uniform(-20, 20, (12, 2))
+    hx = fm.pose_jacobian(veh, lm)
+    eps = 1e-6
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = eps
+        num = fm.innovation(fm.predict(veh + d, lm)[0], fm.predict(veh - d, lm)[0]) / (2 * eps)
+        np.testing.assert_allclose(hx[..., k], num, rtol=1e-5, atol=1e-7)

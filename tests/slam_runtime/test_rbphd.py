@@ -136,3 +136,25 @@ def test_rbphd_on_a_cluttered_park_beats_odometry_and_the_profile_maps_better_th
     assert prof_m["trajectory_rmse_vs_ground_truth_m"] < 0.5 * prof_m["odometry_rmse_vs_ground_truth_m"]
     assert prof_m["map_ospa"] < 0.9 * const_m["map_ospa"]
     assert prof_m["map_features"] > const_m["map_features"]
+
+
+def test_the_optimal_proposal_keeps_three_particles_on_the_path():
+    """rfs-sim, 300 steps, only 3 particles, 4 filter seeds: drawing each pose from the motion prior updated
+    by the measurements the particle's map explains keeps it within 5 cm of the true path, and closer on
+    average than drawing from the motion model alone (measured: 0.027 m against 0.042 m)."""
+    from pathlib import Path
+
+    from calib.config import load_yaml_model
+    from calib.sim.rfs import RfsSimConfig, simulate_rfs, truth_profile
+    from slam_runtime.config import SlamConfig, override
+    from slam_runtime.run import evaluate, run_slam
+
+    sim = RfsSimConfig(steps=300)
+    log = simulate_rfs(sim, 3)
+    base = load_yaml_model(SlamConfig, Path(__file__).resolve().parents[2] / "benchmarks/configs/rfs_sim.yaml")
+    rmse = {}
+    for prop in ("prior", "optimal"):
+        cfg = override(base, particles=3, proposal=prop)
+        rmse[prop] = [evaluate(log, run_slam(log, truth_profile(sim), cfg, sd))["trajectory_rmse_vs_ground_truth_m"] for sd in range(4)]
+    assert max(rmse["optimal"]) < 0.05
+    assert np.mean(rmse["optimal"]) < 0.8 * np.mean(rmse["prior"])

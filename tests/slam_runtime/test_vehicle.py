@@ -75,3 +75,28 @@ def test_state_jacobians_agree_with_finite_differences(veh, u):
         dx[k] = eps
         num = (veh.mean(x + dx, u, 0.3) - veh.mean(x - dx, u, 0.3)) / (2 * eps)
         np.testing.assert_allclose(f[:, :, k], num, atol=1e-7)
+
+
+@pytest.mark.parametrize(
+    "veh,u,dt",
+    [
+        (OdometryIncrement(a_trans=0.1, a_rot=0.1, lateral=0.05, s_theta=0.01), np.array([0.3, 0.01, 0.05]), 0.2),
+        (Unicycle(sigma_v=0.1, sigma_omega=0.2), np.array([1.0, 0.4]), 0.1),
+        (Ackermann(2.83, 0.76, sigma_speed=0.3, sigma_steer=0.03), np.array([4.0, 0.1]), 0.05),
+    ],
+)
+def test_the_gaussian_of_the_motion_matches_its_samples(veh, u, dt):
+    """Five control rows from one pose: the linearised mean and covariance (what the pose proposal starts
+    from) against 40,000 sampled motions; the noise is small, so linearisation holds to a few per cent."""
+    x0 = np.array([[1.0, -2.0, 0.3]])
+    controls, dts = np.tile(u, (5, 1)), np.full(5, dt)
+    mean, cov = veh.predict_gaussian(x0, controls, dts)
+    rng = np.random.default_rng(5)
+    x = np.repeat(x0, 40_000, axis=0)
+    for uu, d in zip(controls, dts, strict=True):
+        x = veh.sample(x, uu, d, rng)
+    # the mean to 4 standard errors plus 5 % of the spread (the second-order terms the linearisation drops)
+    sd = np.sqrt(np.diag(cov[0]))
+    assert (np.abs(mean[0] - x.mean(axis=0)) <= 4 * sd / 200 + 0.05 * sd).all()
+    emp = np.cov(x.T)
+    np.testing.assert_allclose(np.sqrt(np.diag(cov[0])), np.sqrt(np.diag(emp)), rtol=0.05)

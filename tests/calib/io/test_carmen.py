@@ -54,7 +54,6 @@ def test_saturated_reading_is_no_return_by_default(tmp_path):
 @pytest.mark.parametrize(
     ("line", "match"),
     [
-        (flaser(1.2, [1.0, 2.0, 3.0]), r"t.clf:7: FLASER has 3 beams, earlier scans have 4"),
         ("FLASER 4 1.0 2.0 3.0 0 0 0 0 0 0 1.2 nohost 1.2", r"t.clf:7: FLASER declares 4 beams but has 14 fields"),
         (flaser(1.2, [1.0, 2.0, 3.0, 4.0]).replace("3.00", "nan"), r"t.clf:7: range reading: NaN value"),
         (flaser(1.2, [1.0, -2.0, 3.0, 4.0]), r"t.clf:7: range reading 2 is negative"),
@@ -105,3 +104,38 @@ def test_real_radish_logs(name, scans, odom):
     log = read_carmen(shared(f"radish/{name}.clf.bz2"))
     assert len(log.scans) == scans and log.scans.n_beams == 180 and len(log.odometry) == odom
     assert np.all(np.diff(log.scans.stamp) >= 0)
+
+
+def test_odom_lines_stamped_0_are_placed_by_their_order(tmp_path):
+    """SLAM tools write ODOM lines stamped 0: each takes the time of its place in the file."""
+    zero = [odom(0.0, 0.1), odom(0.0, 0.2)]
+    lines = [flaser(100.0, [1.0] * 4), *zero, flaser(100.3, [1.0] * 4), odom(0.0, 0.3), flaser(100.4, [1.0] * 4)]
+    log = read_carmen(write(tmp_path, lines))
+    assert log.source["untimed"] == {"odometry": 3}
+    # lines 4 and 5 lie a third and two thirds of the way from line 3 (100.0 s) to line 6 (100.3 s)
+    np.testing.assert_array_equal(log.odometry.stamp, [100_100_000_000, 100_200_000_000, 100_350_000_000])
+    np.testing.assert_allclose(log.odometry.values[:, 0], [0.1, 0.2, 0.3])
+    span = log.time_span()
+    assert (span[1] - span[0]) / 1e9 == pytest.approx(0.4)  # not 1e11 s from the epoch
+
+
+def test_a_clock_that_starts_at_0_is_real_time(tmp_path):
+    log = read_carmen(write(tmp_path, [odom(0.0), flaser(0.05, [1.0] * 4), odom(0.1, 0.1)]))
+    assert "untimed" not in log.source and log.odometry.stamp.tolist() == [0, 100_000_000]
+
+
+def test_time_order_error_names_the_first_offending_line(tmp_path):
+    lines = [*BASE, flaser(0.5, [1.0] * 4), flaser(1.3, [1.0] * 4), flaser(0.0, [1.0] * 4)]
+    with pytest.raises(DataError, match=r"t.clf:7: FLASER time goes backwards by 0.650000 s"):
+        read_carmen(write(tmp_path, lines), max_backstep=0.5)
+
+
+@pytest.mark.parametrize(
+    ("stamp", "match"),
+    [("1e300", r"t.clf:7: timestamp '1e300' is out of range"), ("nan", r"t.clf:7: timestamp 'nan' is not a number"),
+     ("1_000.5", r"t.clf:7: timestamp '1_000.5' is not a number"), ("99999999999.0", r"t.clf:7: timestamp '99999999999.0' is out of range")],
+)  # fmt: skip
+def test_timestamps_out_of_range(tmp_path, stamp, match):
+    line = flaser(1.2, [1.0] * 4).replace("1.200000", stamp, 1)
+    with pytest.raises(DataError, match=match):
+        read_carmen(write(tmp_path, [*BASE, line]))

@@ -89,8 +89,18 @@ def test_existing_file_not_overwritten_without_force(tmp_path):
     with pytest.raises(UsageError, match="already exists"):
         write_native(full_log(), p)
     assert p.read_text() == "keep me"
+    # --force replaces only a log detcal wrote, never another file or a folder
+    with pytest.raises(UsageError, match="a.dlog: was not written by detcal; --force does not replace it"):
+        write_native(full_log(), p, overwrite=True)
+    assert p.read_text() == "keep me"
+    (tmp_path / "d.dlog").mkdir()
+    with pytest.raises(UsageError, match="d.dlog: is a folder; --force replaces only a file detcal wrote"):
+        write_native(full_log(), tmp_path / "d.dlog", overwrite=True)
+    p.unlink()
+    write_native(full_log(), p)
     write_native(full_log(), p, overwrite=True)
     assert read_native(p).name == "full"
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["a.dlog", "d.dlog"]  # no temporary left behind
 
 
 def test_truncated_file_is_a_clear_error(tmp_path):
@@ -121,7 +131,7 @@ def test_wrong_version_and_missing_file(tmp_path):
         zf.writestr("meta.json", '{"format": "detcal-log", "version": 99, "streams": {}}')
     with pytest.raises(DataError, match="log format version 99 is not supported"):
         read_native(p)
-    with pytest.raises(DataError, match="no such file"):
+    with pytest.raises(UsageError, match="nope.dlog: no such file"):
         read_native(tmp_path / "nope.dlog")
 
 
@@ -135,3 +145,66 @@ def test_failed_write_leaves_nothing(tmp_path, monkeypatch):
     with pytest.raises(RuntimeError):
         write_native(full_log(), tmp_path / "a.dlog")
     assert list(tmp_path.iterdir()) == []
+
+
+def forge(tmp_path, edit_meta=None, arrays=None, name="f.dlog"):
+    """A .dlog written by hand from full_log's members: meta.json and arrays edited as asked."""
+    import io
+    import json
+
+    src = tmp_path / "src.dlog"
+    if not src.exists():
+        write_native(full_log(), src)
+    with zipfile.ZipFile(src) as zf:
+        members = {n: zf.read(n) for n in zf.namelist()}
+    meta = json.loads(members["meta.json"])
+    if edit_meta is not None:
+        meta = edit_meta(meta)
+    members["meta.json"] = json.dumps(meta).encode() if not isinstance(meta, bytes) else meta
+    for key, arr in (arrays or {}).items():
+        if isinstance(arr, bytes):
+            members[f"{key}.npy"] = arr
+        else:
+            buf = io.BytesIO()
+            np.lib.format.write_array(buf, arr, allow_pickle=False)
+            members[f"{key}.npy"] = buf.getvalue()
+    out = tmp_path / name
+    with zipfile.ZipFile(out, "w") as zf:
+        for n, b in members.items():
+            zf.writestr(n, b)
+    return out
+
+
+def huge_header() -> bytes:
+    """An .npy header claiming 10^11 float32 values, followed by 16 bytes."""
+    import io
+
+    buf = io.BytesIO()
+    np.lib.format.write_array_header_1_0(buf, {"descr": "<f4", "fortran_order": False, "shape": (10**9, 100)})
+    return buf.getvalue() + bytes(16)
+
+
+@pytest.mark.parametrize(
+    ("meta", "arrays", "match"),
+    [
+        (lambda m: [1, 2], None, r"f.dlog: meta.json is a list, expected an object"),
+        (lambda m: b"\xff\xfe\x00garbage", None, r"f.dlog: meta.json is unreadable"),
+        (lambda m: {k: v for k, v in m.items() if k != "streams"}, None, r"f.dlog: meta.json has no streams section"),
+        (lambda m: {**m, "colour": "red"}, None, r"f.dlog: meta.json colour: unknown key"),
+        (lambda m: {**m, "streams": {**m["streams"], "sonar": {"n": 1}}}, None, r"f.dlog: meta.json streams.sonar: unknown key"),
+        (lambda m: {**m, "streams": {**m["streams"], "scan": {**m["streams"]["scan"], "n": 6}}}, None, r"f.dlog: meta.json streams.scan.n is 6 but the arrays hold 5"),
+        (lambda m: {**m, "streams": {**m["streams"], "odometry": {"n": 9}}}, None, r"f.dlog: meta.json streams.odometry.kind: Field required"),
+        (lambda m: {**m, "streams": {**m["streams"], "scan": {**m["streams"]["scan"], "n": "5"}}}, None, r"meta.json streams.scan.n: Input should be a valid integer"),
+        (lambda m: {**m, "sensor": {**m["sensor"], "angle_min": None, "n_beams": 7, "geometries": []}}, None, r"f.dlog: meta.json sensor: Value error, geometries lists two or more beam layouts"),
+        (lambda m: {**m, "name": 5}, None, r"meta.json name must be a string"),
+        (None, {"scan/stamp": np.arange(5) * 0.1}, r"member scan/stamp.npy has dtype float64, expected int64"),
+        (None, {"scan/ranges": np.full((5, 7), "1.0")}, r"member scan/ranges.npy has dtype <U3, expected float32"),
+        (None, {"scan/ranges": huge_header()}, r"member scan/ranges.npy claims shape \(1000000000, 100\)"),
+        (None, {"detections/descriptors/barcode": np.array(["a", "b", "c"])}, r"descriptors/barcode.npy has dtype <U1, expected numbers"),
+        (None, {"odometry/stamp": np.arange(9)[::-1].copy() * 50_000_000}, r"f.dlog: odometry.stamp\[1\]: time goes backwards"),
+        (None, {"scan/ranges": np.full((5, 6), 1.0, dtype=np.float32)}, r"f.dlog: scans.intensities: expected shape \(5, 6\), got \(5, 7\)"),
+    ],
+)
+def test_forged_and_corrupt_native_logs_are_refused(tmp_path, meta, arrays, match):
+    with pytest.raises(DataError, match=match):
+        read_native(forge(tmp_path, meta, arrays))

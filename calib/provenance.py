@@ -1,0 +1,71 @@
+"""The parameters a calibration records in a profile (``provenance.parameters``), as validated models.
+
+A profile records the config it was made with and the choices the data made
+(where the poses, the landmarks and sigma_r came from; the camera's frame
+period and identity audit; the SLAM run of a self-calibration). These models
+say exactly which keys may appear -- one model per way detcal makes profiles
+of a detector kind: laser calibration; detection-level calibration,
+self-calibration and a simulator's truth profile -- so a misspelt or foreign
+key in a profile is refused with its field path like everywhere else. They are registered with the profile store (:func:`register`), which
+cannot import ``calib`` itself; parameters recorded by another detcal version
+are kept as recorded.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+from typing import Literal
+
+from pydantic import Field
+
+from calib import __version__
+
+
+@cache
+def laser_parameters() -> type:
+    from calib.calibrate import CalibrateConfig
+
+    class LaserCalibrationParameters(CalibrateConfig):
+        pose_source: list[Literal["reference", "icp"]] = Field(min_length=1)
+        landmarks: Literal["log", "cloud", "csv"]
+        range_sigma_source: Literal["log", "option", "estimated"]
+
+    return LaserCalibrationParameters
+
+
+@cache
+def detection_parameters() -> type:
+    from calib.detlevel import DetectionCalibConfig
+
+    class DetectionCalibrationParameters(DetectionCalibConfig):
+        frame_period: float = Field(gt=0.0)  # type: ignore[assignment]  (always recorded: given or estimated)
+        identity_remap: dict[str, int] = {}  # barcodes the identity audit found swapped in the truth
+
+    return DetectionCalibrationParameters
+
+
+@cache
+def selfcal_parameters() -> type:
+    from calib.selfcal import SelfCalConfig
+
+    class SelfCalibrationParameters(SelfCalConfig):
+        slam_run: str
+        iteration: int = Field(ge=0)
+        prior: str
+
+    return SelfCalibrationParameters
+
+
+@cache
+def simulator_parameters() -> type:
+    from calib.sim.rfs import RfsSimConfig
+
+    return RfsSimConfig  # the truth profile of a simulated scenario records the scenario's config
+
+
+def register() -> None:
+    """Every way this detcal makes profiles, per detector kind (a profile's parameters must fit one)."""
+    from profiles.store import register_parameters
+
+    register_parameters("circle2d", __version__, laser_parameters)
+    register_parameters("external", __version__, detection_parameters, selfcal_parameters, simulator_parameters)
