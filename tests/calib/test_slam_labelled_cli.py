@@ -28,7 +28,7 @@ def test_labelled_run_folder_is_reproducible(tmp_path, capsys, paper):
     assert code == 0, err
     names = sorted(p.name for p in (tmp_path / "a").iterdir())
     assert names == [
-        "config.yaml", "hypotheses.png", "labels.csv", "map.csv", "metrics.yaml", "ospa.png", "steps.csv", "timing.png",
+        ".detcal-output", "config.yaml", "hypotheses.png", "labels.csv", "map.csv", "metrics.yaml", "ospa.png", "steps.csv", "timing.png",
         "trajectory.csv", "trajectory_map.png",
     ]  # fmt: skip
     cfg = yaml.safe_load((tmp_path / "a/config.yaml").read_text())
