@@ -25,7 +25,7 @@ import numpy as np
 import slam_runtime.run as run_mod
 from calib.planes import PlaneCalibConfig, calibrate_planes
 from calib.sim.street import StreetConfig, simulate_street
-from slam_runtime.config import FILTER_KINDS, SlamConfig, override
+from slam_runtime.config import FILTER_KINDS, SlamConfig, override, with_filter
 from slam_runtime.run import evaluate, run_slam
 from slam_runtime.sources import CloudPlanes
 
@@ -82,7 +82,7 @@ def main() -> None:
         log = simulate_street(StreetConfig(frames=args.frames), s).log
         for f in filters:
             for mode in ("profile", "constant"):
-                cfg = override(SlamConfig(), features="planes", particles=args.particles, **{"filter.kind": f, "detection.pd_mode": mode})
+                cfg = override(with_filter(SlamConfig(), f), features="planes", particles=args.particles, **{"detection.pd_mode": mode})
                 for seed in range(args.seeds):
                     t1 = time.perf_counter()
                     res = run_slam(log, prof, cfg, seed)

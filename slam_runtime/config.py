@@ -17,6 +17,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from profiles.errors import DataError, UsageError
+from slam_runtime.glmb import GLMBConfig
+from slam_runtime.lmb import LMBConfig
 from slam_runtime.rbphd import RBPHDConfig
 
 
@@ -112,7 +114,7 @@ class MetricConfig(_Strict):
     plane_length: float = Field(default=10.0, gt=0.0, description="planes: L of the distance sqrt(L^2 |n1 - n2|^2 + (d1 - d2)^2) [m]")
 
 
-FilterConfig = Annotated[RBPHDConfig, Field(discriminator="kind")]
+FilterConfig = Annotated[RBPHDConfig | LMBConfig | GLMBConfig, Field(discriminator="kind")]
 
 
 class SlamConfig(_Strict):
@@ -131,7 +133,7 @@ class SlamConfig(_Strict):
     metric: MetricConfig = MetricConfig()
 
 
-FILTER_KINDS = ("rbphd",)
+FILTER_KINDS = ("rbphd", "lmb", "glmb")
 
 
 def override(cfg: SlamConfig, **changes) -> SlamConfig:
@@ -153,6 +155,18 @@ def override(cfg: SlamConfig, **changes) -> SlamConfig:
     except ValidationError as exc:
         e = exc.errors()[0]
         raise UsageError(f"{'.'.join(str(x) for x in e['loc'])}: {e['msg']}") from None
+
+
+def with_filter(cfg: SlamConfig, kind: str | None) -> SlamConfig:
+    """``cfg`` with the map filter ``kind``; the settings the two filters share (e.g. survival and birth of
+    LMB and delta-GLMB) carry over, the others take the new filter's defaults."""
+    if kind is None or kind == cfg.filter.kind:
+        return cfg
+    target = {"rbphd": RBPHDConfig, "lmb": LMBConfig, "glmb": GLMBConfig}.get(kind)
+    if target is None:
+        raise UsageError(f"filter.kind: {kind!r} is not available (expected one of {', '.join(FILTER_KINDS)})")
+    shared = {k: v for k, v in cfg.filter.model_dump().items() if k != "kind" and k in target.model_fields}
+    return override(cfg, **{"filter": {**shared, "kind": kind}})
 
 
 # ---------------------------------------------------------------------- factory
@@ -229,9 +243,15 @@ def feature_model(detection, noise: MeasurementNoiseConfig, mount: np.ndarray, m
 
 
 def map_filter(cfg: SlamConfig, feature, detection):
+    from slam_runtime.glmb import GLMB
+    from slam_runtime.lmb import LMB
     from slam_runtime.rbphd import RBPHD
 
     f = cfg.filter
     if f.kind == "rbphd":
         return RBPHD(feature, detection, f)
+    if f.kind == "lmb":
+        return LMB(feature, detection, f)
+    if f.kind == "glmb":
+        return GLMB(feature, detection, f)
     raise UsageError(f"filter.kind: {f.kind!r} is not available")

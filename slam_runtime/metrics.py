@@ -69,6 +69,14 @@ def gospa(x: np.ndarray, y: np.ndarray, c: float = 1.0, p: float = 1.0, distance
     }
 
 
+def axis_rmse(est: np.ndarray, truth: np.ndarray) -> tuple[float, float, float]:
+    """RMSE of x [m], y [m] and heading [rad] (wrapped differences) of est (N, 3) against truth (N, 3)."""
+    e = np.asarray(est, dtype=np.float64)[:, :3] - np.asarray(truth, dtype=np.float64)[:, :3]
+    e[:, 2] = (e[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    r = np.sqrt(np.mean(e * e, axis=0))
+    return float(r[0]), float(r[1]), float(r[2])
+
+
 def trajectory_rmse(est: np.ndarray, truth: np.ndarray, align: bool = False) -> float:
     """Position RMSE (m) of est (N, 3) against truth (N, 3); ``align`` applies the best rigid fit first."""
     e = rigid_align(est, truth) if align else np.asarray(est)

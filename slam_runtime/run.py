@@ -22,7 +22,7 @@ from detectors.geometry import compose, interpolate_poses, relative
 from detectors.logs import SensorLog
 from profiles.errors import DataError, UsageError
 from slam_runtime.config import SlamConfig, detection_model, feature_model, map_filter, vehicle_model
-from slam_runtime.metrics import gospa, ospa, trajectory_rmse
+from slam_runtime.metrics import axis_rmse, gospa, ospa, trajectory_rmse
 from slam_runtime.slam import RBSlam
 from slam_runtime.sources import CloudPlanes, LoggedDetections, ScanCircles, control_rows, frames
 
@@ -254,6 +254,9 @@ def evaluate(log: SensorLog, res: SlamResult, c: float = 1.0, p: float = 1.0, cf
         out[f"trajectory_rmse_vs_{key}_m"] = trajectory_rmse(est, truth, align)
         out[f"mean_trajectory_rmse_vs_{key}_m"] = trajectory_rmse(interpolate_poses(res.stamps, res.mean_trajectory, at), truth, align)
         out[f"odometry_rmse_vs_{key}_m"] = trajectory_rmse(dr, truth, align)
+        if key == "ground_truth":  # per axis (the delta-GLMB-SLAM paper's figs. 2-4)
+            rx, ry, rh = axis_rmse(est, truth)
+            out[f"rmse_x_vs_{key}_m"], out[f"rmse_y_vs_{key}_m"], out[f"rmse_heading_vs_{key}_deg"] = rx, ry, float(np.degrees(rh))
         out[f"final_position_error_vs_{key}_m"] = float(np.hypot(*(est[-1, :2] - truth[-1, :2]))) if not align else float("nan")
         out[f"points_vs_{key}"] = int(at.size)
     if log.planes is not None and res.map_xy.ndim == 2 and res.map_xy.shape[1] == 4:

@@ -27,18 +27,20 @@ class SweepJob:
     profile: object  # profiles.profile.DetectorProfile
     config: SlamConfig
     seed: int
-    labels: dict  # what varies: log, profile, pd_mode, particles, seed
+    labels: dict  # what varies: log, profile, filter, pd_mode, particles, seed
     max_frames: int | None = None
 
 
 def run_job(job: SweepJob, folder: Path) -> dict:
     """One run: filter, run folder, and the row for the sweep table."""
+    from slam_runtime.labels import labelled_hooks
     from slam_runtime.report import write_slam_run
     from slam_runtime.run import MapOSPA, evaluate, run_slam
 
     m = job.config.metric
     hooks = (MapOSPA(job.log.landmarks.xy, m.ospa_c, m.ospa_p),) if job.log.landmarks is not None else ()
-    res = run_slam(job.log, job.profile, job.config, job.seed, max_frames=job.max_frames, hooks=hooks)
+    labelled = labelled_hooks() if job.config.filter.kind != "rbphd" else ()
+    res = run_slam(job.log, job.profile, job.config, job.seed, max_frames=job.max_frames, hooks=hooks + labelled)
     res.metrics = evaluate(job.log, res, m.ospa_c, m.ospa_p, job.config)
     cfg = {
         "log": job.labels.get("log"),
@@ -47,7 +49,7 @@ def run_job(job: SweepJob, folder: Path) -> dict:
         "frames": job.max_frames,
         "settings": job.config.model_dump(mode="json"),
     }
-    write_slam_run(job.log, res, folder / job.name, cfg, overwrite=False)
+    write_slam_run(job.log, res, folder / job.name, cfg, overwrite=False, labels=labelled[0] if labelled else None)
     return {**job.labels, **{k: v for k, v in res.metrics.items() if not isinstance(v, str | dict)}}
 
 
