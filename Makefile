@@ -28,6 +28,9 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_detectors.py
 	$(BIN)/python benchmarks/bench_calibration.py
 	$(BIN)/python benchmarks/bench_slam.py
+	$(BIN)/python benchmarks/bench_planes.py
+	$(BIN)/python benchmarks/bench_plane_transition.py
+	$(BIN)/python benchmarks/bench_glmb.py
 
 # Regenerate the bundled profile with detcal's own calibration (reproducible bytes).
 builtin-profile: $(STAMP)

@@ -1,7 +1,7 @@
 """RB-PHD-SLAM speed and accuracy: the rfs-sim scenario and Victoria Park at 10, 50 and 200 particles,
 the per-stage split, and whether resampling stays as cheap at step 8,000 as at step 1,000.
 
-Run: ``python benchmarks/bench_slam.py [--quick]``. Single process, BLAS pinned to one
+Run: ``python benchmarks/bench_slam.py [--quick] [--parts sim,long,vp]``. Single process, BLAS pinned to one
 thread. ms/step is the filter's own time per frame (motion, P_D, update, weighting, merging,
 resampling); the per-stage split adds the measurement source ("detect"). Victoria Park is
 skipped when ``../shared/data`` is absent. The machine's load is printed first: compare the
@@ -59,7 +59,11 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="fewer seeds and frames")
     ap.add_argument("--long", type=int, default=10_000, help="steps of the long rfs-sim run (resampling cost)")
+    ap.add_argument("--parts", default="sim,long,vp", help="comma-separated: sim (rfs-sim at 10/50/200), long (resampling cost), vp")
     a = ap.parse_args()
+    parts = set(a.parts.split(","))
+    if not parts <= {"sim", "long", "vp"}:
+        ap.error(f"--parts: unknown part(s) {', '.join(sorted(parts - {'sim', 'long', 'vp'}))}")
     print("load average:", " ".join(f"{x:.2f}" for x in os.getloadavg()))
     seeds = [0] if a.quick else [0, 1, 2]
 
@@ -68,24 +72,36 @@ def main() -> None:
     log = simulate_rfs(sim_cfg, 1)
     prof = truth_profile(sim_cfg)
     cfg = load_yaml_model(SlamConfig, ROOT / "benchmarks/configs/rfs_sim.yaml")
-    for n in (10, 50, 200):
+    for n in (10, 50, 200) if "sim" in parts else ():
         for sd in seeds:
             c = override(cfg, particles=n)
             res = run_slam(log, prof, c, seed=sd)
             row("rfs-sim", n, sd, res, evaluate(log, res, cfg=c))
 
-    # resampling cost over a long run: steps ~1,000 against ~8,000
-    long = simulate_rfs(RfsSimConfig(steps=a.long, landmarks=max(50, a.long // 20)), 2)
-    c = override(cfg, particles=50, resample_ess=1.0)  # resample at every step: the worst case
+    if "long" in parts:
+        long_run(cfg, sim_cfg, a.long)
+    if "vp" in parts:
+        victoria_park(a.quick)
+
+
+def long_run(cfg, sim_cfg, steps) -> None:
+    """Resampling cost over a long run: steps ~1,000 against ~8,000, resampling at every step (the worst case)."""
+    long = simulate_rfs(RfsSimConfig(steps=steps, landmarks=max(50, steps // 20)), 2)
+    c = override(cfg, particles=50, resample_ess=1.0)
     res = run_slam(long, truth_profile(sim_cfg), c, seed=0)
     for at in (1000, 8000):
         sl = slice(at - 100, at + 100)
         print(
-            f"long rfs-sim ({a.long} steps, 50 particles, resampling every step): steps {at - 100}-{at + 100}: "
+            f"long rfs-sim ({steps} steps, 50 particles, resampling every step): steps {at - 100}-{at + 100}: "
             f"resampling {res.resample_ms[sl].mean():.3f} ms/step, whole step {res.step_ms[sl].mean():.2f} ms (CPU {res.step_cpu_ms[sl].mean():.2f}), "
-            f"components/particle {res.components[sl].mean():.0f}"
+            f"components/particle {res.components[sl].mean():.0f}",
+            flush=True,
         )
 
+
+def victoria_park(quick: bool) -> None:
+    """Victoria Park with the self-calibrated profile: 10 particles over the full run (1,500 frames with
+    --quick), 50 and 200 over the first 1,500 frames."""
     if not VP.is_dir():
         print(f"Victoria Park skipped: {VP} not found")
         return
@@ -93,7 +109,7 @@ def main() -> None:
     prof = load_profile_file(ROOT / "benchmarks/profiles/victoria-park-selfcal@1.0.0.yaml")
     cfg = load_yaml_model(SlamConfig, ROOT / "benchmarks/configs/victoria_park.yaml")
     for n in (10, 50, 200):
-        frames = None if n == 10 and not a.quick else 1500
+        frames = None if n == 10 and not quick else 1500
         c = override(cfg, particles=n)
         res = run_slam(vp, prof, c, seed=0, max_frames=frames)
         row(f"VP{'' if frames is None else f' {frames} fr'}", n, 0, res, evaluate(vp, res, cfg=c))

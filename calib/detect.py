@@ -57,7 +57,7 @@ def detect_config(profile_ref: str | None, config: Path | None) -> tuple[DetectC
 
     prof = resolve(profile_ref)
     if prof.detector.kind != "circle2d":
-        raise UsageError(f"profile {prof.ref} is for an external detector, not the circle detector")
+        raise UsageError(f"profile {prof.ref} is a {prof.kind} profile, not one of the circle detector")
     hot = None if prof.hotelling is None else HotellingParams.model_validate(prof.hotelling.model_dump(include=set(HotellingParams.model_fields)))
     cfg = DetectConfig(detector=prof.detector.circle, hotelling=hot, k_sigma=prof.detector.k_sigma)
     return cfg, prof.pd if prof.pd.covariate == "n_p" else None

@@ -196,9 +196,12 @@ def true_detections(log: SensorLog, gate: float, remap: dict[int, int] | None = 
     )
 
 
-def fit_noise(dets: pd.DataFrame) -> MeasurementNoise | None:
-    """Robust spread (1.4826 MAD) and median bias of the true detections' range and bearing residuals."""
-    t = dets[dets["true"]]
+def fit_noise(dets: pd.DataFrame, true: pd.Series | None = None) -> MeasurementNoise | None:
+    """Robust spread (1.4826 MAD) and median bias of the true detections' range and bearing residuals.
+
+    true: which rows are true detections (default: the ``true`` column).
+    """
+    t = dets[dets["true"] if true is None else true]
     if len(t) < 10:
         return None
     out = {}
@@ -263,6 +266,7 @@ class DetectionCalibration:
     labelled: list[Labelled] = field(default_factory=list)
     names: list[str] = field(default_factory=list)
     config: DetectionCalibConfig | None = None
+    motion: dict | None = None  # the odometry's noise and biases (calib.odometry), when the logs allow it
 
 
 def calibrate_detections(
@@ -407,7 +411,24 @@ def calibrate_detections(
                 "clutter_between_sensor_sd": spread["clutter_between_sd"],
             }
         )
-    return DetectionCalibration(profile, pairs, clut, summary, members, parts, names, cfg)
+    motion = odometry_of(logs)
+    if motion is not None:
+        v = motion["velocity"]
+        summary["odometry"] = {k: round(float(x), 4) for k, x in v.items()} | {"windows": motion["windows"]}
+    return DetectionCalibration(profile, pairs, clut, summary, members, parts, names, cfg, motion)
+
+
+def odometry_of(logs: list[SensorLog]) -> dict | None:
+    """The velocity odometry's noise and biases against the logs' ground truth (calib.odometry), or None
+    when a log has no velocity odometry or no ground-truth poses, or too little of both overlaps."""
+    from calib.odometry import fit_velocity_odometry
+
+    if not all(lg.odometry is not None and lg.odometry.kind == "velocity" and "ground_truth" in lg.reference for lg in logs):
+        return None
+    try:
+        return fit_velocity_odometry(logs)
+    except DataError:
+        return None
 
 
 def held_out_detections(profile: DetectorProfile, log: SensorLog, *, remap: dict[int, int], period: float) -> Held:
@@ -481,6 +502,10 @@ def fill_detection_run(cal: DetectionCalibration, folder) -> list[str]:
     (tmp / "summary.yaml").write_text(dump_yaml(cal.summary))
     if cal.config is not None:
         (tmp / "config.yaml").write_text(dump_yaml(cal.config.model_dump(mode="json")))
+    if cal.motion is not None:  # SLAM settings for `detcal slam run --config`: the vehicle model measured on these logs
+        v = {k: float(f"{x:.4g}") for k, x in cal.motion["velocity"].items()}
+        head = f"# velocity odometry measured against ground truth over {cal.motion['windows']} windows of {cal.motion['window_s']:g} s\n"
+        (tmp / "motion.yaml").write_text(head + dump_yaml({"motion": {"velocity": v}}))
     cal.pairs.to_csv(tmp / "pairs.csv.gz", index=False, float_format="%.9g", compression={"method": "gzip", "mtime": 0})
     if cal.profile.pd.two_d:
         plot_pd_grid(cal.profile.pd, cal.pairs, tmp / "pd_range_bearing.png")

@@ -6,7 +6,8 @@ e.g. Vicon) is compared with the motion the odometry rows integrate to:
 * velocity odometry (v, omega commands): the heading change and the distance
   travelled along the heading; their mean errors per second are the biases
   (``omega_offset``: the turn rate the commands add; ``speed_scale``: true
-  distance / commanded distance), and their spread the noise, expressed as the
+  distance along the path / commanded distance), and their spread (distance
+  errors once the scale is applied) the noise, expressed as the
   per-row standard deviations a filter draws (a white error of std s per row of
   duration dt spreads as s sqrt(dt) per second: s = spread / sqrt(dt)). The plain
   standard deviation, not a robust spread: the errors are heavy-tailed.
@@ -49,15 +50,21 @@ def fit_velocity_odometry(logs: list[SensorLog], window: float = 1.0) -> dict:
         d = cs_d[start + per] - cs_d[start]
         span = (st[start + per] - st[start]) / 1e9
         e_th.append((np.mod(rel[:, 2] - om + np.pi, 2 * np.pi) - np.pi) / span)
-        e_d.append((rel[:, 0] - d) / span)
-        dist_true += float(np.abs(rel[:, 0]).sum())
+        # the true distance along the path: the chord over a constant-curvature arc of the true heading
+        # change (the displacement along the start heading alone is short by ~omega^2 T^2 / 6 on curves)
+        half = 0.5 * np.mod(rel[:, 2] + np.pi, 2 * np.pi) - 0.5 * np.pi
+        arc = np.hypot(rel[:, 0], rel[:, 1]) * np.where(np.abs(half) > 1e-9, half / np.sin(np.where(half == 0, 1.0, half)), 1.0)
+        arc = np.copysign(arc, rel[:, 0])
+        e_d.append(np.column_stack([arc, d, span]))
+        dist_true += float(np.abs(arc).sum())
         dist_cmd += float(np.abs(d).sum())
     if not e_th:
         raise DataError("too little odometry inside the ground truth to measure it")
-    e_th, e_d = np.concatenate(e_th), np.concatenate(e_d)
+    scale = dist_true / dist_cmd if dist_cmd > 0 else 1.0
+    e_th, dd = np.concatenate(e_th), np.concatenate(e_d)
+    e_d = (dd[:, 0] - scale * dd[:, 1]) / dd[:, 2]  # the distance error once the scale is applied: the noise
     dt = float(np.median(np.concatenate(rows_dt)))
     omega_offset = -float(np.median(e_th))  # commands turn by omega; truth by omega - offset
-    scale = dist_true / dist_cmd if dist_cmd > 0 else 1.0
     # the plain standard deviation, not a robust one: the errors are heavy-tailed (slips, bumps; on UTIAS
     # the std of the heading error is 2-3x its MAD-based spread), and a Gaussian filter must cover the tails
     spread_th = float(np.std(e_th)) * np.sqrt(window)

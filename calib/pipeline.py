@@ -1,7 +1,8 @@
 """``detcal calibrate`` as one pipeline: logs in, a profile and its run folder out, written as one step.
 
 1. The logs decide which calibration applies (laser scans: the circle
-   detector and n_p; detection-level logs: P_D against range) and so which
+   detector and n_p; detection-level logs: P_D against range; point clouds
+   with plane truth: the plane detector, :mod:`calib.planes`) and so which
    config schema the ``--config`` file must follow.
 2. Scans and detection frames outside the ground truth's time span are
    dropped, and counted (:mod:`calib.truth`).
@@ -87,6 +88,11 @@ def detection_level(logs: list[SensorLog]) -> bool:
     return all(lg.scans is None and lg.detections is not None for lg in logs)
 
 
+def plane_logs(logs: list[SensorLog]) -> bool:
+    """True when every log carries point clouds and neither scans nor detections: planes in 3D."""
+    return all(lg.clouds is not None and lg.scans is None and lg.detections is None for lg in logs)
+
+
 def _seed(logs: list[SensorLog]) -> int | None:
     seeds = {lg.source.get("seed") for lg in logs if lg.source.get("seed") is not None}
     return seeds.pop() if len(seeds) == 1 else None
@@ -104,10 +110,21 @@ def run_calibration(job: CalibrationJob) -> CalibrationOutcome:
         lg, dropped = trim_to_truth(lg)
         notes += [f"log {lg.name!r}: {n} {what} outside the ground truth's time span dropped" for what, n in dropped.items()]
         logs.append(lg)
-    levels = detection_level(logs)
+    planes = plane_logs(logs)
+    levels = not planes and detection_level(logs)
     derived: tuple[str, ...] = ()
     members: list[str] = []
-    if levels:
+    if planes:
+        from calib.planes import PlaneCalibConfig
+
+        cfg = load_yaml_model(PlaneCalibConfig, job.config)
+        if job.landmarks is not None:
+            raise UsageError("--landmarks: lidar logs carry their plane truth")
+        if job.per_sensor:
+            raise UsageError("--per-sensor applies to detection-level logs (lidar logs are pooled)")
+        params = cfg.model_dump(mode="json")
+        seed = _seed(logs)
+    elif levels:
         from calib.detlevel import DetectionCalibConfig, sensor_names
 
         cfg = load_yaml_model(DetectionCalibConfig, job.config)
@@ -115,7 +132,7 @@ def run_calibration(job: CalibrationJob) -> CalibrationOutcome:
             raise UsageError("--landmarks: detection-level logs carry their landmark truth")
         # the frame period and the identity audit follow from the inputs and the config: not part of the request
         derived = ("frame_period", "identity_remap")
-        params = cfg.model_dump(mode="json")
+        params = {k: v for k, v in cfg.model_dump(mode="json").items() if k not in derived}
         seed = None
         if job.per_sensor:
             if len(logs) < 2:
@@ -137,7 +154,14 @@ def run_calibration(job: CalibrationJob) -> CalibrationOutcome:
     run_plan = _check_run_folder(run_dir, request, job.force)
     # ---- the work
     where = "in this process"
-    if levels:
+    if planes:
+        from calib.planes import calibrate_planes, fill_plane_run
+
+        cal = calibrate_planes(
+            logs, cfg, name=job.name, version=job.version, description=job.description, input_refs=list(job.inputs), command=job.command
+        )
+        fill = fill_plane_run
+    elif levels:
         from calib.detlevel import calibrate_detections, fill_detection_run
 
         if job.workers or job.scheduler:
@@ -240,7 +264,13 @@ def run_validation(profile, logs: list[SensorLog], *, landmarks: Path | None, po
         lg, dropped = trim_to_truth(lg)
         notes += [f"log {lg.name!r}: {n} {what} outside the ground truth's time span dropped" for what, n in dropped.items()]
         kept.append(lg)
-    if profile.detector.kind == "external":
+    if profile.detector.kind == "plane3d":
+        from calib.planes import validate_planes
+
+        if len(kept) > 1:
+            raise UsageError("validate one lidar log at a time")
+        v = validate_planes(profile, kept[0])
+    elif profile.detector.kind == "external":
         from calib.detlevel import validate_detections
 
         v = validate_detections(profile, kept)

@@ -5,7 +5,7 @@ A profile records the config it was made with and the choices the data made
 period and identity audit; the SLAM run of a self-calibration). These models
 say exactly which keys may appear -- one model per way detcal makes profiles
 of a detector kind: laser calibration; detection-level calibration,
-self-calibration and a simulator's truth profile -- so a misspelt or foreign
+self-calibration and a simulator's truth profile (the rfs-sim and glmb-paper scenarios) -- so a misspelt or foreign
 key in a profile is refused with its field path like everywhere else. They are registered with the profile store (:func:`register`), which
 cannot import ``calib`` itself; parameters recorded by another detcal version
 are kept as recorded.
@@ -63,9 +63,18 @@ def simulator_parameters() -> type:
     return RfsSimConfig  # the truth profile of a simulated scenario records the scenario's config
 
 
+@cache
+def glmb_paper_parameters() -> type:
+    from calib.sim.glmb_paper import GlmbPaperConfig
+
+    return GlmbPaperConfig  # the truth profile of the delta-GLMB paper's scenario records its config
+
+
 def register() -> None:
     """Every way this detcal makes profiles, per detector kind (a profile's parameters must fit one)."""
     from profiles.store import register_parameters
 
     register_parameters("circle2d", __version__, laser_parameters)
-    register_parameters("external", __version__, detection_parameters, selfcal_parameters, simulator_parameters)
+    register_parameters(
+        "external", __version__, detection_parameters, selfcal_parameters, simulator_parameters, glmb_paper_parameters
+    )

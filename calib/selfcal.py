@@ -36,6 +36,7 @@ from scipy.optimize import linear_sum_assignment
 
 from calib import __version__
 from calib.calibrate import created_now
+from calib.detlevel import fit_noise
 from calib.fits import ClutterFit, PdFitConfig, clutter_params, fit_clutter, fit_pd_table
 from detectors.geometry import compose
 from detectors.logs import SensorLog
@@ -156,16 +157,8 @@ def measure(log: SensorLog, trajectory: np.ndarray, map_xy: np.ndarray, sensor: 
 
 
 def noise_of(dets: pd.DataFrame) -> MeasurementNoise | None:
-    t = dets[dets["feature"] >= 0]
-    if len(t) < 10:
-        return None
-    out = {}
-    for col, key in (("range_residual", "range"), ("bearing_residual", "bearing")):
-        x = t[col].to_numpy()
-        med = float(np.median(x))
-        out[f"{key}_bias"] = med
-        out[f"{key}_sigma"] = max(float(1.4826 * np.median(np.abs(x - med))), 1e-6)
-    return MeasurementNoise(**out, samples=len(t))
+    """Range and bearing noise of the detections associated with a map feature."""
+    return fit_noise(dets, dets["feature"] >= 0)
 
 
 def self_calibrate(
@@ -261,7 +254,16 @@ def profile_change(a: DetectorProfile, b: DetectorProfile) -> float:
 
 
 def write_selfcal_run(log: SensorLog, history: list, out, *, overwrite: bool = False, last_run=None) -> list[str]:
-    """The run folder of ``detcal selfcal``.
+    """The run folder of ``detcal selfcal`` written atomically at ``out`` (see :func:`fill_selfcal_run`)."""
+    from calib.io.atomic import atomic_output
+
+    with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
+        tmp.mkdir()
+        return fill_selfcal_run(log, history, tmp, last_run=last_run)
+
+
+def fill_selfcal_run(log: SensorLog, history: list, tmp, *, last_run=None) -> list[str]:
+    """Fill the (new, empty) run folder ``tmp`` of ``detcal selfcal``.
 
     profile.yaml (the profile measured last), slam.yaml (the settings of the last run with the
     measured odometry biases, for ``detcal slam run --config``), iterations.csv (one row per SLAM
@@ -271,7 +273,6 @@ def write_selfcal_run(log: SensorLog, history: list, out, *, overwrite: bool = F
     into ``last_run/`` (the CLI passes the SLAM run-folder writer).
     """
     from calib.config import dump_yaml
-    from calib.io.atomic import atomic_output
     from profiles.store import dump_profile
 
     rows = []
@@ -283,19 +284,17 @@ def write_selfcal_run(log: SensorLog, history: list, out, *, overwrite: bool = F
         row.update({f"bias_{k}": v for k, v in it.bias.items()})
         rows.append(row)
     last = history[-1]
-    with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
-        tmp.mkdir()
-        (tmp / "profile.yaml").write_text(dump_profile(last.measured))
-        cfg = last.next_config if last.next_config is not None else last.config
-        (tmp / "slam.yaml").write_text(dump_yaml(cfg.model_dump(mode="json")))
-        pd.DataFrame(rows).to_csv(tmp / "iterations.csv", index=False, float_format="%.6g")
-        (tmp / "profiles").mkdir()
-        for it in history:
-            (tmp / "profiles" / f"iteration_{it.index}.yaml").write_text(dump_profile(it.measured))
-        (tmp / "summary.yaml").write_text(dump_yaml({"log": log.name, "iterations": len(history), "last": rows[-1]}))
-        _plot_iterations(history, tmp / "pd_iterations.png")
-        if last_run is not None:
-            last_run(tmp / "last_run")
+    (tmp / "profile.yaml").write_text(dump_profile(last.measured))
+    cfg = last.next_config if last.next_config is not None else last.config
+    (tmp / "slam.yaml").write_text(dump_yaml(cfg.model_dump(mode="json")))
+    pd.DataFrame(rows).to_csv(tmp / "iterations.csv", index=False, float_format="%.6g")
+    (tmp / "profiles").mkdir()
+    for it in history:
+        (tmp / "profiles" / f"iteration_{it.index}.yaml").write_text(dump_profile(it.measured))
+    (tmp / "summary.yaml").write_text(dump_yaml({"log": log.name, "iterations": len(history), "last": rows[-1]}))
+    _plot_iterations(history, tmp / "pd_iterations.png")
+    if last_run is not None:
+        last_run(tmp / "last_run")
     return ["pd_iterations.png"]
 
 

@@ -9,6 +9,7 @@ each a struct-of-arrays batch:
 * :class:`Landmarks`   -- reference landmark positions (world frame);
 * :class:`Detections`  -- detection-level records for logs without scans;
 * :class:`PointClouds` -- 3D point clouds (Velodyne frames);
+* :class:`PlaneLandmarks` -- reference planar landmarks with their outlines (world frame);
 * :class:`SensorModel` -- beam geometry, range limits and noise, mounting pose;
 * :class:`Vehicle`     -- geometry for motion models that need it (Ackermann).
 
@@ -340,6 +341,64 @@ class PointClouds:
         return self.points[self.offsets[i] : self.offsets[i + 1]]
 
 
+@dataclass(frozen=True, eq=False)
+class PlaneLandmarks:
+    """Reference planar landmarks (facades, walls, boards, car faces, the ground), world frame.
+
+    ids:      (L,) int64 identifiers (unique)
+    normal:   (L, 3) float64 unit normals; offset (L,) float64 [m]: the plane n . p = d
+    vertices: (V, 3) float64 outline vertices in order; plane l's are ``vertices[offsets[l]:offsets[l+1]]``
+    offsets:  (L + 1,) int64
+    kind:     (L,) str what each plane is (``facade``, ``wall``, ``board``, ``car``, ``ground``, ...)
+    """
+
+    ids: np.ndarray
+    normal: np.ndarray
+    offset: np.ndarray
+    vertices: np.ndarray
+    offsets: np.ndarray
+    kind: np.ndarray
+
+    def __post_init__(self) -> None:
+        ids = np.ascontiguousarray(self.ids, dtype=np.int64)
+        if ids.ndim != 1:
+            raise DataError(f"planes.ids: expected a 1-D array, got shape {ids.shape}")
+        if np.unique(ids).size != ids.size:
+            raise DataError("planes.ids: identifiers are not unique")
+        n = ids.size
+        normal = _check_rows(self.normal, n, 3, "planes.normal")
+        norm = np.linalg.norm(normal, axis=1)
+        bad = np.flatnonzero(~np.isfinite(norm) | (np.abs(norm - 1.0) > 1e-6))
+        if bad.size:
+            raise DataError(f"planes.normal[{int(bad[0])}]: not a unit vector")
+        off = np.ascontiguousarray(self.offsets, dtype=np.int64)
+        verts = np.ascontiguousarray(self.vertices, dtype=np.float64).reshape(-1, 3)
+        if off.shape != (n + 1,) or off[0] != 0 or off[-1] != verts.shape[0] or (np.diff(off) < 3).any():
+            raise DataError("planes.offsets: expected L + 1 offsets from 0 to the number of vertices, at least 3 vertices per plane")
+        kind = np.asarray(self.kind, dtype=str)
+        if kind.shape != (n,):
+            raise DataError(f"planes.kind: expected shape ({n},), got {kind.shape}")
+        object.__setattr__(self, "ids", ids)
+        object.__setattr__(self, "normal", normal)
+        object.__setattr__(self, "offset", _check_rows(np.reshape(self.offset, (-1,)), n, None, "planes.offset"))
+        object.__setattr__(self, "vertices", verts)
+        object.__setattr__(self, "offsets", off)
+        object.__setattr__(self, "kind", kind)
+
+    def __len__(self) -> int:
+        return int(self.ids.size)
+
+    def polygon(self, i: int) -> np.ndarray:
+        """(V_i, 3) outline of plane ``i``."""
+        return self.vertices[self.offsets[i] : self.offsets[i + 1]]
+
+    def take(self, idx: np.ndarray) -> PlaneLandmarks:
+        idx = np.asarray(idx, dtype=np.int64)
+        polys = [self.polygon(int(i)) for i in idx]
+        off = np.concatenate([[0], np.cumsum([p.shape[0] for p in polys])]).astype(np.int64)
+        return PlaneLandmarks(self.ids[idx], self.normal[idx], self.offset[idx], np.vstack(polys) if polys else np.zeros((0, 3)), off, self.kind[idx])
+
+
 class Event(NamedTuple):
     """One record of one stream: ``stream`` in {scan, odometry, reference:<source>, detections, clouds}."""
 
@@ -351,8 +410,8 @@ class Event(NamedTuple):
 class Frame(NamedTuple):
     """One scan or detection frame with the odometry rows that led to it.
 
-    index: frame number; stamp: int64 ns; kind: "scan" or "detections";
-    rows: the scan row, or the slice into ``log.detections`` arrays;
+    index: frame number; stamp: int64 ns; kind: "scan", "detections" or "cloud";
+    rows: the scan row, the slice into ``log.detections`` arrays, or the cloud's index;
     odometry: slice into ``log.odometry`` rows with stamp in (previous frame, this frame].
     """
 
@@ -381,6 +440,7 @@ class SensorLog:
     clouds: PointClouds | None = None
     vehicle: Vehicle | None = None
     source: Mapping[str, object] = field(default_factory=dict)
+    planes: PlaneLandmarks | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "reference", {k: self.reference[k] for k in sorted(self.reference)})
@@ -453,6 +513,8 @@ class SensorLog:
             out.append("detections")
         if self.clouds is not None:
             out.append("clouds")
+        if self.planes is not None:
+            out.append("planes")
         return out
 
     def time_span(self) -> tuple[int, int] | None:
@@ -495,7 +557,8 @@ class SensorLog:
             yield Event(st, names[w], i)
 
     def frames(self) -> Iterator[Frame]:
-        """Scan frames, or detection frames when the log has no scans, in time order."""
+        """Scan frames, or detection frames when the log has no scans, or point-cloud frames when it has
+        neither, in time order."""
         if self.scans is not None:
             fstamp, kind = self.scans.stamp, "scan"
             rows: list[int | slice] = list(range(len(self.scans)))
@@ -503,6 +566,9 @@ class SensorLog:
             fstamp, kind = self.detections.frame_stamp, "detections"
             off = self.detections.frame_slices()
             rows = [slice(int(a), int(b)) for a, b in zip(off[:-1], off[1:], strict=True)]
+        elif self.clouds is not None:
+            fstamp, kind = self.clouds.stamp, "cloud"
+            rows = list(range(len(self.clouds)))
         else:
             return
         if self.odometry is not None:

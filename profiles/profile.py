@@ -7,6 +7,7 @@ A profile is a versioned YAML document (schema version ``SCHEMA_VERSION``)::
     version: 1.0.0              # semantic version; a written version is never replaced silently
     description: ...
     detector:  {kind: circle2d, circle: {jump, min_points, ...}, k_sigma, buffer_samples, association_gate}
+               or {kind: plane3d, plane: {cell_azimuth_deg, ..., msse_t, ...}, ...}
     sensor:    {kind, n_beams, angle_min, angle_increment, range_min, range_max, range_sigma, fov, mount}
     hotelling: {names, mean, covariance, confidence, gamma, auc_hotelling, auc_fisher}
     pd:        {covariate: n_p | range | range_bearing, edges, bearing_edges, pd, counts, detections, wilson_low,
@@ -15,9 +16,12 @@ A profile is a versioned YAML document (schema version ``SCHEMA_VERSION``)::
                 nb_gof, density}
     sensors:   {names, member, pairs, pd_observed, pd_predicted, frames, clutter_rate, ...}   (optional)
     descriptor_likelihoods: {true: truncated_gaussian, false: uniform_ellipsoid, gaussian_mass, ellipsoid_volume}
+    planes:    {pd_grid, noise, max_elevation_deg, min_points, min_width, offset_max, slab_k_sigma, slab_ratio}  (plane3d only)
     provenance: {inputs: [{name, sha256}], detcal_version, command, parameters, created, seed}
 
 Every level forbids unknown keys; a wrong value is reported with its field path.
+A ``plane3d`` detector on a ``lidar3d`` sensor with a P_D table over ``points``
+and a ``planes`` section is the profile kind ``lidar3d-planes`` (:attr:`DetectorProfile.kind`).
 
 Schema versions: 2 added richer models (a range x bearing P_D grid, model
 selection records, negative-binomial clutter counts and a clutter density, the
@@ -26,6 +30,7 @@ them field by field, hence the new number. Every field added in 2 is optional
 with a default meaning the schema-1 behaviour, so schema-1 documents load
 unchanged and are written back byte for byte as schema 1 (:data:`V2_FIELDS` are
 left out); a schema-1 document that uses a schema-2 field is refused by name.
+The planar path (``plane3d`` detectors, ``sensor.lidar``, ``planes``) is schema 2.
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ from typing import Any, Literal
 
 from pydantic import Field, field_validator, model_validator
 
+from profiles.planes import PlaneDetectorParams, PlaneStats
 from profiles.schema import CircleDetectorParams, ClutterParams, HotellingParams, MeasurementNoise, PdTable, SensorModel, Strict
 
 SCHEMA_VERSION = 2
@@ -45,6 +51,7 @@ V2_FIELDS: dict = {
     "clutter": {"count_model", "size", "dispersion_test", "nb_gof", "density"},
     "hotelling": {"gamma_method", "coverage"},
     "sensors": True,
+    "planes": True,
 }
 NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]*$")
 SEMVER_RE = re.compile(r"^(0|[1-9]\d*)\.(0|[1-9]\d*)\.(0|[1-9]\d*)$")
@@ -62,11 +69,13 @@ class DetectorSpec(Strict):
 
     ``circle2d``: the thesis's laser circle detector run by detcal (``circle`` holds
     its parameters). ``external``: detections produced elsewhere and read from the
-    log (a camera's barcode detector, a vendor's tree extractor).
+    log (a camera's barcode detector, a vendor's tree extractor). ``plane3d``: detcal's
+    plane detector on 3D lidar clouds (``plane`` holds its parameters).
     """
 
-    kind: Literal["circle2d", "external"] = "circle2d"
+    kind: Literal["circle2d", "external", "plane3d"] = "circle2d"
     circle: CircleDetectorParams | None = None
+    plane: PlaneDetectorParams | None = None
     k_sigma: float = Field(default=3.0, gt=0.0, description="occlusion tolerance of the n_p ray tracer, in sigma_r")
     buffer_samples: int = Field(default=5, ge=1, description="lateral samples of the buffer-zone rule (odd)")
     association_gate: float = Field(default=1.0, gt=0.0, description="detection-landmark gate used in calibration [m]")
@@ -81,8 +90,12 @@ class DetectorSpec(Strict):
     def _circle(self) -> DetectorSpec:
         if self.kind == "circle2d" and self.circle is None:
             self.circle = CircleDetectorParams()
-        if self.kind == "external" and self.circle is not None:
-            raise ValueError("an external detector has no circle parameters")
+        if self.kind != "circle2d" and self.circle is not None:
+            raise ValueError(f"a {self.kind} detector has no circle parameters")
+        if self.kind == "plane3d" and self.plane is None:
+            self.plane = PlaneDetectorParams()
+        if self.kind != "plane3d" and self.plane is not None:
+            raise ValueError(f"a {self.kind} detector has no plane parameters")
         if self.buffer_samples % 2 == 0:
             raise ValueError("buffer_samples must be odd")
         return self
@@ -180,6 +193,7 @@ class DetectorProfile(Strict):
     descriptor_likelihoods: DescriptorLikelihoods | None = None
     noise: MeasurementNoise | None = Field(default=None, description="measurement noise of true detections (written only when measured)")
     sensors: SensorSpread | None = Field(default=None, description="the sensors behind the profile and their spread (written only when several)")
+    planes: PlaneStats | None = Field(default=None, description="plane3d detectors: P_D grid, noise, landmark planes (written only for them)")
     provenance: Provenance
 
     @field_validator("name")
@@ -204,6 +218,13 @@ class DetectorProfile(Strict):
                 raise ValueError("pd.covariate n_p needs sensor.n_beams and sensor.range_sigma")
         if (self.descriptor_likelihoods is not None) and self.hotelling is None:
             raise ValueError("descriptor_likelihoods need a hotelling model")
+        planar = self.detector.kind == "plane3d"
+        if planar and (self.sensor.kind != "lidar3d" or self.sensor.lidar is None):
+            raise ValueError("a plane3d detector needs a lidar3d sensor with its lidar geometry")
+        if planar and (self.pd.covariate != "points" or self.planes is None or self.clutter.space != "plane"):
+            raise ValueError("a plane3d profile needs pd.covariate points, a planes section and clutter.space plane")
+        if not planar and (self.planes is not None or self.pd.covariate == "points"):
+            raise ValueError("planes and a P_D table over points belong to plane3d detectors")
         if self.pd.two_d and self.detector.kind == "circle2d":
             raise ValueError("a range_bearing P_D table is for detection-level sensors (external detector)")
         if self.schema_version == 1:
@@ -211,6 +232,15 @@ class DetectorProfile(Strict):
             if used:
                 raise ValueError(f"{used[0]} needs schema_version 2 (this document says 1)")
         return self
+
+    @property
+    def kind(self) -> str:
+        """What the profile is for: ``laser2d-circles``, ``lidar3d-planes`` or ``<sensor kind>-external``."""
+        if self.detector.kind == "plane3d":
+            return "lidar3d-planes"
+        if self.detector.kind == "circle2d":
+            return f"{self.sensor.kind}-circles"
+        return f"{self.sensor.kind}-external"
 
     @property
     def ref(self) -> str:
@@ -228,4 +258,10 @@ def schema2_fields_used(p: DetectorProfile) -> list[str]:
         used += [f"hotelling.{k}" for k in sorted(V2_FIELDS["hotelling"]) if getattr(h, k) != type(h).model_fields[k].default]
     if p.sensors is not None:
         used.append("sensors")
+    if p.detector.kind == "plane3d":
+        used.insert(0, "detector.kind")
+    if p.sensor.lidar is not None:
+        used.append("sensor.lidar")
+    if p.planes is not None:
+        used.append("planes")
     return used

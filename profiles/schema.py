@@ -39,6 +39,20 @@ class Vehicle(Strict):
     encoder_offset: float = Field(default=0.0, ge=0.0)
 
 
+class LidarGeometry(Strict):
+    """Beam layout of a spinning multi-beam lidar (kind ``lidar3d``, e.g. a Velodyne HDL-64E).
+
+    One ring per vertical angle, columns every ``azimuth_increment_deg`` around the
+    full circle; ``height`` is the sensor's height above the vehicle frame's origin
+    (the ground under the vehicle), so planes in the sensor frame can be placed in 3D.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    vertical_angles_deg: list[float] = Field(min_length=1, description="elevation of each ring [deg], sensor frame")
+    azimuth_increment_deg: float = Field(gt=0.0, le=10.0, description="azimuth step between columns [deg]")
+    height: float = Field(default=0.0, description="sensor height above the vehicle frame origin [m]")
+
+
 class BeamGeometry(Strict):
     """One beam layout of a 2D laser: beam ``i`` points at ``angle_min + i * angle_increment`` (sensor frame, radians)."""
 
@@ -68,7 +82,8 @@ class SensorModel(Strict):
     count (the width of the scan arrays) and each scan says which layout it
     used (:meth:`detectors.logs.SensorLog.scan_angles`). Detection-only
     sensors (a camera, a vendor's tree extractor) give ``fov`` instead of a
-    beam geometry.
+    beam geometry. A 3D lidar gives its ring and column layout in ``lidar``
+    (written only when present).
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -81,6 +96,7 @@ class SensorModel(Strict):
     range_sigma: float | None = Field(default=None, ge=0.0, allow_inf_nan=False)
     fov: float | None = Field(default=None, gt=0.0, le=2 * np.pi + 1e-9)
     mount: Mount = Mount()
+    lidar: LidarGeometry | None = None
     geometries: tuple[BeamGeometry, ...] | None = Field(
         default=None, description="beam layouts of a laser whose scans differ (written only when there are several)"
     )
@@ -101,8 +117,10 @@ class SensorModel(Strict):
     @model_serializer(mode="wrap")
     def _omit_single_geometry(self, handler):
         data = handler(self)
-        if isinstance(data, dict) and data.get("geometries") is None:
-            data.pop("geometries", None)  # absent rather than null: logs and profiles of one layout keep their bytes
+        if isinstance(data, dict):
+            for key in ("geometries", "lidar"):  # absent rather than null: logs and profiles without them keep their bytes
+                if data.get(key, 0) is None:
+                    data.pop(key)
         return data
 
     def angles(self) -> np.ndarray:
@@ -233,7 +251,7 @@ class PdTable(Strict):
     about the pooled one in each bin, beyond binomial noise (beta-binomial).
     """
 
-    covariate: Literal["n_p", "range", "range_bearing"] = "n_p"
+    covariate: Literal["n_p", "range", "range_bearing", "points"] = "n_p"
     edges: list[float] = Field(min_length=2)
     bearing_edges: list[float] | None = Field(default=None, min_length=2)
     pd: list[float] | list[list[float]]
@@ -386,7 +404,8 @@ class ClutterDensity(Strict):
 class ClutterParams(Strict):
     """Clutter: ``rate`` false alarms per frame, spread over the measurement space.
 
-    space: ``range_bearing`` (volume in m*rad) or ``xy`` (area in m^2). ``kappa`` is
+    space: ``range_bearing`` (volume in m*rad), ``xy`` (area in m^2) or ``plane``
+    (the chart of landmark planes: azimuth x elevation x offset, in rad^2 m). ``kappa`` is
     the mean intensity rate / volume (uniform, thesis sec. 4.2); with a ``density``
     (schema 2) the intensity is rate x density(range, bearing) instead.
 
@@ -400,7 +419,7 @@ class ClutterParams(Strict):
     """
 
     rate: float = Field(ge=0.0, description="lambda: mean false alarms per scan")
-    space: Literal["range_bearing", "xy"] = "range_bearing"
+    space: Literal["range_bearing", "xy", "plane"] = "range_bearing"
     volume: float = Field(gt=0.0, description="size of the field of view in the measurement space")
     kappa: float | None = Field(default=None, ge=0.0, description="clutter intensity rate / volume (filled in when omitted)")
     chi2: float | None = None

@@ -143,9 +143,14 @@ def dump_profile(profile: DetectorProfile, fmt: str = "yaml") -> str:
     use them), so it keeps its bytes.
     """
     data = profile.model_dump(mode="json", exclude=V2_FIELDS if profile.schema_version == 1 else None)
-    for section in ("noise", "sensors"):  # optional sections: absent rather than null, so older profiles keep their bytes
+    for section in ("noise", "sensors", "planes"):  # optional sections: absent rather than null, so older profiles keep their bytes
         if data.get(section) is None:
             data.pop(section, None)
+    det = data.get("detector", {})
+    if det.get("plane", 0) is None:
+        det.pop("plane")
+    if det.get("kind") == "plane3d" and det.get("circle", 0) is None:
+        det.pop("circle")
     if fmt == "json":
         return json.dumps(data, indent=2) + "\n"
     if fmt != "yaml":
@@ -229,6 +234,21 @@ def check_save(request: Request, folder: str | Path | None = None, *, force: boo
         return path, "unchanged"
     if not force:
         raise UsageError(f"{path}: profile {request.ref} exists with other content; bump the version (--version) or use --force")
+    return path, "replace"
+
+
+def check_new_version(name: str, version: str, folder: str | Path | None = None, *, force: bool = False) -> tuple[Path, str]:
+    """Where a profile whose content is only known after the work (self-calibration) will be saved,
+    decided before any work: (path, ``"write"`` or ``"replace"``). An existing version is refused
+    unless ``force``; a bundled name@version is always refused (a user profile would shadow it)."""
+    folder = Path(folder) if folder is not None else user_dirs()[0]
+    path = folder / f"{name}@{version}.yaml"
+    if bundled(name, version) is not None and folder.resolve() != BUILTIN.resolve():
+        raise UsageError(f"profile {name}@{version} is bundled with detcal; a user profile of that name and version would shadow it: choose another --name or --version")
+    if not os.path.lexists(path):
+        return path, "write"
+    if not force:
+        raise UsageError(f"{path}: profile {name}@{version} exists; bump the version (--version) or use --force")
     return path, "replace"
 
 

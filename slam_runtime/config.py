@@ -17,6 +17,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from profiles.errors import DataError, UsageError
+from slam_runtime.glmb import GLMBConfig
+from slam_runtime.lmb import LMBConfig
 from slam_runtime.rbphd import RBPHDConfig
 
 
@@ -54,10 +56,24 @@ class AckermannNoise(_Strict):
     speed_scale: float = Field(default=1.0, gt=0.5, lt=2.0, description="factor on every speed reading")
 
 
+class ECTNoise(_Strict):
+    """Extended Constant Turn model (eq. 36 of Gostar et al.) driven by speed and yaw-rate odometry."""
+
+    sigma_v: float = Field(default=0.15, ge=0.0, description="speed reading [m/s]")
+    sigma_omega: float = Field(default=0.03, ge=0.0, description="yaw-rate reading [rad/s]")
+    sigma_ax: float = Field(default=0.05, ge=0.0, description="model acceleration noise along X [m/s^2]")
+    sigma_ay: float = Field(default=0.05, ge=0.0, description="model acceleration noise along Y [m/s^2]")
+    sigma_alpha: float = Field(default=0.005, ge=0.0, description="model yaw acceleration noise [rad/s^2]")
+
+
 class MotionNoise(_Strict):
+    model: Literal["auto", "ect"] = Field(
+        default="auto", description="auto: by the odometry's kind (ECT for planar features on speed and yaw-rate odometry); ect: always ECT"
+    )
     increment: IncrementNoise = IncrementNoise()
     velocity: VelocityNoise = VelocityNoise()
     ackermann: AckermannNoise = AckermannNoise()
+    ect: ECTNoise = ECTNoise()
 
 
 class MeasurementNoiseConfig(_Strict):
@@ -65,6 +81,9 @@ class MeasurementNoiseConfig(_Strict):
 
     sigma_range: float | None = Field(default=None, gt=0.0, description="[m]")
     sigma_bearing: float | None = Field(default=None, gt=0.0, description="[rad]")
+    sigma_azimuth: float | None = Field(default=None, gt=0.0, description="planes: normal azimuth [rad]")
+    sigma_elevation: float | None = Field(default=None, gt=0.0, description="planes: normal elevation [rad]")
+    sigma_offset: float | None = Field(default=None, gt=0.0, description="planes: offset [m]")
 
 
 class DetectionOptions(_Strict):
@@ -92,12 +111,14 @@ class DetectionOptions(_Strict):
 class MetricConfig(_Strict):
     ospa_c: float = Field(default=1.0, gt=0.0, description="OSPA / GOSPA cut-off [m]")
     ospa_p: float = Field(default=1.0, ge=1.0, description="OSPA / GOSPA order")
+    plane_length: float = Field(default=10.0, gt=0.0, description="planes: L of the distance sqrt(L^2 |n1 - n2|^2 + (d1 - d2)^2) [m]")
 
 
-FilterConfig = Annotated[RBPHDConfig, Field(discriminator="kind")]
+FilterConfig = Annotated[RBPHDConfig | LMBConfig | GLMBConfig, Field(discriminator="kind")]
 
 
 class SlamConfig(_Strict):
+    features: Literal["points", "planes"] = Field(default="points", description="point landmarks (2D) or planes (3D lidar clouds)")
     particles: int = Field(default=20, ge=1, le=100_000)
     resampler: Literal["systematic", "stratified", "multinomial", "residual"] = "systematic"
     resample_ess: float = Field(default=0.5, gt=0.0, le=1.0, description="resample when ESS < this x particles")
@@ -112,7 +133,7 @@ class SlamConfig(_Strict):
     metric: MetricConfig = MetricConfig()
 
 
-FILTER_KINDS = ("rbphd",)
+FILTER_KINDS = ("rbphd", "lmb", "glmb")
 
 
 def override(cfg: SlamConfig, **changes) -> SlamConfig:
@@ -136,11 +157,29 @@ def override(cfg: SlamConfig, **changes) -> SlamConfig:
         raise UsageError(f"{'.'.join(str(x) for x in e['loc'])}: {e['msg']}") from None
 
 
+def with_filter(cfg: SlamConfig, kind: str | None) -> SlamConfig:
+    """``cfg`` with the map filter ``kind``; the settings the two filters share (e.g. survival and birth of
+    LMB and delta-GLMB) carry over, the others take the new filter's defaults."""
+    if kind is None or kind == cfg.filter.kind:
+        return cfg
+    target = {"rbphd": RBPHDConfig, "lmb": LMBConfig, "glmb": GLMBConfig}.get(kind)
+    if target is None:
+        raise UsageError(f"filter.kind: {kind!r} is not available (expected one of {', '.join(FILTER_KINDS)})")
+    shared = {k: v for k, v in cfg.filter.model_dump().items() if k != "kind" and k in target.model_fields}
+    return override(cfg, **{"filter": {**shared, "kind": kind}})
+
+
 # ---------------------------------------------------------------------- factory
-def vehicle_model(kind: str, noise: MotionNoise, vehicle=None):
-    """The vehicle model that odometry of ``kind`` drives."""
+def vehicle_model(kind: str, noise: MotionNoise, vehicle=None, features: str = "points"):
+    """The vehicle model that odometry of ``kind`` drives (the ECT model for planes on speed and yaw-rate odometry)."""
     from slam_runtime.vehicle import Ackermann, OdometryIncrement, Unicycle
 
+    if noise.model == "ect" or (features == "planes" and kind == "velocity"):
+        if kind != "velocity":
+            raise DataError(f"the ECT model takes speed and yaw-rate odometry, not {kind!r}")
+        from slam_runtime.ect import ECT
+
+        return ECT(**noise.ect.model_dump())
     if kind in ("pose", "increment"):
         return OdometryIncrement(**noise.increment.model_dump())
     if kind == "velocity":
@@ -156,6 +195,13 @@ def detection_model(profile, opts: DetectionOptions, sensor=None):
     """The profile's runtime detection model with the filter's options."""
     from detectors.model import DetectionModel
 
+    if profile.detector.kind == "plane3d":
+        from detectors.plane_model import PlaneDetectionModel
+
+        return PlaneDetectionModel.from_profile(
+            profile, constant_pd=opts.constant_pd if opts.pd_mode == "constant" else None, buffer=opts.buffer_zone, buffer_sigmas=opts.buffer_sigmas
+        )
+
     return DetectionModel.from_profile(
         profile,
         sensor,
@@ -168,9 +214,27 @@ def detection_model(profile, opts: DetectionOptions, sensor=None):
     )
 
 
-def feature_model(detection, noise: MeasurementNoiseConfig, mount: np.ndarray):
-    """The range-bearing point feature with its noise floor (settings, else the profile's measured noise, else 0.1 m / 0.01 rad)."""
+#: least (azimuth [rad], elevation [rad], offset [m]) noise of a plane measurement when the settings give none
+PLANE_NOISE_FLOOR = (0.005, 0.005, 0.05)
+
+
+def feature_model(detection, noise: MeasurementNoiseConfig, mount: np.ndarray, metric: MetricConfig | None = None):
+    """The range-bearing point feature with its noise floor (settings, else the profile's measured noise, else 0.1 m / 0.01 rad);
+    for a plane detection model the plane feature (settings, else the profile's measured chart noise)."""
     from slam_runtime.features import RangeBearing
+
+    if hasattr(detection, "in_view"):  # planes
+        from slam_runtime.plane_features import PlaneFeature
+
+        # the profile's noise of true detections, but no less than PLANE_NOISE_FLOOR: tens of particles cannot
+        # follow a likelihood narrower than their own spread (on the simulated street the profile's 0.01 deg and
+        # 3 mm left the map 0.8 deg and 8 cm off; this floor 0.03 deg and 2 cm)
+        sa, se, so = np.maximum(detection.noise_sigmas, PLANE_NOISE_FLOOR)
+        sa = noise.sigma_azimuth if noise.sigma_azimuth is not None else sa
+        se = noise.sigma_elevation if noise.sigma_elevation is not None else se
+        so = noise.sigma_offset if noise.sigma_offset is not None else so
+        length = (metric or MetricConfig()).plane_length
+        return PlaneFeature(np.diag([sa**2, se**2, so**2]), mount, height=detection.height, metric_length=length)
 
     sr, sb = detection.noise_sigmas if detection.noise is not None else (0.1, 0.01)
     sr = noise.sigma_range if noise.sigma_range is not None else sr
@@ -179,9 +243,15 @@ def feature_model(detection, noise: MeasurementNoiseConfig, mount: np.ndarray):
 
 
 def map_filter(cfg: SlamConfig, feature, detection):
+    from slam_runtime.glmb import GLMB
+    from slam_runtime.lmb import LMB
     from slam_runtime.rbphd import RBPHD
 
     f = cfg.filter
     if f.kind == "rbphd":
         return RBPHD(feature, detection, f)
+    if f.kind == "lmb":
+        return LMB(feature, detection, f)
+    if f.kind == "glmb":
+        return GLMB(feature, detection, f)
     raise UsageError(f"filter.kind: {f.kind!r} is not available")

@@ -129,12 +129,24 @@ class GMBatch:
         return (g * self.w[:, None, :]).sum(axis=2)
 
 
-def prune_merge(gm: GMBatch, *, prune: float = 1e-4, merge: float = 4.0, cap: int = 200, inflate: float = 1.0) -> tuple[GMBatch, bool]:
+def prune_merge(
+    gm: GMBatch, *, prune: float = 1e-4, merge: float = 4.0, cap: int = 200, inflate: float = 1.0, mutual: bool = False
+) -> tuple[GMBatch, bool]:
     """Vo & Ma pruning and merging for every particle; at most ``cap`` components each.
 
     merge: squared Mahalanobis distance under which components merge.
-    inflate: factor on the covariance of a merged group of two or more (the
-    C++ RFS-SLAM library's ``covInflationFactor``); 1 = the moment match.
+    inflate: factor on the spread of the merged means (the between-component
+    term of the moment match); 1 = the moment match, a group of one is never
+    changed. Not the C++ RFS-SLAM library's ``covInflationFactor``, which
+    multiplies the whole merged covariance: with a low P_D a mapped feature
+    merges with its own missed-detection copy at every step, so that factor
+    compounds (measured on UTIAS at P_D ~ 0.3: covariances grew ~1.05x per step
+    until they overflowed); inflating the spread adds uncertainty in proportion
+    to how far apart the merged means were, and does not compound.
+    mutual: a component joins the head only when each lies in the other's gate
+    (Vo & Ma test only the head's): a heavy, broad head (a feature seen from
+    afar, or one already grown by merging) then cannot swallow a well-localised
+    neighbouring landmark, while duplicates of one landmark still merge.
     Returns the mixture and whether the cap bound (a particle had more merged
     components than ``cap``; its lightest were dropped, as Vo & Ma do).
 
@@ -155,7 +167,7 @@ def prune_merge(gm: GMBatch, *, prune: float = 1e-4, merge: float = 4.0, cap: in
     w = np.take_along_axis(gm.w, order, axis=1)
     mu = np.take_along_axis(gm.mu, order[..., None], axis=1)
     cov = np.take_along_axis(gm.cov, order[..., None, None], axis=1)
-    label, filled, _ = _group(w, mu, inv(cov), prune, merge, k)
+    label, filled, _ = _group(w, mu, inv(cov), prune, merge, k, mutual)
     capped = bool(k < n_alive.max())
     if filled == 0:
         return GMBatch.empty(p, 0, d), capped
@@ -169,11 +181,9 @@ def prune_merge(gm: GMBatch, *, prune: float = 1e-4, merge: float = 4.0, cap: in
     safe = np.where(tot > 0, tot, 1.0)
     m = np.stack([np.bincount(idx, weights=wt * mu[ok][:, c], minlength=n) for c in range(d)], axis=-1) / safe[:, None]
     dm = mu[ok] - m[idx]
-    second = cov[ok] + dm[:, :, None] * dm[:, None, :]
+    second = cov[ok] + inflate * (dm[:, :, None] * dm[:, None, :])
     c = np.stack([np.bincount(idx, weights=wt * second[:, a, b], minlength=n) for a in range(d) for b in range(d)], axis=-1)
     c = c.reshape(n, d, d) / safe[:, None, None]
-    if inflate != 1.0:
-        c = np.where((size > 1)[:, None, None], c * inflate, c)
     c[tot == 0] = np.eye(d)
     out = GMBatch(tot.reshape(p, filled), m.reshape(p, filled, d), c.reshape(p, filled, d, d))
     if filled > cap:  # Vo & Ma: keep the cap heaviest merged components
@@ -184,7 +194,7 @@ def prune_merge(gm: GMBatch, *, prune: float = 1e-4, merge: float = 4.0, cap: in
 
 
 @numba.njit(cache=True, nogil=True)
-def _group(w, mu, icov, prune, merge, cap):  # pragma: no cover - compiled
+def _group(w, mu, icov, prune, merge, cap, mutual):  # pragma: no cover - compiled
     """Vo & Ma grouping of components sorted by weight (heaviest first) in every particle.
 
     w (P, K), mu (P, K, d), icov (P, K, d, d) the inverse covariances. Returns
@@ -209,11 +219,14 @@ def _group(w, mu, icov, prune, merge, cap):  # pragma: no cover - compiled
                 if label[a, j] >= 0 or w[a, j] <= prune:
                     continue
                 m2 = 0.0
+                m2j = 0.0
                 for r in range(d):
                     dr = mu[a, j, r] - mu[a, i, r]
                     for c in range(d):
-                        m2 += dr * icov[a, i, r, c] * (mu[a, j, c] - mu[a, i, c])
-                if m2 <= merge:
+                        dc = mu[a, j, c] - mu[a, i, c]
+                        m2 += dr * icov[a, i, r, c] * dc
+                        m2j += dr * icov[a, j, r, c] * dc
+                if m2 <= merge and (not mutual or m2j <= merge):
                     label[a, j] = slot
             slot += 1
         if slot > filled:

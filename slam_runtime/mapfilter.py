@@ -87,6 +87,10 @@ class MapFilter(ABC):
     @abstractmethod
     def empty(self, n: int) -> MapState: ...
 
+    def bind(self, rng: np.random.Generator) -> None:
+        """Receive the run's generator (the particle loop calls this); filters that sample (the Gibbs
+        sampler of the labelled filters) draw from it, the others ignore it."""
+
     def predict(self, maps: MapState, dt: float) -> MapState:
         return maps
 

@@ -25,8 +25,9 @@ def _points(a: np.ndarray, dim: int) -> np.ndarray:
     return a.reshape(-1, dim) if a.size else np.zeros((0, dim))
 
 
-def ospa(x: np.ndarray, y: np.ndarray, c: float = 1.0, p: float = 1.0) -> float:
-    """OSPA distance between point sets x (m, d) and y (n, d)."""
+def ospa(x: np.ndarray, y: np.ndarray, c: float = 1.0, p: float = 1.0, distance=None) -> float:
+    """OSPA distance between point sets x (m, d) and y (n, d); ``distance(a, b) -> (m, n)`` replaces the
+    Euclidean base distance (e.g. planes, where a point and its negation are the same plane)."""
     dim = max(np.asarray(x).shape[-1] if np.asarray(x).ndim > 1 else 2, np.asarray(y).shape[-1] if np.asarray(y).ndim > 1 else 2)
     x, y = _points(x, dim), _points(y, dim)
     m, n = x.shape[0], y.shape[0]
@@ -36,19 +37,21 @@ def ospa(x: np.ndarray, y: np.ndarray, c: float = 1.0, p: float = 1.0) -> float:
         return float(c)
     if m > n:
         x, y, m, n = y, x, n, m
-    cost = np.minimum(cdist(x, y), c) ** p
+    cost = np.minimum(cdist(x, y) if distance is None else distance(x, y), c) ** p
     r, k = linear_sum_assignment(cost)
     return float(((cost[r, k].sum() + c**p * (n - m)) / n) ** (1.0 / p))
 
 
-def gospa(x: np.ndarray, y: np.ndarray, c: float = 1.0, p: float = 1.0) -> dict:
-    """GOSPA (alpha = 2) between estimate x and truth y: total and its localisation / missed / false parts."""
-    x, y = _points(x, 2), _points(y, 2)
+def gospa(x: np.ndarray, y: np.ndarray, c: float = 1.0, p: float = 1.0, distance=None) -> dict:
+    """GOSPA (alpha = 2) between estimate x and truth y: total and its localisation / missed / false parts;
+    ``distance`` as for :func:`ospa`."""
+    dim = 2 if distance is None else max(np.asarray(x).shape[-1] if np.asarray(x).ndim > 1 else 2, np.asarray(y).shape[-1] if np.asarray(y).ndim > 1 else 2)
+    x, y = _points(x, dim), _points(y, dim)
     m, n = x.shape[0], y.shape[0]
     loc = 0.0
     assigned = 0
     if m and n:
-        d = cdist(x, y)
+        d = cdist(x, y) if distance is None else distance(x, y)
         cost = np.minimum(d, c) ** p
         r, k = linear_sum_assignment(cost)
         keep = d[r, k] < c  # pairs at c or beyond cost as much left apart
@@ -64,6 +67,14 @@ def gospa(x: np.ndarray, y: np.ndarray, c: float = 1.0, p: float = 1.0) -> dict:
         "n_missed": n - assigned,
         "n_false": m - assigned,
     }
+
+
+def axis_rmse(est: np.ndarray, truth: np.ndarray) -> tuple[float, float, float]:
+    """RMSE of x [m], y [m] and heading [rad] (wrapped differences) of est (N, 3) against truth (N, 3)."""
+    e = np.asarray(est, dtype=np.float64)[:, :3] - np.asarray(truth, dtype=np.float64)[:, :3]
+    e[:, 2] = (e[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    r = np.sqrt(np.mean(e * e, axis=0))
+    return float(r[0]), float(r[1]), float(r[2])
 
 
 def trajectory_rmse(est: np.ndarray, truth: np.ndarray, align: bool = False) -> float:

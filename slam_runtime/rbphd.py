@@ -48,7 +48,10 @@ class RBPHDConfig(BaseModel):
     adaptive_birth: bool = Field(default=True, description="scale each birth by the share of its measurement the map left unexplained")
     prune: float = Field(default=1e-3, gt=0.0)
     merge: float = Field(default=4.0, gt=0.0, description="squared Mahalanobis distance for merging")
-    merge_inflation: float = Field(default=1.0, ge=1.0, description="factor on the covariance of a merged group")
+    merge_rule: Literal["head", "mutual"] = Field(
+        default="head", description="merge a component into the heaviest one when it lies in the head's gate (Vo & Ma), or in both gates"
+    )
+    merge_inflation: float = Field(default=1.0, ge=1.0, description="factor on the spread of the means of a merged group (not on the whole covariance: that compounds)")
     cap: int = Field(default=150, ge=1, description="components per particle at most")
     gate: float = Field(default=16.0, gt=0.0, description="squared Mahalanobis distance beyond which a measurement does not update a component")
     landmark_noise: float = Field(default=0.0, ge=0.0, description="landmark position variance added per second [m^2/s]")
@@ -201,7 +204,7 @@ class RBPHD(MapFilter):
             else:
                 loglik = self._log_weight(prior, upd, pd_upd, sp, z, kappa, rz)
         with tm("merge"):
-            gm, capped = prune_merge(upd, prune=cfg.prune, merge=cfg.merge, cap=cfg.cap, inflate=cfg.merge_inflation)
+            gm, capped = prune_merge(upd, prune=cfg.prune, merge=cfg.merge, cap=cfg.cap, inflate=cfg.merge_inflation, mutual=cfg.merge_rule == "mutual")
             self.capped_steps += int(capped)
         # adaptive birth: a measurement the map already explains gives birth to little
         birth = self._birth(sp, z, rz, 1.0 - np.clip(w_det.sum(axis=1), 0.0, 1.0) if cfg.adaptive_birth else None)
@@ -215,6 +218,9 @@ class RBPHD(MapFilter):
         updated by the frame's measurements that the particle's map explains, each by its likeliest
         feature when that feature takes at least ``share`` of it (the share of the PHD update,
         P_D w q / (kappa + sum)), with an iterated EKF (re-linearised ``iterations`` times).
+        The association (gate and shares) uses the innovation covariance with the motion prior's
+        uncertainty in it, R + H_m P H_m^T + H_x q H_x^T (FastSLAM 2.0, Montemerlo et al. 2003:
+        the data-association covariance); the update itself uses R + H_m P H_m^T.
         Returns the mean (P, 3), covariance (P, 3, 3) and the number of measurements used (P,)."""
         fm = self.feature
         gm = maps.gm
@@ -240,8 +246,12 @@ class RBPHD(MapFilter):
         hph = matmul(hl, matmul(cov_s, transpose(hl)))
         s_pair = hph[:, :, None] + rz[None, None]  # (P, Js, M, dz, dz)
         nu = fm.innovation(z[None, None], zhat[:, :, None])
-        m2 = quad(inv(s_pair), nu)
-        lik = np.where(m2 <= self.cfg.gate, gaussian(m2, det(s_pair), dz), 0.0) * w_s[..., None]
+        # association under the motion prior's uncertainty too (FastSLAM 2.0: Q = R + H_m P H_m^T + H_x Q_x H_x^T),
+        # or a particle whose predicted heading is a few bearing sigmas off finds no feature for its measurements
+        hx0 = fm.pose_jacobian(xbar[:, None, :], mu_s)  # (P, Js, dz, 3)
+        s_assoc = s_pair + matmul(hx0, matmul(q[:, None], transpose(hx0)))[:, :, None]
+        m2 = quad(inv(s_assoc), nu)
+        lik = np.where(m2 <= self.cfg.gate, gaussian(m2, det(s_assoc), dz), 0.0) * w_s[..., None]
         kappa = self.detection.clutter_intensity(z)
         if meas.ratio is not None:
             kappa = kappa / np.maximum(np.asarray(meas.ratio, dtype=np.float64), 1e-300)

@@ -6,8 +6,12 @@ Layout::
     metrics.yaml      trajectory RMSE (filter, weighted mean, dead reckoning), map OSPA/GOSPA, timings
     trajectory.csv    stamp_ns, best particle x/y/theta, weighted mean x/y/theta, dead reckoning x/y/theta
     map.csv           x, y, weight of the map estimate (components of weight >= map_threshold)
-    steps.csv         stamp_ns, ms, measurements, ess, resampled, components, and what the hooks recorded (map_ospa)
-    trajectory_map.png, ospa.png, timing.png
+    steps.csv         stamp_ns, ms, measurements, ess, resampled, components, and what the hooks recorded (map_ospa;
+                      for the labelled filters hypotheses and map_labels)
+    labels.csv        labelled filters: one row per span of a label in the best particle's map estimate (its birth
+                      step and measurement, first and last step, whether it ended: track births and deaths)
+    trajectory_map.png, ospa.png, timing.png, hypotheses.png (labelled filters: hypotheses per particle, labels,
+                      births and deaths per step)
 
 Everything is written into a temporary folder that is renamed into place, so a
 failed run leaves nothing behind. Tables use fixed formats: the same inputs
@@ -39,8 +43,9 @@ def _yaml(data: dict) -> str:
     return yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=120)
 
 
-def write_slam_run(log: SensorLog, res: SlamResult, out: Path, config: dict, *, overwrite: bool = False) -> list[str]:
-    """Write the run folder; returns the figure names."""
+def write_slam_run(log: SensorLog, res: SlamResult, out: Path, config: dict, *, overwrite: bool = False, labels=None) -> list[str]:
+    """Write the run folder; returns the figure names. ``labels``: the run's
+    :class:`slam_runtime.labels.LabelHistory` (labelled filters), written as ``labels.csv``."""
     with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
         tmp.mkdir()
         (tmp / "config.yaml").write_text(_yaml(config))
@@ -52,7 +57,8 @@ def write_slam_run(log: SensorLog, res: SlamResult, out: Path, config: dict, *, 
             [res.stamps, *res.trajectory.T, *res.mean_trajectory.T, *odo.T],
             ["%d"] + ["%.6f"] * 9,
         )
-        _table(tmp / "map.csv", ["x", "y", "weight"], [*res.map_xy.T, res.map_w], ["%.6f", "%.6f", "%.6f"])
+        cols = ["x", "y"] if res.map_xy.shape[1] == 2 else ["L_nx", "L_ny", "L_nz", "d"]  # planes: the metric's embedding
+        _table(tmp / "map.csv", [*cols, "weight"], [*res.map_xy.reshape(-1, len(cols)).T, res.map_w], ["%.6f"] * (len(cols) + 1))
         hooks = sorted(res.per_step)
         _table(
             tmp / "steps.csv",
@@ -61,7 +67,44 @@ def write_slam_run(log: SensorLog, res: SlamResult, out: Path, config: dict, *, 
             ["%d", "%.3f", "%d", "%.4f", "%d", "%.2f"] + ["%.6f"] * len(hooks),
         )
         figures = _figures(log, res, odo, tmp)
+        if labels is not None and "hypotheses" in res.per_step and np.isfinite(res.per_step["hypotheses"]).any():
+            header, cols, fmts = labels.table(res.stamps)
+            _table(tmp / "labels.csv", header, cols, fmts)
+            figures.append(_hypotheses_figure(res, labels, tmp))
     return figures
+
+
+def _hypotheses_figure(res: SlamResult, labels, folder: Path) -> str:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = (res.stamps - res.stamps[0]) / 1e9
+    fig, ax = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
+    ax[0].plot(t, res.per_step["hypotheses"], "k-", lw=0.8, label="hypotheses per particle (mean)")
+    ax[0].plot(t, res.components, "b-", lw=0.8, label="tracks per particle (mean)")
+    ax[0].set_yscale("symlog", linthresh=10)
+    ax[0].legend(fontsize=7)
+    ax[0].grid(alpha=0.3)
+    n = res.per_step.get("map_labels")
+    if n is not None:
+        ax[1].plot(t, n, "k-", lw=0.8, label="labels in the map estimate")
+    b, d = labels.births(), labels.deaths()
+    if b.size:
+        ax[1].plot(t[b], np.zeros(b.size), "g|", ms=10, label=f"births ({b.size})")
+    d = d[d < t.size]
+    if d.size:
+        ax[1].plot(t[d], np.zeros(d.size), "r|", ms=14, label=f"deaths ({d.size})")
+    ax[1].set_xlabel("time [s]")
+    ax[1].set_ylabel("labels")
+    ax[1].legend(fontsize=7)
+    ax[1].grid(alpha=0.3)
+    ax[0].set_title(f"{res.filter}: hypotheses and the best particle's labelled map", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(folder / "hypotheses.png", dpi=110)
+    plt.close(fig)
+    return "hypotheses.png"
 
 
 def _figures(log: SensorLog, res: SlamResult, odo: np.ndarray, folder: Path) -> list[str]:
@@ -95,7 +138,11 @@ def _figures(log: SensorLog, res: SlamResult, odo: np.ndarray, folder: Path) -> 
     ax.plot(res.trajectory[:, 0], res.trajectory[:, 1], "b-", lw=1.0, label="best particle")
     if log.landmarks is not None:
         ax.plot(log.landmarks.xy[:, 0], log.landmarks.xy[:, 1], "k*", ms=6, label="true landmarks")
-    if res.map_xy.size:
+    if res.map_xy.ndim == 2 and res.map_xy.shape[1] == 4:
+        from slam_runtime.plane_metrics import draw_planes
+
+        draw_planes(ax, log, res.map_xy, res.trajectory)
+    elif res.map_xy.size:
         ax.scatter(res.map_xy[:, 0], res.map_xy[:, 1], s=18, facecolors="none", edgecolors="g", label="map (weight >= threshold)")
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")

@@ -22,9 +22,9 @@ from detectors.geometry import compose, interpolate_poses, relative
 from detectors.logs import SensorLog
 from profiles.errors import DataError, UsageError
 from slam_runtime.config import SlamConfig, detection_model, feature_model, map_filter, vehicle_model
-from slam_runtime.metrics import gospa, ospa, trajectory_rmse
+from slam_runtime.metrics import axis_rmse, gospa, ospa, trajectory_rmse
 from slam_runtime.slam import RBSlam
-from slam_runtime.sources import LoggedDetections, ScanCircles, control_rows, frames
+from slam_runtime.sources import CloudPlanes, LoggedDetections, ScanCircles, control_rows, frames
 
 
 @dataclass
@@ -59,7 +59,9 @@ def check_inputs(log: SensorLog, profile) -> None:
     n_p table the beam geometry it was measured with (it holds for no other)."""
     if profile.detector.kind == "circle2d" and log.scans is None:
         raise UsageError(f"{log.name}: profile {profile.ref} detects circles in laser scans, and this log has none")
-    if profile.detector.kind != "circle2d" and log.detections is None:
+    if profile.detector.kind == "plane3d" and log.clouds is None:
+        raise UsageError(f"{log.name}: profile {profile.ref} detects planes in point clouds, and this log has none")
+    if profile.detector.kind == "external" and log.detections is None:
         raise UsageError(f"{log.name}: profile {profile.ref} takes the log's detections, and this log has none")
     if log.odometry is None:
         raise UsageError(f"{log.name}: no odometry to drive the filter")
@@ -97,11 +99,19 @@ def build(log: SensorLog, profile, cfg: SlamConfig) -> Built:
     """The models, the map filter and the measurement source of a run (the factory of the settings)."""
     sensor = log.sensor if log.sensor is not None else profile.sensor
     mount = np.array([sensor.mount.x, sensor.mount.y, sensor.mount.theta])
+    planar = profile.detector.kind == "plane3d"
+    if planar != (cfg.features == "planes"):
+        raise UsageError(
+            f"profile {profile.ref} is a {profile.kind} profile; "
+            + ("run it with --features planes" if planar else "--features planes needs a lidar3d-planes profile")
+        )
     det = detection_model(profile, cfg.detection, None)
-    feat = feature_model(det, cfg.measurement, mount)
+    feat = feature_model(det, cfg.measurement, mount, cfg.metric)
     mf = map_filter(cfg, feat, det)
-    veh = vehicle_model(log.odometry.kind, cfg.motion, log.vehicle)
-    if log.scans is not None and profile.detector.kind == "circle2d":
+    veh = vehicle_model(log.odometry.kind, cfg.motion, log.vehicle, cfg.features)
+    if planar:
+        measure = CloudPlanes(log, profile, det)
+    elif log.scans is not None and profile.detector.kind == "circle2d":
         measure = ScanCircles(log, profile, det, descriptor_likelihood=cfg.detection.descriptor_likelihood)
     else:
         measure = LoggedDetections(log, landmarks_only=cfg.detection.landmarks_only)
@@ -117,17 +127,19 @@ def start_pose(log: SensorLog, stamp: int) -> np.ndarray:
 
 
 class MapOSPA:
-    """Hook: OSPA of the best particle's map against the truth after every step (evaluation, not filtering)."""
+    """Hook: OSPA of the best particle's map against the truth after every step (evaluation, not filtering).
+
+    distance: the base distance of the OSPA (default Euclidean; planes pass theirs)."""
 
     name = "map_ospa"
 
-    def __init__(self, truth_xy: np.ndarray, c: float = 1.0, p: float = 1.0, every: int = 1) -> None:
-        self.truth, self.c, self.p, self.every = truth_xy, c, p, every
+    def __init__(self, truth_xy: np.ndarray, c: float = 1.0, p: float = 1.0, every: int = 1, distance=None) -> None:
+        self.truth, self.c, self.p, self.every, self.distance = truth_xy, c, p, every, distance
 
     def __call__(self, k: int, slam: RBSlam) -> float:
         if k % self.every:
             return np.nan
-        return ospa(slam.mf.feature.position(slam.map_estimate()[0]), self.truth, self.c, self.p)
+        return ospa(slam.mf.feature.position(slam.map_estimate()[0]), self.truth, self.c, self.p, self.distance)
 
 
 def run_slam(
@@ -164,7 +176,13 @@ def run_slam(
         detect_s += t0 - t_prev
         if fi.controls.shape[0]:
             slam.predict(fi.controls, fi.dts)
-        info = slam.update(fi.meas)
+        try:
+            info = slam.update(fi.meas)
+        except FloatingPointError as exc:  # every particle at zero weight: the filter cannot go on
+            raise DataError(
+                f"log {log.name!r}, frame {k} (t = {(int(stamps[k]) - int(stamps[0])) / 1e9:.2f} s): {exc}: no particle explains "
+                "this frame's measurements; widen the measurement or motion noise (--config), use more particles, or check the profile"
+            ) from None
         times[k] = (time.perf_counter() - t0) * 1e3
         cpu[k] = (time.process_time() - c0) * 1e3
         counts[k], ess_[k], res_[k], comp[k], rs_ms[k] = info.n_measurements, info.ess, info.resampled, info.components, info.resample_ms
@@ -236,9 +254,16 @@ def evaluate(log: SensorLog, res: SlamResult, c: float = 1.0, p: float = 1.0, cf
         out[f"trajectory_rmse_vs_{key}_m"] = trajectory_rmse(est, truth, align)
         out[f"mean_trajectory_rmse_vs_{key}_m"] = trajectory_rmse(interpolate_poses(res.stamps, res.mean_trajectory, at), truth, align)
         out[f"odometry_rmse_vs_{key}_m"] = trajectory_rmse(dr, truth, align)
+        if key == "ground_truth":  # per axis (the delta-GLMB-SLAM paper's figs. 2-4)
+            rx, ry, rh = axis_rmse(est, truth)
+            out[f"rmse_x_vs_{key}_m"], out[f"rmse_y_vs_{key}_m"], out[f"rmse_heading_vs_{key}_deg"] = rx, ry, float(np.degrees(rh))
         out[f"final_position_error_vs_{key}_m"] = float(np.hypot(*(est[-1, :2] - truth[-1, :2]))) if not align else float("nan")
         out[f"points_vs_{key}"] = int(at.size)
-    if log.landmarks is not None:
+    if log.planes is not None and res.map_xy.ndim == 2 and res.map_xy.shape[1] == 4:
+        from slam_runtime.plane_metrics import plane_map_metrics
+
+        out.update(plane_map_metrics(log, res.map_xy, c, p, (cfg or SlamConfig()).metric.plane_length))
+    elif log.landmarks is not None:
         truth_xy = log.landmarks.xy
         out["map_ospa"] = ospa(res.map_xy, truth_xy, c, p)
         g = gospa(res.map_xy, truth_xy, c, p)

@@ -68,6 +68,8 @@ class RBSlam:
         self.resample_every = resample_every
         self.x = vehicle.initial(np.asarray(start, dtype=np.float64), n)
         self.logw = np.full(n, -np.log(n))
+        if hasattr(mapfilter, "bind"):
+            mapfilter.bind(rng)  # filters that sample draw from the run's generator
         self.maps = mapfilter.empty(n)
         self.history = ParticleHistory(self.x)
         self._pending = np.arange(n, dtype=np.int32)  # parents of the next history row

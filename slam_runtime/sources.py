@@ -11,7 +11,11 @@ One source per kind of log, so the runner does not care which filter runs:
   and the scan with its beam angles for ray-traced P_D;
 * :class:`LoggedDetections` -- detection-level logs (Victoria Park, UTIAS):
   the log's detections; where the log labels them (UTIAS ``target``: 1
-  landmark, 2 another robot, 0 unknown barcode), only the landmark ones.
+  landmark, 2 another robot, 0 unknown barcode), only the landmark ones;
+* :class:`CloudPlanes` -- 3D lidar clouds: the profile's plane detector on each
+  cloud, the landmark planes (steep enough, enough inliers) as (azimuth,
+  elevation, offset) in the sensor frame with their fit covariances, and the
+  cloud for P_D.
 
 Controls (:func:`control_rows`): pose odometry becomes increments between
 consecutive rows; increments are used as they are; a velocity or Ackermann
@@ -119,3 +123,22 @@ def frames(log: SensorLog, measure, max_frames: int | None = None) -> Iterator[F
         else:
             u, dt = control_rows(log, fr.odometry)
         yield FrameInput(fr.index, fr.stamp, u, dt, measure(fr))
+
+
+class CloudPlanes:
+    """The profile's plane detector on every cloud; landmark planes as sensor-frame charts (azimuth, elevation, offset)."""
+
+    def __init__(self, log: SensorLog, profile, detection) -> None:
+        self.log = log
+        self.params = profile.detector.plane
+        self.detection = detection
+        self.min_points = profile.planes.min_points
+        self.min_width = profile.planes.min_width
+
+    def __call__(self, frame) -> Measurements:
+        from detectors.plane import detect_planes
+
+        cloud = self.log.clouds.frame(frame.rows)
+        det = detect_planes(cloud, self.params, where=f"{self.log.name}: cloud {frame.rows}")
+        use = self.detection.in_view(det.chart) & (det.inliers >= self.min_points) & (det.width >= self.min_width)
+        return Measurements(det.chart[use], det.cov[use], cloud=cloud)

@@ -59,7 +59,7 @@ from slam_runtime.config import SlamConfig
 FORMAT = "detcal-sweep"
 FORMAT_VERSION = 1
 #: What varies between runs (the first columns of runs.csv).
-LABELS = ("log", "profile", "pd_mode", "particles", "seed")
+LABELS = ("log", "profile", "filter", "pd_mode", "particles", "seed")
 #: Metrics that are timings: they go to timings.csv, never to runs.csv or summary.csv.
 TIMING_KEYS = ("ms_per_step_mean", "ms_per_step_median", "cpu_ms_per_step_mean")
 TABLES = ("runs.csv", "summary.csv", "timings.csv")
@@ -72,7 +72,7 @@ class SweepJob:
     profile: object  # profiles.profile.DetectorProfile
     config: SlamConfig
     seed: int
-    labels: dict  # what varies: log, profile, pd_mode, particles, seed
+    labels: dict  # what varies: log, profile, filter, pd_mode, particles, seed
     max_frames: int | None = None
     inputs: list[dict] = field(default_factory=list)  # the log's input files with their sha256 (recorded in config.yaml)
 
@@ -94,17 +94,19 @@ def _log_of(job: SweepJob) -> SensorLog:
 
 def run_job(job: SweepJob) -> dict[str, bytes]:
     """One run where it is called: filter, evaluation and the run folder's files ({relative path: bytes})."""
+    from slam_runtime.labels import labelled_hooks
     from slam_runtime.report import write_slam_run
     from slam_runtime.run import MapOSPA, evaluate, run_slam
 
     log = _log_of(job)
     m = job.config.metric
     hooks = (MapOSPA(log.landmarks.xy, m.ospa_c, m.ospa_p),) if log.landmarks is not None else ()
-    res = run_slam(log, job.profile, job.config, job.seed, max_frames=job.max_frames, hooks=hooks)
+    labelled = labelled_hooks() if job.config.filter.kind != "rbphd" else ()
+    res = run_slam(log, job.profile, job.config, job.seed, max_frames=job.max_frames, hooks=hooks + labelled)
     res.metrics = evaluate(log, res, m.ospa_c, m.ospa_p, job.config)
     with tempfile.TemporaryDirectory(prefix="detcal-run-") as tmp:
         out = Path(tmp) / job.name
-        write_slam_run(log, res, out, job.run_config())
+        write_slam_run(log, res, out, job.run_config(), labels=labelled[0] if labelled else None)
         return {p.relative_to(out).as_posix(): p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file() and p.name != MARKER}
 
 
@@ -272,7 +274,7 @@ def run_sweep(
     plan: dict | None = None,
     force: bool = False,
     done: set[str] | None = None,
-    by: tuple[str, ...] = ("profile", "pd_mode", "particles"),
+    by: tuple[str, ...] = ("profile", "filter", "pd_mode", "particles"),
     progress=None,
 ) -> SweepOutcome:
     """Run the jobs not done yet on ``engine``, each run folder moved in as its job completes; the tables once all are done.

@@ -56,3 +56,37 @@ def _private_folders(tmp_path_factory):
             os.environ.pop(k, None)
         else:
             os.environ[k] = v
+
+
+def small_street_config(frames: int = 20, **over):
+    """A short street with the 64 rings at 0.35 deg azimuth steps (about 65k returns a frame): seconds, not minutes."""
+    from calib.sim.street import StreetConfig
+
+    data = {
+        "route": [{"kind": "straight", "length": 50.0}, {"kind": "turn", "angle_deg": 90.0, "radius": 15.0}, {"kind": "straight", "length": 30.0}],
+        "extend": 25.0,
+        "lidar": {"azimuth_increment_deg": 0.35},
+        "frames": frames,
+    }
+    for k, v in over.items():
+        data[k] = {**data.get(k, {}), **v} if isinstance(v, dict) else v
+    return StreetConfig.model_validate(data)
+
+
+@pytest.fixture(scope="session")
+def small_street():
+    """40 frames of a small street (seed 21): truth for the plane detector and SLAM tests."""
+    from calib.sim.street import simulate_street
+
+    return simulate_street(small_street_config(40), seed=21)
+
+
+@pytest.fixture(scope="session")
+def street_profile(small_street):
+    """A lidar3d-planes profile calibrated on a second small street (seed 22)."""
+    from calib.planes import PlaneCalibConfig, calibrate_planes
+    from calib.sim.street import simulate_street
+
+    sim = simulate_street(small_street_config(16), seed=22)
+    cfg = PlaneCalibConfig.model_validate({"pd": {"min_count": 20}, "every": 1})
+    return calibrate_planes([sim.log], cfg, name="small-street", version="1.0.0").profile

@@ -76,6 +76,8 @@ def calibrate_cmd(
     sigma_r from the log, --range-sigma, or estimated from the registered scans.
     Detection-level logs (UTIAS): P_D against range, clutter from non-landmark detections.
     Several laser logs: detection, ground truth and labelling of each log on Dask workers, the fits here.
+    3D lidar logs with plane truth (detcal simulate street): the plane detector, P_D against the
+    ray-traced visible points and incidence angle, clutter planes (profile kind lidar3d-planes).
     """
     from calib.engine import check_options
     from calib.pipeline import CalibrationJob, check_name, run_calibration

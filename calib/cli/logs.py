@@ -45,7 +45,23 @@ def info_table(log, path: Path) -> Table:
         t.add_row("detection frames", f"{d.n_frames:,}", "")
         t.add_row("detections", f"{len(d):,}", "descriptors: " + (", ".join(sorted(d.descriptors)) or "none"))
     if log.clouds is not None:
-        t.add_row("point clouds", f"{len(log.clouds):,}", f"{log.clouds.points.shape[0]:,} points")
+        c = log.clouds
+        per = np.diff(c.offsets)
+        if per.size:
+            rng = np.linalg.norm(c.points[:, :3].astype(np.float64), axis=1)
+            detail = (
+                f"{c.points.shape[0]:,} points; per frame min {per.min():,}, median {int(np.median(per)):,}, max {per.max():,}; "
+                f"range {rng.min():.2f}-{rng.max():.1f} m (median {np.median(rng):.1f}); z {c.points[:, 2].min():.2f} to {c.points[:, 2].max():.2f} m"
+            )
+            empty = int((per == 0).sum())
+            if empty:
+                detail += f"; {empty} empty frames"
+        else:
+            detail = "no frames"
+        t.add_row("point clouds", f"{len(c):,}", detail)
+    if log.planes is not None:
+        kinds, counts = np.unique(log.planes.kind, return_counts=True)
+        t.add_row("planes (truth)", f"{len(log.planes):,}", ", ".join(f"{k} {n}" for k, n in zip(kinds, counts, strict=True)))
     if span is not None:
         t.add_row("duration", "", f"{(span[1] - span[0]) / 1e9:,.3f} s")
     sen = log.sensor
@@ -68,6 +84,12 @@ def info_table(log, path: Path) -> Table:
             geo += f", range {sen.range_min:g}-{sen.range_max:g} m"
         if sen.range_sigma is not None:
             geo += f", sigma_r {sen.range_sigma:g} m"
+        if sen.lidar is not None:
+            va = sen.lidar.vertical_angles_deg
+            geo += (
+                f", {len(va)} rings from {max(va):.2f} to {min(va):.2f} deg, azimuth step {sen.lidar.azimuth_increment_deg:g} deg, "
+                f"height {sen.lidar.height:g} m"
+            )
         m = sen.mount
         geo += f", mounted at ({m.x:g}, {m.y:g}, {m.theta:g})"
         t.add_row("sensor", "", geo)

@@ -33,9 +33,10 @@ def selfcal_cmd(
     from calib.cli.slam import slam_config
     from calib.config import load_yaml_model
     from calib.progress import progress
-    from calib.selfcal import SelfCalConfig, profile_change, self_calibrate, write_selfcal_run
+    from calib.selfcal import SelfCalConfig, fill_selfcal_run, profile_change, self_calibrate
     from profiles.profile import NAME_RE, SEMVER_RE
-    from profiles.store import resolve, save_profile
+    from profiles.atomic import Output, atomic_outputs
+    from profiles.store import check_new_version, looks_like_profile, resolve, write_profile_text
     from slam_runtime.run import check_inputs
     from slam_runtime.selfcal import self_calibration
 
@@ -59,7 +60,9 @@ def selfcal_cmd(
     if not NAME_RE.match(prof_name):
         raise UsageError(f"--name: {prof_name!r} must match [a-z0-9][a-z0-9._-]*")
     target = out_dir or Path("runs") / f"selfcal_{prof_name}@{version}"
-    fresh(target, force)
+    fresh(target, force)  # both outputs decided before any work
+    saved, status = check_new_version(prof_name, version, profiles_dir, force=force)
+    fresh(saved, force, directory=False, owned=looks_like_profile)
     refs = input_refs(log_path, log)
     command = typed_command("selfcal")
     scfg = SelfCalConfig()
@@ -78,8 +81,12 @@ def selfcal_cmd(
     last = history[-1]
     settings = {"log": log_path.name, "inputs": [r.model_dump() for r in refs], "profile": last.profile.ref, "seed": seed,
                 "settings": last.config.model_dump(mode="json")}
-    write_selfcal_run(log, history, target, overwrite=force, last_run=lambda folder: write_slam_run(log, last.result, folder, settings))
-    saved, status = save_profile(final, profiles_dir, force=force)
+    outputs = [Output(target, directory=True, overwrite=force), Output(saved, overwrite=force, owned=looks_like_profile)]
+    with atomic_outputs(outputs) as (run_tmp, prof_tmp):  # the run folder and the profile in one step
+        run_tmp.mkdir()
+        fill_selfcal_run(log, history, run_tmp, last_run=lambda folder: write_slam_run(log, last.result, folder, settings))
+        write_profile_text(final, prof_tmp)
+    status = "written" if status == "write" else "replaced"
     rows = {
         "profile": f"{final.ref} ({status}: {saved})",
         "run folder": str(target),

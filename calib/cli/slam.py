@@ -18,18 +18,23 @@ app = typer.Typer(help="Run SLAM filters with a detector profile.", no_args_is_h
 PD_MODES = ("profile", "constant")
 
 
-def slam_config(config: Path | None, filter_: str | None, particles: int | None, pd_mode: str | None):
+FEATURES = ("points", "planes")
+
+
+def slam_config(config: Path | None, filter_: str | None, particles: int | None, pd_mode: str | None, features: str | None = None):
     """The settings file (or the defaults) with the command-line overrides, validated."""
     from calib.config import load_yaml_model
-    from slam_runtime.config import FILTER_KINDS, SlamConfig, override
+    from slam_runtime.config import FILTER_KINDS, SlamConfig, override, with_filter
 
     if filter_ is not None and filter_ not in FILTER_KINDS:
         raise UsageError(f"--filter: expected one of {', '.join(FILTER_KINDS)}, got {filter_!r}")
     positive("--particles", particles)
     if pd_mode is not None and pd_mode not in PD_MODES:
         raise UsageError(f"--pd-mode: expected one of {', '.join(PD_MODES)}, got {pd_mode!r}")
+    if features is not None and features not in FEATURES:
+        raise UsageError(f"--features: expected one of {', '.join(FEATURES)}, got {features!r}")
     cfg = load_yaml_model(SlamConfig, config)
-    return override(cfg, particles=particles, **{"filter.kind": filter_, "detection.pd_mode": pd_mode})
+    return override(with_filter(cfg, filter_), particles=particles, features=features, **{"detection.pd_mode": pd_mode})
 
 
 @app.command("run")
@@ -38,10 +43,11 @@ def slam_run_cmd(
     log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A log with odometry and scans (or detections).")],
     reader: ReaderArgs,
     profile_ref: Annotated[str, typer.Option("--profile", help="Detector profile: name or name@version, or a file.")],
-    filter_: Annotated[str | None, typer.Option("--filter", help="Map filter: rbphd (default: the config's).")] = None,
+    filter_: Annotated[str | None, typer.Option("--filter", help="Map filter: rbphd, lmb or glmb (default: the config's).")] = None,
     particles: Annotated[int | None, typer.Option(help="Particles (default: the config's, 20).")] = None,
     seed: Annotated[int, typer.Option(help="Random seed; same log, profile, settings and seed give the same run.")] = 0,
     pd_mode: Annotated[str | None, typer.Option(help="P_D from the profile, or `constant` inside the sensor range (for comparison).")] = None,
+    features: Annotated[str | None, typer.Option(help="Landmarks: points (2D) or planes (3D point clouds) (default: the config's, points).")] = None,
     config: Annotated[Path | None, typer.Option(help="YAML settings (filter, motion noise, metric); unknown keys are refused.")] = None,
     frames: Annotated[int | None, typer.Option(help="Only the first N frames.")] = None,
     out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/slam_<log>_<profile>_<seed>).")] = None,
@@ -50,10 +56,11 @@ def slam_run_cmd(
     """SLAM over a log with a detector profile's P_D and clutter: trajectory, map, metrics, figures."""
     from calib.progress import progress
     from profiles.store import resolve
+    from slam_runtime.labels import labelled_hooks
     from slam_runtime.report import write_slam_run
     from slam_runtime.run import MapOSPA, check_inputs, evaluate, run_slam
 
-    cfg = slam_config(config, filter_, particles, pd_mode)
+    cfg = slam_config(config, filter_, particles, pd_mode, features)
     positive("--frames", frames)
     if seed < 0:
         raise UsageError(f"--seed: expected a non-negative integer, got {seed}")
@@ -64,7 +71,13 @@ def slam_run_cmd(
     fresh(target, force)
     m = cfg.metric
     hooks = (MapOSPA(log.landmarks.xy, m.ospa_c, m.ospa_p),) if log.landmarks is not None else ()
-    res = run_slam(log, prof, cfg, seed, progress=progress, max_frames=frames, hooks=hooks)
+    labelled = labelled_hooks() if cfg.filter.kind != "rbphd" else ()
+    if cfg.features == "planes" and log.planes is not None and "ground_truth" in log.reference:
+        from slam_runtime.plane_features import plane_distance
+        from slam_runtime.plane_metrics import landmark_truth
+
+        hooks = (MapOSPA(landmark_truth(log, length=m.plane_length)[0], m.ospa_c, m.ospa_p, every=5, distance=plane_distance),)
+    res = run_slam(log, prof, cfg, seed, progress=progress, max_frames=frames, hooks=hooks + labelled)
     res.metrics = evaluate(log, res, m.ospa_c, m.ospa_p, cfg)
     settings = {
         "log": log_path.name,
@@ -74,7 +87,7 @@ def slam_run_cmd(
         "frames": frames,
         "settings": cfg.model_dump(mode="json"),
     }
-    write_slam_run(log, res, target, settings, overwrite=force)
+    write_slam_run(log, res, target, settings, overwrite=force, labels=labelled[0] if labelled else None)
     shown = {k: v for k, v in res.metrics.items() if not isinstance(v, dict)}
     out.print(summary_table(f"{res.filter}-SLAM on {log.name} with {prof.ref} -> {target}", shown))
 
@@ -110,6 +123,7 @@ def slam_sweep_cmd(
     reader: ReaderArgs,
     profile_refs: Annotated[list[str], typer.Option("--profile", help="Detector profile(s): name or name@version, or a file (repeat the option).")],
     pd_modes: Annotated[list[str] | None, typer.Option("--pd-mode", help="profile and/or constant (repeat; default: both).")] = None,
+    filters: Annotated[list[str] | None, typer.Option("--filter", help="Map filters: rbphd, lmb, glmb (repeat; default: the config's).")] = None,
     particles: Annotated[list[int] | None, typer.Option("--particles", help="Particle counts (repeat; default: the config's).")] = None,
     seeds: Annotated[str, typer.Option(help="Filter seeds: a count (3), a list (1,3,7) or a range (1-5).")] = "1",
     config: Annotated[Path | None, typer.Option(help="YAML settings shared by every run.")] = None,
@@ -119,7 +133,7 @@ def slam_sweep_cmd(
     out_dir: Annotated[Path, typer.Option("--out", help="Sweep folder: one run folder per run, runs.csv, summary.csv, timings.csv.")] = Path("runs/sweep"),
     force: Annotated[bool, typer.Option(help="Start the sweep folder anew (without it, the same command resumes an unfinished sweep).")] = False,
 ) -> None:
-    """Monte Carlo sweep: every log x profile x P_D mode x particle count x seed, on Dask workers.
+    """Monte Carlo sweep: every log x profile x filter x P_D mode x particle count x seed, on Dask workers.
 
     Each run's folder is moved into the sweep folder as soon as the run ends; a
     failed run is named (log, seed) and the others go on; the same command again
@@ -129,7 +143,7 @@ def slam_sweep_cmd(
     from calib.engine import InProcess, LogSource, check_options, open_engine
     from calib.progress import progress
     from profiles.store import resolve
-    from slam_runtime.config import override
+    from slam_runtime.config import FILTER_KINDS, override, with_filter
     from slam_runtime.run import check_inputs
     from slam_runtime.sweep import SweepJob, make_plan, open_sweep, run_sweep
 
@@ -138,6 +152,10 @@ def slam_sweep_cmd(
         if m not in PD_MODES:
             raise UsageError(f"--pd-mode: expected one of {', '.join(PD_MODES)}, got {m!r}")
     base = slam_config(config, None, None, None)
+    kinds = list(dict.fromkeys(filters or [base.filter.kind]))
+    for f in kinds:
+        if f not in FILTER_KINDS:
+            raise UsageError(f"--filter: expected one of {', '.join(FILTER_KINDS)}, got {f!r}")
     counts = list(dict.fromkeys(particles or [base.particles]))
     if min(counts) < 1:
         raise UsageError(f"--particles: expected positive integers, got {counts}")
@@ -158,13 +176,14 @@ def slam_sweep_cmd(
     job_list = []
     for i, (src, refs) in enumerate(sources):
         for prof in profs:
-            for m in modes:
-                for n in counts:
-                    cfg = override(base, particles=n, **{"detection.pd_mode": m})
-                    for sd in seeds_:
-                        name = f"{i:02d}_{src.name}_{prof.ref}_{m}_p{n}_s{sd}"
-                        labels = {"log": src.name, "profile": prof.ref, "pd_mode": m, "particles": n, "seed": sd}
-                        job_list.append(SweepJob(name, src, prof, cfg, sd, labels, frames, refs))
+            for f in kinds:
+                for m in modes:
+                    for n in counts:
+                        cfg = override(with_filter(base, f), particles=n, **{"detection.pd_mode": m})
+                        for sd in seeds_:
+                            name = f"{i:02d}_{src.name}_{prof.ref}_{f}_{m}_p{n}_s{sd}"
+                            labels = {"log": src.name, "profile": prof.ref, "filter": f, "pd_mode": m, "particles": n, "seed": sd}
+                            job_list.append(SweepJob(name, src, prof, cfg, sd, labels, frames, refs))
     plan = make_plan(job_list, base.model_dump(mode="json"), described)
     done = open_sweep(out_dir, plan, job_list, force=force)  # checked (and created) before any worker starts
     todo = len(job_list) - len(done)
@@ -185,12 +204,15 @@ def slam_sweep_cmd(
     t = Table(title=f"sweep of {res.runs} runs ({attempt}) -> {out_dir}")
     t.add_column("metric")
     for e in summary:
-        t.add_column(f"{e['profile']}\n{e['pd_mode']}, {e['particles']} particles\n{e['runs']} runs", justify="right")
+        t.add_column(f"{e['profile']}\n{e['filter']}, {e['pd_mode']}, {e['particles']} particles\n{e['runs']} runs", justify="right")
     shown = [
         ("trajectory RMSE [m]", "trajectory_rmse_vs_ground_truth_m"),
         ("dead reckoning RMSE [m]", "odometry_rmse_vs_ground_truth_m"),
         ("trajectory RMSE vs GPS [m]", "trajectory_rmse_vs_gps_m"),
         ("dead reckoning vs GPS [m]", "odometry_rmse_vs_gps_m"),
+        ("RMSE x [m]", "rmse_x_vs_ground_truth_m"),
+        ("RMSE y [m]", "rmse_y_vs_ground_truth_m"),
+        ("RMSE heading [deg]", "rmse_heading_vs_ground_truth_deg"),
         ("map OSPA", "map_ospa"),
         ("map features", "map_features"),
     ]

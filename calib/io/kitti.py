@@ -32,6 +32,8 @@ def read_kitti(path: str | Path) -> SensorLog:
     clouds = []
     for f in files:
         size = f.stat().st_size
+        if size == 0:
+            raise DataError(f"{f}: empty frame (no points)")
         if size % 16:
             raise DataError(f"{f}: size {size} bytes is not a multiple of 16 (4 float32 per point); truncated?")
         pts = np.fromfile(f, dtype="<f4").reshape(-1, 4)

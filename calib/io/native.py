@@ -10,7 +10,8 @@ order and dates, so the same log gives the same bytes):
   ``scan/{stamp,ranges,intensities,odom_pose}``, ``odometry/{stamp,values}``,
   ``reference/<source>/{stamp,poses}``, ``landmarks/{ids,xy,radius,sigma}``,
   ``detections/{frame_stamp,frame,range,bearing}`` and
-  ``detections/descriptors/<name>``, ``clouds/{stamp,offsets,points}``.
+  ``detections/descriptors/<name>``, ``clouds/{stamp,offsets,points}``,
+  ``planes/{ids,normal,offset,vertices,offsets,kind}``.
 
 Arrays keep their dtypes exactly (stamps int64 ns, ranges float32 with NaN for
 no return), so a round trip is lossless bit for bit.
@@ -33,6 +34,7 @@ from detectors.logs import (
     Detections,
     Landmarks,
     Odometry,
+    PlaneLandmarks,
     PointClouds,
     ReferencePoses,
     ScanBatch,
@@ -88,6 +90,15 @@ def _arrays(log: SensorLog) -> tuple[dict, dict[str, np.ndarray]]:
         c = log.clouds
         streams["clouds"] = {"n": len(c), "points": int(c.points.shape[0])}
         arrays.update({"clouds/stamp": c.stamp, "clouds/offsets": c.offsets, "clouds/points": c.points})
+    if log.planes is not None:
+        pl = log.planes
+        streams["planes"] = {"n": len(pl)}
+        arrays.update(
+            {
+                "planes/ids": pl.ids, "planes/normal": pl.normal, "planes/offset": pl.offset,
+                "planes/vertices": pl.vertices, "planes/offsets": pl.offsets, "planes/kind": pl.kind,
+            }
+        )
     return streams, arrays
 
 
@@ -131,6 +142,7 @@ class _Streams(_Meta):
     landmarks: _CountMeta | None = None
     detections: _DetectionsMeta | None = None
     clouds: _CloudsMeta | None = None
+    planes: _CountMeta | None = None
 
 
 #: dtype of every array member, exactly as the writer writes it (descriptors: any number type).
@@ -141,6 +153,8 @@ DTYPES = {
     "landmarks/ids": "int64", "landmarks/xy": "float64", "landmarks/radius": "float64", "landmarks/sigma": "float64",
     "detections/frame_stamp": "int64", "detections/frame": "int64", "detections/range": "float64", "detections/bearing": "float64",
     "clouds/stamp": "int64", "clouds/offsets": "int64", "clouds/points": "float32",
+    "planes/ids": "int64", "planes/normal": "float64", "planes/offset": "float64", "planes/vertices": "float64",
+    "planes/offsets": "int64", "planes/kind": "str",
 }  # fmt: skip
 
 
@@ -270,6 +284,9 @@ def read_native(path: str | Path) -> SensorLog:
             if want == "number":
                 if arr.dtype.kind not in "biuf":
                     raise DataError(f"{path}: member {member} has dtype {arr.dtype}, expected numbers")
+            elif want == "str":
+                if arr.dtype.kind != "U":
+                    raise DataError(f"{path}: member {member} has dtype {arr.dtype}, expected text")
             elif want is not None and arr.dtype != np.dtype(want):
                 raise DataError(f"{path}: member {member} has dtype {arr.dtype}, expected {want}")
             return arr
@@ -326,6 +343,7 @@ def _check_counts(log: SensorLog, st: _Streams) -> None:
         "detections.n_frames": (st.detections, lambda m: log.detections.n_frames),
         "clouds.n": (st.clouds, lambda m: len(log.clouds)),
         "clouds.points": (st.clouds, lambda m: int(log.clouds.points.shape[0])),
+        "planes.n": (st.planes, lambda m: len(log.planes)),
     }
     for key, (section, actual) in got.items():
         if section is None:
@@ -339,7 +357,7 @@ def _check_counts(log: SensorLog, st: _Streams) -> None:
 
 
 def _build(meta: dict, sensor: SensorModel | None, vehicle: Vehicle | None, streams: _Streams, load) -> SensorLog:
-    scans = odometry = landmarks = detections = clouds = None
+    scans = odometry = landmarks = detections = clouds = planes = None
     if streams.scan is not None:
         s = streams.scan
         scans = ScanBatch(
@@ -364,6 +382,10 @@ def _build(meta: dict, sensor: SensorModel | None, vehicle: Vehicle | None, stre
         )
     if streams.clouds is not None:
         clouds = PointClouds(load("clouds/stamp"), load("clouds/offsets"), load("clouds/points"))
+    if streams.planes is not None:
+        planes = PlaneLandmarks(
+            load("planes/ids"), load("planes/normal"), load("planes/offset"), load("planes/vertices"), load("planes/offsets"), load("planes/kind")
+        )
     return SensorLog(
         name=str(meta.get("name", "")),
         sensor=sensor,
@@ -375,4 +397,5 @@ def _build(meta: dict, sensor: SensorModel | None, vehicle: Vehicle | None, stre
         landmarks=landmarks,
         detections=detections,
         source=meta.get("source", {}),
+        planes=planes,
     )

@@ -77,6 +77,18 @@ def test_selfcal_command_writes_its_folder_and_the_profile(tmp_path, capsys, log
     prof = yaml.safe_load((tmp_path / "sc/profile.yaml").read_text())
     assert prof["name"] == "sim-selfcal" and prof["pd"]["covariate"] == "range"
     assert (tmp_path / "profiles").is_dir() and "sim-selfcal@1.0.0" in out
+    saved = (tmp_path / "profiles/sim-selfcal@1.0.0.yaml").read_bytes()
+    assert yaml.safe_load(saved) == prof  # the store holds what the run folder holds
+    # the same version again (another run folder): refused before any work, nothing written
+    code, _, err = run(capsys, *args, "--out", str(tmp_path / "sc2"), "--profiles-dir", str(tmp_path / "profiles"), "--name", "sim-selfcal")
+    assert code == 2
+    assert_one_line_error(err, "profile sim-selfcal@1.0.0 exists; bump the version")
+    assert not (tmp_path / "sc2").exists() and (tmp_path / "profiles/sim-selfcal@1.0.0.yaml").read_bytes() == saved
+    # a bundled name@version is never shadowed
+    code, _, err = run(capsys, *args, "--out", str(tmp_path / "sc3"), "--profiles-dir", str(tmp_path / "profiles"), "--name", "sim-park-laser")
+    assert code == 2
+    assert_one_line_error(err, "is bundled with detcal")
+    assert not (tmp_path / "sc3").exists()
     # errors: a laser log, a starting profile with an n_p table
     from calib.sim.run import simulate_to
     from tests.conftest import small_park_config

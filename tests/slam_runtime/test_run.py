@@ -45,3 +45,27 @@ def test_pose_odometry_moves_by_its_increments():
     log = SensorLog("p", odometry=Odometry("pose", _stamps(60, 10.0), poses))
     out = dead_reckoning(log, _stamps(60, 10.0)[::5], np.array([5.0 + 2.0, 3.0, np.pi / 2]))
     np.testing.assert_allclose(out[:, :2], poses[::5, :2], atol=1e-9)
+
+
+def test_a_frame_no_particle_explains_is_a_data_error_naming_it(monkeypatch):
+    """Every particle at zero weight (a measurement impossible under every map and pose) stops the run
+    with one message naming the log and the frame, not a FloatingPointError."""
+    from calib.sim.rfs import RfsSimConfig, simulate_rfs, truth_profile
+    from profiles.errors import DataError
+    from slam_runtime.config import SlamConfig
+    from slam_runtime.rbphd import RBPHD
+    from slam_runtime.run import run_slam
+
+    sim = RfsSimConfig(steps=60)
+    log = simulate_rfs(sim, 1)
+    real = RBPHD.update
+    calls = []
+
+    def impossible_at_frame_7(self, maps, poses, meas):
+        calls.append(1)
+        maps, loglik = real(self, maps, poses, meas)
+        return maps, (np.full_like(loglik, -np.inf) if len(calls) == 8 else loglik)
+
+    monkeypatch.setattr(RBPHD, "update", impossible_at_frame_7)
+    with pytest.raises(DataError, match=r"frame 7 \(t = 0\.70 s\): every particle has zero weight: no particle explains"):
+        run_slam(log, truth_profile(sim), SlamConfig(particles=3), 0)

@@ -1,0 +1,243 @@
+"""``glmb-paper``: the simulation of the delta-GLMB-SLAM paper (Moratuwage, Adams & Inostroza, sec. IV, Table I).
+
+A car-like robot drives a pre-planned path among 23 point landmarks:
+
+* a closed loop of waypoints (a 24 m x 16 m circuit, then 14 m along its
+  first side again, so the end of the run closes the loop), followed at
+  ``speed`` = 1 m/s by steering towards the current waypoint (steering at most
+  ``max_steer`` = 30 deg, changing by at most ``steer_rate`` = 20 deg/s; the next
+  waypoint is taken within ``switch`` of the current one);
+* the vehicle moves as a bicycle of wheelbase ``wheelbase`` (the Ackermann
+  model of :class:`slam_runtime.vehicle.Ackermann`, rear-axle frame), controls
+  every ``dt``; the logged controls are the true ones plus Gaussian noise
+  sigma_v = 0.1 m/s and sigma_steer = 2 deg per control step (Table I);
+* the sensor sees the full circle (bearing -pi..pi) out to 3 m, every
+  ``observe_every`` control steps; each landmark in range is detected
+  with P_D = 0.7, its range and bearing with noise sigma_r = 0.3 m and
+  sigma_b = 2 deg (Table I) (a noisy range may exceed 3 m);
+* Poisson clutter of ``clutter`` points per scan (1, 5, 10 or 15 in the
+  paper), uniform in range [0, 3] m and bearing [-pi, pi).
+
+The controls, the detections and the clutter are drawn from three separate
+streams of the seed, so the logs of one seed at the four clutter rates share
+the same path, control noise and landmark detections and differ only in their
+clutter, as the paper's four runs do. :func:`truth_profile` states the
+simulator's detection statistics (P_D, clutter, noise) as a detector profile.
+Same config and seed, same bytes.
+
+The paper does not state the vehicle geometry, the control and scan periods or
+the path; the defaults are those of Bailey's MATLAB EKF/FastSLAM simulators
+(the family the paper's Table I parameters come from: speed, steering noise,
+range-bearing noise): wheelbase 4 m, controls every 0.025 s, a scan every
+8 controls (0.2 s), steering at most 30 deg changing by 20 deg/s. The circuit
+and the landmark layout are this project's (the paper's figure is not
+reproducible from its text).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from detectors.logs import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, Vehicle, wrap_angle
+
+#: the 23 landmarks [m], world frame, 1-2 m beside the default circuit (each in range for 22-58 scans)
+LANDMARKS = [
+    [1.6, 1.1], [5.6, -1.8], [9.1, 1.1], [12.6, -1.5], [16.2, 1.7], [20.5, -1.2], [22.5, 2.9], [27.2, 4.7],
+    [24.6, 8.6], [27.1, 12.5], [22.5, 14.6], [20.6, 18.0], [16.3, 15.5], [12.6, 18.8], [9.1, 16.1], [5.7, 18.2],
+    [2.7, 14.0], [-1.4, 13.3], [0.0, 8.9], [-3.0, 5.7], [1.4, 3.0], [-1.8, 1.0], [8.0, -3.0],
+]  # fmt: skip
+
+#: the pre-planned path: from the origin heading east round the circuit, then along its first side again
+WAYPOINTS = [[24.0, 0.0], [24.0, 16.0], [0.0, 16.0], [0.0, 0.0], [14.0, 0.0]]
+
+
+class GlmbPaperConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    landmarks: list[tuple[float, float]] = Field(default_factory=lambda: [tuple(x) for x in LANDMARKS], min_length=1)
+    waypoints: list[tuple[float, float]] = Field(default_factory=lambda: [tuple(x) for x in WAYPOINTS], min_length=1)
+    speed: float = Field(default=1.0, gt=0.0, description="[m/s]")
+    dt: float = Field(default=0.025, gt=0.0, description="control period [s]")
+    observe_every: int = Field(default=8, ge=1, description="control steps per scan")
+    wheelbase: float = Field(default=4.0, gt=0.0, description="[m]")
+    max_steer: float = Field(default=float(np.radians(30.0)), gt=0.0, lt=np.pi / 2, description="[rad]")
+    steer_rate: float = Field(default=float(np.radians(20.0)), gt=0.0, description="[rad/s]")
+    switch: float = Field(default=6.0, gt=0.0, description="distance at which the next waypoint is taken [m]")
+    arrive: float = Field(default=1.0, gt=0.0, description="the run ends this close to the last waypoint [m]")
+    max_steps: int = Field(default=20000, ge=10, le=1_000_000, description="control steps at most")
+    sigma_v: float = Field(default=0.1, ge=0.0, description="control noise on the speed [m/s]")
+    sigma_steer: float = Field(default=float(np.radians(2.0)), ge=0.0, description="control noise on the steering angle [rad]")
+    range_min: float = Field(default=0.0, ge=0.0)
+    range_max: float = Field(default=3.0, gt=0.0)
+    pd: float = Field(default=0.7, gt=0.0, le=1.0)
+    clutter: float = Field(default=5.0, ge=0.0, description="false alarms per scan (Poisson mean)")
+    sigma_range: float = Field(default=0.3, gt=0.0, description="[m]")
+    sigma_bearing: float = Field(default=float(np.radians(2.0)), gt=0.0, description="[rad]")
+
+    @model_validator(mode="after")
+    def _ranges(self) -> GlmbPaperConfig:
+        if self.range_min >= self.range_max:
+            raise ValueError("range_min must be below range_max")
+        return self
+
+
+def sensor_model(cfg: GlmbPaperConfig) -> SensorModel:
+    """The sensor as the filter sees it: its reports reach 4 range sigmas past the detection range (noise)."""
+    return SensorModel(kind="detector", range_min=0.0, range_max=reach(cfg), fov=2 * np.pi, range_sigma=cfg.sigma_range)
+
+
+def reach(cfg: GlmbPaperConfig) -> float:
+    """The largest range a detection reports: the detection range plus 4 sigma of range noise [m]."""
+    return float(cfg.range_max + 4.0 * cfg.sigma_range)
+
+
+def drive(cfg: GlmbPaperConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The true path: poses (N + 1, 3) at every control step and the commands (N, 2) (speed, steering)
+    applied from each pose to the next (bicycle model, rear-axle frame)."""
+    wp = np.asarray(cfg.waypoints, dtype=np.float64)
+    pose = np.zeros(3)
+    poses, cmds = [pose.copy()], []
+    steer, i = 0.0, 0
+    for _ in range(cfg.max_steps):
+        last = i == len(wp) - 1
+        if np.hypot(*(wp[i] - pose[:2])) < (cfg.arrive if last else cfg.switch):
+            if last:
+                break
+            i += 1
+        err = wrap_angle(np.arctan2(wp[i, 1] - pose[1], wp[i, 0] - pose[0]) - pose[2])
+        want = float(np.clip(err, -cfg.max_steer, cfg.max_steer))
+        step = cfg.steer_rate * cfg.dt
+        steer = float(np.clip(want, steer - step, steer + step))
+        v = cfg.speed
+        pose = np.array(
+            [pose[0] + cfg.dt * v * np.cos(pose[2]), pose[1] + cfg.dt * v * np.sin(pose[2]), wrap_angle(pose[2] + cfg.dt * v / cfg.wheelbase * np.tan(steer))]
+        )
+        poses.append(pose)
+        cmds.append((v, steer))
+    return np.array(poses), np.array(cmds, dtype=np.float64).reshape(-1, 2)
+
+
+def simulate_glmb_paper(cfg: GlmbPaperConfig, seed: int) -> SensorLog:
+    """One run of the scenario as a detection-level log with truth (poses at every control step, landmarks)."""
+    rng_ctrl, rng_det, rng_clut = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(3))
+    poses, cmds = drive(cfg)
+    n = cmds.shape[0]
+    # logged controls: row k holds from t_k to t_k+1 (the command that moved pose k to pose k + 1)
+    noisy = cmds + rng_ctrl.standard_normal(cmds.shape) * [cfg.sigma_v, cfg.sigma_steer]
+    stamps = np.arange(n + 1, dtype=np.int64) * int(round(cfg.dt * 1e9))
+    odo = np.vstack([noisy, noisy[-1:]])  # the last row is held past the end of the run
+    # scans at every observe_every-th control step, from the first pose on
+    at = np.arange(0, n + 1, cfg.observe_every)
+    sp = poses[at]
+    lm = np.asarray(cfg.landmarks, dtype=np.float64)
+    d = lm[None, :, :] - sp[:, None, :2]
+    r_true = np.hypot(d[..., 0], d[..., 1])
+    b_true = wrap_angle(np.arctan2(d[..., 1], d[..., 0]) - sp[:, None, 2])
+    seen = (r_true >= cfg.range_min) & (r_true <= cfg.range_max) & (rng_det.uniform(size=r_true.shape) < cfg.pd)
+    zr = r_true + rng_det.standard_normal(r_true.shape) * cfg.sigma_range
+    zb = wrap_angle(b_true + rng_det.standard_normal(r_true.shape) * cfg.sigma_bearing)
+    # a landmark in range is detected and its measurement kept whatever the noise (as the MATLAB simulators
+    # do: a noisy range may exceed the range limit); only a negative range is impossible
+    keep = seen & (zr > 0.0)
+    nc = rng_clut.poisson(cfg.clutter, at.size)
+    ck = np.repeat(np.arange(at.size), nc)
+    cr = rng_clut.uniform(cfg.range_min, cfg.range_max, ck.size)
+    cb = rng_clut.uniform(-np.pi, np.pi, ck.size)
+    kk, ll = np.nonzero(keep)
+    frame = np.concatenate([kk, ck])
+    order = np.argsort(frame, kind="stable")
+    det = Detections(
+        stamps[at],
+        frame[order].astype(np.int64),
+        np.concatenate([zr[keep], cr])[order],
+        np.concatenate([zb[keep], cb])[order],
+        {"landmark": np.concatenate([ll + 1, np.zeros(ck.size, np.int64)])[order].astype(np.int64)},
+    )
+    return SensorLog(
+        name=f"glmb_paper_c{cfg.clutter:g}_{seed}",
+        sensor=sensor_model(cfg),
+        odometry=Odometry("ackermann", stamps, odo),
+        reference={"ground_truth": ReferencePoses("ground_truth", stamps, poses)},
+        landmarks=Landmarks(np.arange(1, lm.shape[0] + 1, dtype=np.int64), lm),
+        detections=det,
+        vehicle=Vehicle(wheelbase=cfg.wheelbase, encoder_offset=0.0),
+        source={"reader": "simulate glmb-paper", "seed": int(seed), "config": cfg.model_dump(mode="json")},
+    )
+
+
+def truth_profile(cfg: GlmbPaperConfig, *, name: str | None = None, version: str = "1.0.0"):
+    """The profile of the simulated detector's true statistics (P_D, clutter, noise)."""
+    from calib import __version__
+    from profiles.profile import DetectorProfile, DetectorSpec, Provenance
+    from profiles.schema import ClutterParams, MeasurementNoise, PdTable
+
+    # P_D 0.7 out to the detection range (by the landmark's true range), 0 beyond, over a field of view that
+    # reaches as far as a noisy report can; the clutter lies in [range_min, range_max], so its intensity there
+    # is clutter / ((range_max - range_min) 2 pi): the profile's rate is scaled to the whole field of view
+    # (beyond range_max the filter then assumes a little clutter where there is none, which costs nothing)
+    far = reach(cfg)
+    vol = far * 2 * np.pi
+    rate = cfg.clutter * far / (cfg.range_max - cfg.range_min)
+    edges, pds = ([cfg.range_min, cfg.range_max, far], [cfg.pd, 0.0]) if cfg.range_min == 0.0 else ([0.0, cfg.range_min, cfg.range_max, far], [0.0, cfg.pd, 0.0])
+    return DetectorProfile(
+        name=name or f"glmb-paper-c{cfg.clutter:g}".replace(".", "p"),
+        version=version,
+        description="The glmb-paper scenario's true detection statistics (the simulator's settings, not a calibration).",
+        detector=DetectorSpec(kind="external"),
+        sensor=sensor_model(cfg),
+        pd=PdTable(covariate="range", edges=edges, pd=pds, clamping="none (simulator truth)"),
+        clutter=ClutterParams(rate=rate, volume=vol),
+        noise=MeasurementNoise(range_sigma=cfg.sigma_range, bearing_sigma=cfg.sigma_bearing),
+        provenance=Provenance(
+            detcal_version=__version__,
+            command="detcal simulate glmb-paper",
+            parameters=cfg.model_dump(mode="json"),
+            created="1970-01-01T00:00:00Z",  # a statement of the settings, not of a time: same config, same bytes
+        ),
+    )
+
+
+def summary(log: SensorLog, cfg: GlmbPaperConfig) -> dict:
+    d = log.detections
+    lab = np.asarray(d.descriptors["landmark"])
+    poses = log.reference["ground_truth"].poses
+    return {
+        "control_steps": int(poses.shape[0] - 1),
+        "scans": int(d.n_frames),
+        "duration_s": float((poses.shape[0] - 1) * cfg.dt),
+        "path_length_m": float(np.sum(np.hypot(*np.diff(poses[:, :2], axis=0).T))),
+        "landmarks": len(cfg.landmarks),
+        "landmarks_seen": int(np.unique(lab[lab > 0]).size),
+        "detections": int(len(d)),
+        "false_alarms": int((lab == 0).sum()),
+        "false_alarms_per_scan": float((lab == 0).sum() / max(d.n_frames, 1)),
+    }
+
+
+def plot_overview(log: SensorLog, path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    poses = log.reference["ground_truth"].poses
+    d = log.detections
+    fs = log.reference["ground_truth"]
+    at = np.searchsorted(fs.stamp, d.frame_stamp[d.frame])
+    sp = fs.poses[at]
+    a = sp[:, 2] + d.bearing
+    xy = np.column_stack([sp[:, 0] + d.range * np.cos(a), sp[:, 1] + d.range * np.sin(a)])
+    clutter = np.asarray(d.descriptors["landmark"]) == 0
+    fig, ax = plt.subplots(figsize=(8, 6))
+    ax.plot(xy[clutter, 0], xy[clutter, 1], ".", color="tab:green", ms=1.5, alpha=0.5, label="false alarms")
+    ax.plot(xy[~clutter, 0], xy[~clutter, 1], ".", color="tab:purple", ms=1.5, alpha=0.5, label="landmark detections")
+    ax.plot(poses[:, 0], poses[:, 1], "b--", lw=1, label="true path")
+    ax.plot(log.landmarks.xy[:, 0], log.landmarks.xy[:, 1], "k+", ms=10, mew=2, label="landmarks")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"{log.name}: {len(d)} detections over {d.n_frames} scans", fontsize=9)
+    ax.legend(fontsize=7, loc="upper right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, metadata={"Software": None})
+    plt.close(fig)

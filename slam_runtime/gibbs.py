@@ -1,0 +1,794 @@
+"""Compiled kernels of the labelled map filters (delta-GLMB, LMB): optimal assignment and the Gibbs
+sampler of the joint prediction/update (Vo, Vo & Hoang 2017; delta-GLMB-SLAM paper eqs. 11-17).
+
+The joint prediction/update of one prior hypothesis ``(I, xi)`` with weight w
+draws association maps gamma over the hypothesis's candidate tracks (its
+tracks in the field of view and this step's birth tracks): for candidate i,
+gamma_i = -1 (dead / not born), 0 (exists, missed) or j + 1 (exists, detected
+by measurement j), no measurement used twice. The weight of the child
+hypothesis (eqs. 12-13, 15) is
+
+    w * prod_i eta_i(gamma_i),
+    eta_i(-1) = 1 - r_i P_S,i,  eta_i(0) = r_i P_S,i (1 - P_D,i),  eta_i(j + 1) = r_i P_S,i P_D,i g(z_j | i) / kappa(z_j)
+
+with r_i = 1 for a track of the hypothesis and r_B for a birth (P_S = 1 for a
+birth); tracks outside the field of view (P_D = 0, P_S = 1) are carried over
+unchanged with a factor 1. The kernels work on log eta: ``l_death``,
+``l_miss`` (P, A) and ``l_det`` (P, A, M) for the A active tracks of each of
+the P particles (-inf where an option is impossible or a measurement lies
+outside the gate).
+
+For every prior hypothesis, the chain starts at the optimal assignment (the
+highest-weight child, :func:`hungarian`: a shortest-augmenting-path solver
+checked against ``scipy.optimize.linear_sum_assignment`` in the tests) and then
+makes one Gibbs sweep per further sample (Vo, Vo & Hoang 2017, Algorithm 1:
+each gamma_i drawn from its conditional given the others, with the
+measurements the others hold locked out). Samples are allocated to the prior
+hypotheses in proportion to sqrt(w) (their Algorithm 2); duplicate samples of
+one prior are counted once, and children of different priors that are the same
+labelled hypothesis (the same set of track versions) are merged by adding their
+weights. The sum of the children's weights is the normalisation constant of
+eq. 25, the particle's measurement likelihood. Every particle's chains start
+from the same seed (common random numbers), so particles whose maps and costs
+agree draw the same children and their weights differ only by what differs
+between them.
+
+Why compiled: the sweep is sequential by nature (each gamma_i is drawn given
+the current values of all the others, so no two draws of one chain can be
+vectorised), and the chains are short (tens of candidates) and many (one per
+prior hypothesis per particle, hundreds per step); in numpy that would be a
+Python loop per (hypothesis, candidate), the pattern the project rules out.
+numba runs every particle's chains in one call.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+_BIG = 1e15  # a forbidden pair in the assignment (every row has a finite option: its own dummy column)
+
+
+@numba.njit(cache=True, nogil=True)
+def hungarian(cost):  # pragma: no cover - compiled
+    """Minimum-cost assignment of every row of ``cost`` (n, m), n <= m, to a distinct column.
+
+    Shortest augmenting paths with row and column potentials (Kuhn-Munkres in
+    O(n^2 m)). Returns (n,) int64 column indices. Costs must be finite (use a
+    large value for forbidden pairs).
+    """
+    n, m = cost.shape
+    u = np.zeros(n + 1)
+    v = np.zeros(m + 1)
+    p = np.zeros(m + 1, np.int64)
+    way = np.zeros(m + 1, np.int64)
+    minv = np.empty(m + 1)
+    used = np.empty(m + 1, np.bool_)
+    for i in range(1, n + 1):
+        p[0] = i
+        j0 = 0
+        minv[:] = np.inf
+        used[:] = False
+        while True:
+            used[j0] = True
+            i0 = p[j0]
+            delta = np.inf
+            j1 = 0
+            for j in range(1, m + 1):
+                if not used[j]:
+                    cur = cost[i0 - 1, j - 1] - u[i0] - v[j]
+                    if cur < minv[j]:
+                        minv[j] = cur
+                        way[j] = j0
+                    if minv[j] < delta:
+                        delta = minv[j]
+                        j1 = j
+            for j in range(m + 1):
+                if used[j]:
+                    u[p[j]] += delta
+                    v[j] -= delta
+                else:
+                    minv[j] -= delta
+            j0 = j1
+            if p[j0] == 0:
+                break
+        while True:
+            j1 = way[j0]
+            p[j0] = p[j1]
+            j0 = j1
+            if j0 == 0:
+                break
+    out = np.full(n, -1, np.int64)
+    for j in range(1, m + 1):
+        if p[j] != 0:
+            out[p[j] - 1] = j - 1
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def argsort_stable(x):  # pragma: no cover - compiled
+    """Stable ascending argsort (bottom-up merge sort) of a 1-d array; compiles much faster than np.argsort."""
+    n = x.shape[0]
+    idx = np.arange(n)
+    tmp = np.empty(n, np.int64)
+    width = 1
+    while width < n:
+        i = 0
+        while i < n:
+            mid = min(i + width, n)
+            hi = min(i + 2 * width, n)
+            a = i
+            b = mid
+            k = i
+            while a < mid and b < hi:
+                if x[idx[b]] < x[idx[a]]:
+                    tmp[k] = idx[b]
+                    b += 1
+                else:
+                    tmp[k] = idx[a]
+                    a += 1
+                k += 1
+            while a < mid:
+                tmp[k] = idx[a]
+                a += 1
+                k += 1
+            while b < hi:
+                tmp[k] = idx[b]
+                b += 1
+                k += 1
+            i += 2 * width
+        idx, tmp = tmp, idx
+        width *= 2
+    return idx
+
+
+@numba.njit(cache=True, nogil=True)
+def _maha2(c, dd):  # pragma: no cover - compiled
+    """dd^T c^-1 dd for a small symmetric positive definite c (d, d), by Gaussian elimination."""
+    d = dd.shape[0]
+    a = c.copy()
+    b = dd.copy()
+    for i in range(d):
+        piv = a[i, i]
+        if piv <= 1e-300:
+            return np.inf
+        for r in range(i + 1, d):
+            f = a[r, i] / piv
+            for k in range(i, d):
+                a[r, k] -= f * a[i, k]
+            b[r] -= f * b[i]
+    x = np.empty(d)
+    for i in range(d - 1, -1, -1):
+        t = b[i]
+        for k in range(i + 1, d):
+            t -= a[i, k] * x[k]
+        x[i] = t / a[i, i]
+    m2 = 0.0
+    for i in range(d):
+        m2 += dd[i] * x[i]
+    return m2
+
+
+@numba.njit(cache=True, nogil=True)
+def _grow_i(a, need):  # pragma: no cover - compiled
+    if need <= a.shape[0]:
+        return a
+    b = np.empty(max(need, 2 * a.shape[0]), a.dtype)
+    b[: a.shape[0]] = a
+    return b
+
+
+@numba.njit(cache=True, nogil=True)
+def _grow_f(a, need):  # pragma: no cover - compiled
+    if need <= a.shape[0]:
+        return a
+    b = np.empty(max(need, 2 * a.shape[0]), a.dtype)
+    b[: a.shape[0]] = a
+    return b
+
+
+@numba.njit(cache=True, nogil=True)
+def _mix(h, x):  # pragma: no cover - compiled
+    """One step of a polynomial hash over int64 (wrapping)."""
+    return h * np.int64(1000003) + np.int64(x) + np.int64(7)
+
+
+@numba.njit(cache=True, nogil=True)
+def _sample_option(e_d, e_m, e_row, gl, ng, taken, k, u01):  # pragma: no cover - compiled
+    """Draw gamma_k from its conditional: death, miss, or a gated measurement no other candidate holds.
+
+    e_d, e_m, e_row (ng,): the options' weights eta scaled by the row's largest (precomputed once per step)."""
+    tot = e_d + e_m
+    for q in range(ng):
+        t = taken[gl[q]]
+        if t == -1 or t == k:
+            tot += e_row[q]
+    x = u01 * tot
+    if x < e_d:
+        return -1
+    x -= e_d
+    if x < e_m:
+        return 0
+    x -= e_m
+    last = -1
+    for q in range(ng):
+        t = taken[gl[q]]
+        if t == -1 or t == k:
+            last = q
+            if x < e_row[q]:
+                return gl[q] + 1
+            x -= e_row[q]
+    # round-off at the end of the cumulative sum: the last option that was allowed
+    if last >= 0:
+        return gl[last] + 1
+    return 0 if e_m > 0.0 else -1
+
+
+@numba.njit(cache=True, nogil=True)
+def joint_update(seed, logw, member, act, nact, l_death, l_miss, l_det, total, prune, cap):  # pragma: no cover - compiled
+    """Gibbs-sampled joint prediction/update of the labelled maps of P particles.
+
+    seed: seed of the compiled generator (drawn from the run's Generator), the same for every particle
+    (common random numbers: particles whose inputs agree draw the same children);
+    logw (P, H): normalised log weights of the prior hypotheses (-inf: empty slot);
+    member (P, H, S) bool: slot s is a candidate of hypothesis h (its tracks, and the births);
+    act (P, A) int64: slot of each active candidate (P_D > 0 or birth), nact (P,) how many;
+    l_death, l_miss (P, A), l_det (P, A, M): log eta of the options (module docstring);
+    total: samples per particle, shared among the prior hypotheses by sqrt(w);
+    prune: children of normalised weight below this are dropped (the heaviest is always kept);
+    cap: at most this many children per particle (the heaviest).
+
+    Returns (loglik (P,), capped, hyp_count (P,), hyp_logw, mem_count, mem_slot, slot_count (P,),
+    slot_src, slot_a): per particle its kept children (normalised log weights; each child's new
+    slots as indices into the particle's new slot list, ``mem_count`` per child), and the new
+    slots as (source slot, assignment: 0 carried over / missed, j + 1 updated with measurement j);
+    loglik is log sum over all distinct children of their unnormalised weight (eq. 25).
+    """
+    P, H = logw.shape
+    S = member.shape[2]
+    A = act.shape[1]
+    M = l_det.shape[2]
+    loglik = np.zeros(P)
+    capped = False
+    hyp_count = np.zeros(P, np.int64)
+    slot_count = np.zeros(P, np.int64)
+    hyp_logw = np.empty(64)
+    mem_count = np.empty(64, np.int64)
+    mem_slot = np.empty(256, np.int64)
+    slot_src = np.empty(256, np.int64)
+    slot_a = np.empty(256, np.int64)
+    n_hyp = 0
+    n_mem = 0
+    n_slot = 0
+    gl = np.empty((A, M), np.int64)
+    ng = np.zeros(A, np.int64)
+    e_row = np.empty((A, M))
+    e_d = np.empty(A)
+    e_m = np.empty(A)
+    taken = np.empty(M, np.int64)
+    for p in range(P):
+        # common random numbers: every particle's chains draw the same stream, so particles whose maps and
+        # poses agree draw the same hypotheses, and their weights differ by what differs between them
+        np.random.seed(seed)
+        na = nact[p]
+        pos = np.full(S, -1, np.int64)
+        for i in range(na):
+            pos[act[p, i]] = i
+            c = 0
+            mx = max(l_death[p, i], l_miss[p, i])
+            for j in range(M):
+                if l_det[p, i, j] > -np.inf:
+                    gl[i, c] = j
+                    c += 1
+                    if l_det[p, i, j] > mx:
+                        mx = l_det[p, i, j]
+            ng[i] = c
+            # the options' weights in linear scale, relative to the row's largest (no exp in the sweeps)
+            e_d[i] = np.exp(l_death[p, i] - mx) if l_death[p, i] > -np.inf else 0.0
+            e_m[i] = np.exp(l_miss[p, i] - mx) if l_miss[p, i] > -np.inf else 0.0
+            for q in range(c):
+                e_row[i, q] = np.exp(l_det[p, i, gl[i, q]] - mx)
+        # the live prior hypotheses and their share of the samples (sqrt of the weight)
+        live = np.empty(H, np.int64)
+        nl = 0
+        for h in range(H):
+            if logw[p, h] > -np.inf:
+                live[nl] = h
+                nl += 1
+        if nl == 0:
+            loglik[p] = -np.inf
+            continue
+        top = live[0]
+        ssum = 0.0
+        for q in range(nl):
+            h = live[q]
+            ssum += np.exp(0.5 * logw[p, h])
+            if logw[p, h] > logw[p, top]:
+                top = h
+        alloc = np.zeros(H, np.int64)
+        for q in range(nl):
+            h = live[q]
+            alloc[h] = int(np.floor(total * np.exp(0.5 * logw[p, h]) / ssum + 0.5))
+        if alloc[top] < 1:
+            alloc[top] = 1
+        nmax = 0
+        for q in range(nl):
+            nmax += alloc[live[q]]
+        ch_parent = np.empty(nmax, np.int64)
+        ch_assign = np.full((nmax, na), -1, np.int64)
+        ch_lw = np.empty(nmax)
+        ch_hash = np.empty(nmax, np.int64)
+        nch = 0
+        # a hash of each prior's tracks that are carried over (not active)
+        phash = np.zeros(H, np.int64)
+        for q in range(nl):
+            h = live[q]
+            hh = np.int64(0)
+            for s in range(S):
+                if member[p, h, s] and pos[s] < 0:
+                    hh = _mix(hh, s)
+            phash[h] = hh
+        rows = np.empty(na, np.int64)
+        gamma = np.empty(na, np.int64)
+        sub_rows = np.empty(na, np.int64)
+        col_of = np.full(M, -1, np.int64)
+        col_meas = np.empty(M, np.int64)
+        for q in range(nl):
+            h = live[q]
+            if alloc[h] == 0:
+                continue
+            n = 0
+            for i in range(na):
+                if member[p, h, act[p, i]]:
+                    rows[n] = i
+                    n += 1
+            # the chain starts at the optimal assignment; a candidate that gates no measurement takes its best
+            # non-detection option, the others are assigned over the measurements they gate (+ one dummy each)
+            nr = 0
+            for k in range(n):
+                i = rows[k]
+                if ng[i] == 0:
+                    gamma[k] = 0 if l_miss[p, i] >= l_death[p, i] else -1
+                else:
+                    sub_rows[nr] = k
+                    nr += 1
+            if nr > 0:
+                nc = 0
+                for q in range(nr):
+                    i = rows[sub_rows[q]]
+                    for g in range(ng[i]):
+                        j = gl[i, g]
+                        if col_of[j] < 0:
+                            col_of[j] = nc
+                            col_meas[nc] = j
+                            nc += 1
+                cost = np.full((nr, nc + nr), _BIG)
+                for q in range(nr):
+                    i = rows[sub_rows[q]]
+                    for g in range(ng[i]):
+                        j = gl[i, g]
+                        cost[q, col_of[j]] = -l_det[p, i, j]
+                    cost[q, nc + q] = -max(l_death[p, i], l_miss[p, i])
+                asg = hungarian(cost)
+                for q in range(nr):
+                    k = sub_rows[q]
+                    i = rows[k]
+                    if asg[q] < nc:
+                        gamma[k] = col_meas[asg[q]] + 1
+                    elif l_miss[p, i] >= l_death[p, i]:
+                        gamma[k] = 0
+                    else:
+                        gamma[k] = -1
+                for q in range(nc):
+                    col_of[col_meas[q]] = -1
+            taken[:] = -1
+            for k in range(n):
+                if gamma[k] > 0:
+                    taken[gamma[k] - 1] = k
+            first = nch
+            for smp in range(alloc[h]):
+                if smp > 0:
+                    for k in range(n):
+                        i = rows[k]
+                        g = _sample_option(e_d[i], e_m[i], e_row[i], gl[i], ng[i], taken, k, np.random.random())
+                        if gamma[k] > 0:
+                            taken[gamma[k] - 1] = -1
+                        gamma[k] = g
+                        if g > 0:
+                            taken[g - 1] = k
+                hh = np.int64(0)
+                for k in range(n):
+                    hh = _mix(hh, gamma[k])
+                dup = False
+                for c in range(first, nch):
+                    if ch_hash[c] == hh:
+                        same = True
+                        for k in range(n):
+                            if ch_assign[c, rows[k]] != gamma[k]:
+                                same = False
+                                break
+                        if same:
+                            dup = True
+                            break
+                if dup:
+                    continue
+                lw = logw[p, h]
+                for k in range(n):
+                    i = rows[k]
+                    g = gamma[k]
+                    if g < 0:
+                        lw += l_death[p, i]
+                    elif g == 0:
+                        lw += l_miss[p, i]
+                    else:
+                        lw += l_det[p, i, g - 1]
+                ch_parent[nch] = h
+                for k in range(n):
+                    ch_assign[nch, rows[k]] = gamma[k]
+                ch_lw[nch] = lw
+                ch_hash[nch] = hh
+                nch += 1
+        # children of different priors that are the same labelled hypothesis: merged (weights added)
+        key = np.empty(nch, np.int64)
+        for c in range(nch):
+            hh = phash[ch_parent[c]]
+            for i in range(na):
+                hh = _mix(hh, max(ch_assign[c, i], -1))
+            key[c] = hh
+        order = argsort_stable(key)
+        alive = np.ones(nch, np.bool_)
+        for a in range(nch):
+            ca = order[a]
+            if not alive[ca]:
+                continue
+            for b in range(a + 1, nch):
+                cb = order[b]
+                if key[cb] != key[ca]:
+                    break
+                if not alive[cb]:
+                    continue
+                same = True
+                for i in range(na):
+                    if ch_assign[ca, i] != ch_assign[cb, i]:
+                        same = False
+                        break
+                if same:
+                    ha = ch_parent[ca]
+                    hb = ch_parent[cb]
+                    for s in range(S):
+                        if pos[s] < 0 and member[p, ha, s] != member[p, hb, s]:
+                            same = False
+                            break
+                if same:
+                    hi = max(ch_lw[ca], ch_lw[cb])
+                    ch_lw[ca] = hi + np.log(np.exp(ch_lw[ca] - hi) + np.exp(ch_lw[cb] - hi))
+                    alive[cb] = False
+        # the normalisation constant (eq. 25), then normalise, prune and cap
+        mx = -np.inf
+        for c in range(nch):
+            if alive[c] and ch_lw[c] > mx:
+                mx = ch_lw[c]
+        tot = 0.0
+        for c in range(nch):
+            if alive[c]:
+                tot += np.exp(ch_lw[c] - mx)
+        ll = mx + np.log(tot)
+        loglik[p] = ll
+        cand = np.empty(nch, np.int64)
+        ncand = 0
+        for c in range(nch):
+            if alive[c]:
+                cand[ncand] = c
+                ncand += 1
+        lws = np.empty(ncand)
+        for q in range(ncand):
+            lws[q] = -ch_lw[cand[q]]
+        srt = argsort_stable(lws)
+        kept = np.empty(ncand, np.int64)
+        nk = 0
+        for q in range(ncand):
+            c = cand[srt[q]]
+            if nk > 0 and np.exp(ch_lw[c] - ll) < prune:
+                break
+            if nk >= cap:
+                capped = True
+                break
+            kept[nk] = c
+            nk += 1
+        kt = 0.0
+        for q in range(nk):
+            kt += np.exp(ch_lw[kept[q]] - mx)
+        lnorm = mx + np.log(kt)
+        # the new slots: (source slot, assignment), shared by the children that hold them
+        table = np.full(S * (M + 1), -1, np.int64)
+        ns = 0
+        for q in range(nk):
+            c = kept[q]
+            h = ch_parent[c]
+            hyp_logw = _grow_f(hyp_logw, n_hyp + 1)
+            mem_count = _grow_i(mem_count, n_hyp + 1)
+            hyp_logw[n_hyp] = ch_lw[c] - lnorm
+            cnt = 0
+            for s in range(S):
+                a = -1
+                if pos[s] < 0:
+                    if member[p, h, s]:
+                        a = 0
+                else:
+                    a = ch_assign[c, pos[s]]
+                if a < 0:
+                    continue
+                t = s * (M + 1) + a
+                if table[t] < 0:
+                    table[t] = ns
+                    slot_src = _grow_i(slot_src, n_slot + ns + 1)
+                    slot_a = _grow_i(slot_a, n_slot + ns + 1)
+                    slot_src[n_slot + ns] = s
+                    slot_a[n_slot + ns] = a
+                    ns += 1
+                mem_slot = _grow_i(mem_slot, n_mem + 1)
+                mem_slot[n_mem] = table[t]
+                n_mem += 1
+                cnt += 1
+            mem_count[n_hyp] = cnt
+            n_hyp += 1
+        hyp_count[p] = nk
+        slot_count[p] = ns
+        n_slot += ns
+    return (
+        loglik,
+        capped,
+        hyp_count,
+        hyp_logw[:n_hyp].copy(),
+        mem_count[:n_hyp].copy(),
+        mem_slot[:n_mem].copy(),
+        slot_count,
+        slot_src[:n_slot].copy(),
+        slot_a[:n_slot].copy(),
+    )
+
+
+
+@numba.njit(cache=True, nogil=True)
+def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, mem_count, mem_slot, merge, prune, cap):  # pragma: no cover - compiled
+    """Merge close versions of each label, release unseen labels, merge identical hypotheses; prune and cap.
+
+    Input, flat over the P particles as :func:`joint_update` returns it: the new
+    slots (slot_count (P,), label (N,), mu (N, d), cov (N, d, d), release (N,)
+    bool) and the hypotheses (hyp_count (P,), normalised hyp_logw, mem_count,
+    mem_slot: slot indices within the particle).
+
+    * The weight of a version (a label's density under one association
+      history, eq. 29) is the summed weight of the hypotheses that hold it.
+    * A label all of whose versions are flagged ``release`` (tracks the sensor
+      could not see this step) leaves the hypotheses: it becomes one Bernoulli
+      component, existence = its summed weight, density = the moment match of
+      its versions.
+    * The other versions of a label are merged greedily, heaviest first, when
+      within squared Mahalanobis distance ``merge`` of the head (Vo & Ma's rule,
+      within one label); a merged version is the moment match of its members.
+      ``merge`` <= 0 merges nothing.
+    * Hypotheses that then hold the same versions are one hypothesis (weights
+      added); those below ``prune`` are dropped (the heaviest is kept), at most
+      ``cap`` are kept, the weights renormalised, and versions no hypothesis
+      holds removed.
+
+    Returns (capped, slot_count, label, mu, cov, hyp_count, hyp_logw, mem_count,
+    mem_slot, free_count (P,), free_label, free_r, free_mu, free_cov).
+    """
+    P = slot_count.shape[0]
+    d = mu.shape[1]
+    capped = False
+    n_in = label.shape[0]
+    o_slot_count = np.zeros(P, np.int64)
+    o_hyp_count = np.zeros(P, np.int64)
+    o_free_count = np.zeros(P, np.int64)
+    o_label = np.empty(n_in, np.int64)
+    o_mu = np.empty((n_in, d))
+    o_cov = np.empty((n_in, d, d))
+    f_label = np.empty(n_in, np.int64)
+    f_r = np.empty(n_in)
+    f_mu = np.empty((n_in, d))
+    f_cov = np.empty((n_in, d, d))
+    o_logw = np.empty(hyp_logw.shape[0])
+    o_mem_count = np.empty(hyp_logw.shape[0], np.int64)
+    o_mem_slot = np.empty(mem_slot.shape[0], np.int64)
+    n_out_slot = 0
+    n_out_hyp = 0
+    n_out_mem = 0
+    n_free = 0
+    s0 = 0
+    h0 = 0
+    m0 = 0
+    for p in range(P):
+        ns = slot_count[p]
+        nh = hyp_count[p]
+        wv = np.zeros(ns)
+        hm0 = np.empty(nh + 1, np.int64)
+        hm0[0] = m0
+        for h in range(nh):
+            hm0[h + 1] = hm0[h] + mem_count[h0 + h]
+            w = np.exp(hyp_logw[h0 + h])
+            for q in range(hm0[h], hm0[h + 1]):
+                wv[mem_slot[q]] += w
+        # group the versions of each label (heaviest first); a released label is one group
+        lab = label[s0 : s0 + ns]
+        order0 = argsort_stable(lab)
+        grp = np.full(ns, -1, np.int64)
+        gfree = np.zeros(ns, np.bool_)
+        key = np.empty(ns)
+        ng = 0
+        a = 0
+        while a < ns:
+            b = a
+            while b < ns and lab[order0[b]] == lab[order0[a]]:
+                b += 1
+            idx = order0[a:b]
+            allrel = True
+            for q in range(idx.shape[0]):
+                key[q] = -wv[idx[q]]
+                if not release[s0 + idx[q]]:
+                    allrel = False
+            sub = idx[argsort_stable(key[: idx.shape[0]])]
+            if allrel:
+                for q in range(sub.shape[0]):
+                    grp[sub[q]] = ng
+                gfree[ng] = True
+                ng += 1
+            else:
+                for q in range(sub.shape[0]):
+                    head = sub[q]
+                    if grp[head] >= 0:
+                        continue
+                    grp[head] = ng
+                    if merge > 0.0:
+                        for r in range(q + 1, sub.shape[0]):
+                            o = sub[r]
+                            if grp[o] < 0 and _maha2(cov[s0 + head], mu[s0 + o] - mu[s0 + head]) <= merge:
+                                grp[o] = ng
+                    ng += 1
+            a = b
+        # moments of each group
+        gw = np.zeros(ng)
+        gmu = np.zeros((ng, d))
+        gcov = np.zeros((ng, d, d))
+        glab = np.empty(ng, np.int64)
+        for k in range(ns):
+            g = grp[k]
+            gw[g] += wv[k]
+            glab[g] = lab[k]
+            for i in range(d):
+                gmu[g, i] += wv[k] * mu[s0 + k, i]
+        for g in range(ng):
+            if gw[g] > 0.0:
+                for i in range(d):
+                    gmu[g, i] /= gw[g]
+        for k in range(ns):
+            g = grp[k]
+            for i in range(d):
+                for j in range(d):
+                    gcov[g, i, j] += wv[k] * (cov[s0 + k, i, j] + (mu[s0 + k, i] - gmu[g, i]) * (mu[s0 + k, j] - gmu[g, j]))
+        for g in range(ng):
+            if gw[g] > 0.0:
+                for i in range(d):
+                    for j in range(d):
+                        gcov[g, i, j] /= gw[g]
+        # released labels: independent Bernoulli components
+        nf = 0
+        for g in range(ng):
+            if gfree[g] and gw[g] > 0.0:
+                f_label[n_free + nf] = glab[g]
+                f_r[n_free + nf] = min(gw[g], 1.0)
+                f_mu[n_free + nf] = gmu[g]
+                f_cov[n_free + nf] = gcov[g]
+                nf += 1
+        # hypotheses as sorted lists of their (kept) groups; identical ones merged
+        hl = np.empty(hm0[nh] - m0, np.int64)
+        hn = np.zeros(nh, np.int64)
+        hkey = np.empty(nh, np.int64)
+        for h in range(nh):
+            a0 = hm0[h] - m0
+            n = 0
+            for q in range(hm0[h + 1] - hm0[h]):
+                g = grp[mem_slot[hm0[h] + q]]
+                if not gfree[g]:
+                    hl[a0 + n] = g
+                    n += 1
+            hn[h] = n
+            srt = argsort_stable(hl[a0 : a0 + n])
+            hl[a0 : a0 + n] = hl[a0 : a0 + n][srt]
+            hh = np.int64(n)
+            for q in range(n):
+                hh = hh * np.int64(1000003) + hl[a0 + q] + np.int64(7)
+            hkey[h] = hh
+        lw = hyp_logw[h0 : h0 + nh].copy()
+        alive = np.ones(nh, np.bool_)
+        order = argsort_stable(hkey)
+        for x in range(nh):
+            ha = order[x]
+            if not alive[ha]:
+                continue
+            for y in range(x + 1, nh):
+                hb = order[y]
+                if hkey[hb] != hkey[ha]:
+                    break
+                if not alive[hb] or hn[hb] != hn[ha]:
+                    continue
+                same = True
+                for q in range(hn[ha]):
+                    if hl[hm0[ha] - m0 + q] != hl[hm0[hb] - m0 + q]:
+                        same = False
+                        break
+                if same:
+                    hi = max(lw[ha], lw[hb])
+                    lw[ha] = hi + np.log(np.exp(lw[ha] - hi) + np.exp(lw[hb] - hi))
+                    alive[hb] = False
+        # prune, cap, renormalise
+        cand = np.empty(nh, np.int64)
+        nc = 0
+        for h in range(nh):
+            if alive[h]:
+                cand[nc] = h
+                nc += 1
+        neg = np.empty(nc)
+        for q in range(nc):
+            neg[q] = -lw[cand[q]]
+        srt = argsort_stable(neg)
+        kept = np.empty(nc, np.int64)
+        nk = 0
+        for q in range(nc):
+            h = cand[srt[q]]
+            if nk > 0 and np.exp(lw[h]) < prune:
+                break
+            if nk >= cap:
+                capped = True
+                break
+            kept[nk] = h
+            nk += 1
+        mx = lw[kept[0]] if nk > 0 else 0.0
+        tot = 0.0
+        for q in range(nk):
+            tot += np.exp(lw[kept[q]] - mx)
+        lnorm = mx + np.log(tot) if nk > 0 else 0.0
+        # the versions the kept hypotheses hold, renumbered in order of first use
+        newid = np.full(ng, -1, np.int64)
+        nn = 0
+        for q in range(nk):
+            h = kept[q]
+            o_logw[n_out_hyp] = lw[h] - lnorm
+            o_mem_count[n_out_hyp] = hn[h]
+            for r in range(hn[h]):
+                g = hl[hm0[h] - m0 + r]
+                if newid[g] < 0:
+                    newid[g] = nn
+                    o_label[n_out_slot + nn] = glab[g]
+                    o_mu[n_out_slot + nn] = gmu[g]
+                    o_cov[n_out_slot + nn] = gcov[g]
+                    nn += 1
+                o_mem_slot[n_out_mem] = newid[g]
+                n_out_mem += 1
+            n_out_hyp += 1
+        o_slot_count[p] = nn
+        o_hyp_count[p] = nk
+        o_free_count[p] = nf
+        n_out_slot += nn
+        n_free += nf
+        s0 += ns
+        h0 += nh
+        m0 = hm0[nh]
+    return (
+        capped,
+        o_slot_count,
+        o_label[:n_out_slot].copy(),
+        o_mu[:n_out_slot].copy(),
+        o_cov[:n_out_slot].copy(),
+        o_hyp_count,
+        o_logw[:n_out_hyp].copy(),
+        o_mem_count[:n_out_hyp].copy(),
+        o_mem_slot[:n_out_mem].copy(),
+        o_free_count,
+        f_label[:n_free].copy(),
+        f_r[:n_free].copy(),
+        f_mu[:n_free].copy(),
+        f_cov[:n_free].copy(),
+    )

@@ -1,0 +1,593 @@
+"""delta-GLMB-SLAM's map filter (Moratuwage, Adams & Inostroza): a delta-GLMB map per particle,
+propagated by the Gibbs-sampled joint prediction/update of Vo, Vo & Hoang (2017).
+
+Each particle's map is a delta-GLMB density (eqs. 10, 19-20): hypotheses
+(I^(h), w^(h)) over labelled tracks, a track being one (label, association
+history) version of a landmark with a Gaussian density (eq. 29 with one
+component: an EKF update of a Gaussian stays Gaussian, and births are single
+Gaussians). All particles are held together, padded: tracks (P, T) and
+hypotheses (P, H) with their track sets as a membership mask (P, H, T).
+
+One step (:meth:`GLMB.update`, eqs. 11-17):
+
+* the candidates of every hypothesis are its tracks and this step's birth
+  tracks, made from the previous step's measurements through the inverse
+  measurement model (adaptive birth, eq. 28; Reuter et al. 2014), with birth
+  probability ``birth_unassociated`` (0.01) for a measurement no existing track
+  could explain (outside the gate of every track of existence >= 0.5) and
+  ``birth_associated`` (0.005) otherwise, as in the paper;
+* P_D and the buffer zone come from the detection model
+  (:meth:`detectors.model.DetectionModel.pd_features`), kappa(z) from its
+  clutter intensity (divided by the descriptor likelihood ratio when there is
+  one, eq. 2.26 with 5.6 of the thesis);
+* survival (eqs. 7-8, 14): P_S = ``survival`` for a track in the field of
+  view (P_D > 0), ``survival_outside`` (1) out of it, so a mapped landmark
+  stays in the map when it leaves the view; the paper takes 0.95 in view, the
+  default is 1 (static landmarks: with 0.95 per scan a landmark missed twice is
+  believed gone with probability 0.42); a track in the buffer zone (thesis
+  eq. 3.21) neither dies nor pays for a miss;
+* the costs eta (eqs. 5, 13, 15, 27) of every (track, measurement) pair of all
+  particles in one numpy pass (only the tracks that can be seen, inside the
+  gate); the Gibbs sampler (:mod:`slam_runtime.gibbs`, compiled) draws the
+  children of every hypothesis, starting at its optimal assignment;
+* the children's tracks are EKF updates (eqs. 17, 26-27, 30) of the pairs
+  that were drawn, computed once per distinct (track, measurement) pair;
+* the particle's log-likelihood is the log of the normalisation constant
+  (eq. 25): the sum of the unnormalised weights of all the children drawn.
+  Every particle's chains draw the same random stream in a step (common random
+  numbers), so particles whose maps and poses agree draw the same hypotheses
+  and their weights differ by what differs between them, not by sampling luck;
+* reduction (:func:`slam_runtime.gibbs.reduce_hypotheses`): the versions of
+  one label under different association histories whose Gaussians lie within
+  squared Mahalanobis distance ``merge`` (4) of each other are merged (moment
+  match; eq. 29 with the mixture reduced to one component), hypotheses that
+  then coincide are one; ``merge: 0`` keeps every version, the exact filter;
+* tracks the sensor could not see this step (P_D = 0: out of view or occluded)
+  leave the hypotheses as independent Bernoulli components (existence = the
+  weight of the hypotheses that held them, density = the moment match of their
+  versions), and rejoin every hypothesis as candidates of that existence when
+  they come back into view (``release_unseen``). The exact delta-GLMB leaves
+  an unseen track's existence unchanged and independent of new evidence; with
+  a few tens of hypotheses it cannot hold the 2^n combinations of n unseen
+  uncertain tracks, and the truncation lets their existences random-walk to 0
+  or 1 (measured on the glmb-paper scenario: false landmarks of existence 1
+  and true ones lost). ``release_unseen: false`` is the exact filter;
+* hypotheses below ``prune`` (1e-5, the paper's value) are dropped, at most
+  ``max_hypotheses`` are kept (the cap; :attr:`capped_steps` counts the steps
+  at which it bound), and tracks no hypothesis holds are removed; released
+  tracks below ``prune_released`` are removed.
+
+The map estimate (sec. III-B): the maximum a posteriori cardinality n of the
+particle's hypotheses, then the heaviest hypothesis of cardinality n, each of
+its tracks with its label's existence probability (the summed weight of the
+hypotheses that hold the label); and the released tracks of existence >=
+``map_threshold``.
+
+The filter is generic in the feature model (``dim_x``, ``dim_z``,
+``predict_sensor``, ``inverse_sensor``, ``innovation``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from profiles.errors import UsageError
+from slam_runtime.features import FeatureModel
+from slam_runtime.gibbs import joint_update, reduce_hypotheses
+from slam_runtime.gm import det, inv, matmul, matvec, quad, transpose
+from slam_runtime.mapfilter import MapFilter, Measurements
+
+#: bits of a label that hold the measurement index: label = (step << LABEL_BITS) + measurement
+LABEL_BITS = 20
+
+
+def label_parts(label: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(step, measurement) a label was born from: the filter step whose measurement gave the birth track."""
+    label = np.asarray(label, dtype=np.int64)
+    return label >> LABEL_BITS, label & ((1 << LABEL_BITS) - 1)
+
+
+class LabelledSettings(BaseModel):
+    """Settings shared by the labelled map filters (LMB, delta-GLMB)."""
+
+    model_config = ConfigDict(extra="forbid")
+    survival: float = Field(
+        default=1.0, gt=0.0, le=1.0, description="P_S of a feature in the field of view (P_D > 0), per step (the paper: 0.95; landmarks are static)"
+    )
+    survival_outside: float = Field(default=1.0, gt=0.0, le=1.0, description="P_S of a feature out of the field of view")
+    birth_unassociated: float = Field(default=0.01, gt=0.0, lt=1.0, description="birth probability from a measurement outside every track's gate")
+    birth_associated: float = Field(default=0.005, gt=0.0, lt=1.0, description="birth probability from a measurement some track could explain")
+    gate: float = Field(default=16.0, gt=0.0, description="squared Mahalanobis distance beyond which a measurement cannot update a track")
+    samples: int = Field(default=60, ge=1, le=100_000, description="Gibbs samples per particle and step, shared among the hypotheses by sqrt(weight)")
+    noise_inflation: float = Field(default=1.0, ge=1.0, description="factor on the measurement noise covariance")
+    landmark_noise: float = Field(default=0.0, ge=0.0, description="landmark position variance added per second [m^2/s]")
+    map_threshold: float = Field(default=0.5, gt=0.0, le=1.0, description="existence probability from which a track counts as mapped (LMB)")
+
+
+class GLMBConfig(LabelledSettings):
+    """Settings of the delta-GLMB map filter (``filter: {kind: glmb, ...}``)."""
+
+    kind: Literal["glmb"] = "glmb"
+    prune: float = Field(default=1e-5, gt=0.0, lt=1.0, description="hypotheses of smaller normalised weight are dropped")
+    max_hypotheses: int = Field(default=50, ge=1, le=100_000, description="hypotheses per particle at most (the heaviest)")
+    merge: float = Field(
+        default=4.0, ge=0.0, description="squared Mahalanobis distance within which versions of one label merge (0: none, the exact delta-GLMB)"
+    )
+    release_unseen: bool = Field(
+        default=True, description="tracks the sensor cannot see leave the hypotheses as independent Bernoulli components (false: the exact delta-GLMB)"
+    )
+    prune_released: float = Field(default=1e-3, gt=0.0, lt=1.0, description="released tracks of smaller existence probability are removed")
+
+
+@dataclass
+class Tracks:
+    """Labelled Gaussian tracks of P particles, padded: particle p's tracks fill slots 0..n_p - 1.
+
+    mu (P, T, dx), cov (P, T, dx, dx) world frame; label (P, T) int64, -1 for an empty slot.
+    """
+
+    mu: np.ndarray
+    cov: np.ndarray
+    label: np.ndarray
+
+    @classmethod
+    def empty(cls, p: int, d: int, t: int = 0) -> Tracks:
+        return cls(np.zeros((p, t, d)), np.tile(np.eye(d), (p, t, 1, 1)), np.full((p, t), -1, np.int64))
+
+    @property
+    def valid(self) -> np.ndarray:
+        return self.label >= 0
+
+    def take(self, idx: np.ndarray) -> Tracks:
+        return Tracks(self.mu[idx], self.cov[idx], self.label[idx])
+
+
+@dataclass
+class Births:
+    """Birth tracks for the next step, one per measurement of this one: mu (P, B, dx), cov (P, B, dx, dx),
+    r (P, B) birth probabilities, label (B,)."""
+
+    mu: np.ndarray
+    cov: np.ndarray
+    r: np.ndarray
+    label: np.ndarray
+
+    @classmethod
+    def empty(cls, p: int, d: int) -> Births:
+        return cls(np.zeros((p, 0, d)), np.zeros((p, 0, d, d)), np.zeros((p, 0)), np.zeros(0, np.int64))
+
+    def take(self, idx: np.ndarray) -> Births:
+        return Births(self.mu[idx], self.cov[idx], self.r[idx], self.label)
+
+
+@dataclass
+class GLMBMaps:
+    """The delta-GLMB maps of P particles: the tracks of the hypotheses (P, T), the hypotheses' normalised
+    log weights logw (P, H) (-inf for an empty slot) and track sets member (P, H, T) bool; the released
+    tracks (independent Bernoulli components) free (P, F) with existence free_r (P, F); the births of
+    the next step."""
+
+    tracks: Tracks
+    logw: np.ndarray
+    member: np.ndarray
+    free: Tracks
+    free_r: np.ndarray
+    births: Births
+
+    def take(self, idx: np.ndarray) -> GLMBMaps:
+        return GLMBMaps(self.tracks.take(idx), self.logw[idx], self.member[idx], self.free.take(idx), self.free_r[idx], self.births.take(idx))
+
+
+@dataclass
+class JointResult:
+    """The compiled sampler's output, flattened over particles (see :func:`slam_runtime.gibbs.joint_update`)."""
+
+    loglik: np.ndarray  # (P,)
+    capped: bool
+    hyp_count: np.ndarray  # (P,)
+    hyp_logw: np.ndarray  # (sum hyp_count,)
+    mem_count: np.ndarray  # (sum hyp_count,)
+    mem_slot: np.ndarray  # (sum mem_count,)
+    slot_count: np.ndarray  # (P,)
+    slot_src: np.ndarray  # (sum slot_count,)
+    slot_a: np.ndarray  # (sum slot_count,)
+
+    def slot_particle(self) -> tuple[np.ndarray, np.ndarray]:
+        """(particle, index within the particle) of every new slot."""
+        p = np.repeat(np.arange(self.slot_count.size), self.slot_count)
+        start = np.concatenate([[0], np.cumsum(self.slot_count)[:-1]])
+        return p, np.arange(p.size) - start[p]
+
+    def memberships(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(particle, hypothesis index within the particle, slot index within the particle) of every membership."""
+        hp = np.repeat(np.arange(self.hyp_count.size), self.hyp_count)
+        start = np.concatenate([[0], np.cumsum(self.hyp_count)[:-1]])
+        hk = np.arange(hp.size) - start[hp]
+        return np.repeat(hp, self.mem_count), np.repeat(hk, self.mem_count), self.mem_slot
+
+
+@dataclass
+class _Slots:
+    """Every slot the step works on: the tracks then the births (P, S = T + B)."""
+
+    mu: np.ndarray
+    cov: np.ndarray
+    r: np.ndarray  # existence of the slot as a candidate: 1 (GLMB track), r (LMB track), r_B (birth)
+    label: np.ndarray
+    valid: np.ndarray
+    birth: np.ndarray  # (P, S) bool
+
+
+@dataclass
+class _Costs:
+    act: np.ndarray  # (P, A) slot of each active candidate
+    nact: np.ndarray  # (P,)
+    l_death: np.ndarray  # (P, A)
+    l_miss: np.ndarray  # (P, A)
+    l_det: np.ndarray  # (P, A, M)
+    explained: np.ndarray  # (P, M) some existing track could explain the measurement (inside its gate)
+
+
+class LabelledFilter(MapFilter):
+    """What the LMB and delta-GLMB map filters share: slots, costs, the sampler call, EKF updates, births."""
+
+    def __init__(self, feature: FeatureModel, detection, cfg: LabelledSettings, rng: np.random.Generator | None = None) -> None:
+        super().__init__(feature, detection)
+        self.cfg = cfg
+        self.r = feature.r * cfg.noise_inflation
+        self.rng = rng
+        self.step = 0
+
+    def bind(self, rng: np.random.Generator) -> None:
+        """Use the run's generator for the Gibbs sampler (the particle loop calls this)."""
+        self.rng = rng
+
+    def _seed(self) -> int:
+        if self.rng is None:
+            raise UsageError(f"the {self.name} map filter needs a random generator: pass rng= or let the particle loop bind one")
+        return int(self.rng.integers(0, 2**62))
+
+    # ------------------------------------------------------------------ pieces of a step
+    def _noise(self, meas: Measurements) -> tuple[np.ndarray, np.ndarray]:
+        dz = self.feature.dim_z
+        z = np.asarray(meas.z, dtype=np.float64).reshape(-1, dz)
+        m = z.shape[0]
+        rz = np.broadcast_to(self.r, (m, dz, dz)) if meas.cov is None else np.asarray(meas.cov, dtype=np.float64).reshape(m, dz, dz) + self.r
+        return z, rz
+
+    def _log_kappa(self, z: np.ndarray, meas: Measurements) -> np.ndarray:
+        if z.shape[0] == 0:
+            return np.zeros(0)
+        kappa = np.asarray(self.detection.clutter_intensity(z), dtype=np.float64)
+        if meas.ratio is not None:
+            kappa = kappa / np.maximum(np.asarray(meas.ratio, dtype=np.float64), 1e-300)
+        return np.log(np.maximum(kappa, 1e-300))
+
+    def _costs(self, sl: _Slots, sp: np.ndarray, z: np.ndarray, rz: np.ndarray, own_cov: bool, log_kappa: np.ndarray, pd, buf) -> _Costs:
+        """log eta of every option of the active candidates (module docstring of :mod:`slam_runtime.gibbs`)."""
+        cfg, fm = self.cfg, self.feature
+        p, s = sl.valid.shape
+        m, dz = z.shape
+        pd = np.where(sl.valid, np.minimum(pd, 1.0 - 1e-9), 0.0)  # a miss always stays possible
+        buf = buf & sl.valid & ~sl.birth
+        active = sl.valid & ((pd > 0) | sl.birth)
+        nact = active.sum(axis=1)
+        a = int(nact.max()) if p and s else 0
+        act = np.argsort(~active, axis=1, kind="stable")[:, :a]
+        rows = np.arange(p)[:, None]
+        in_a = np.arange(a)[None, :] < nact[:, None]
+        pd_a, buf_a, r_a, birth_a = pd[rows, act], buf[rows, act], sl.r[rows, act], sl.birth[rows, act]
+        ps = np.where(birth_a | buf_a, 1.0, np.where(pd_a > 0, cfg.survival, cfg.survival_outside))
+        pd_miss = np.where(buf_a, 0.0, pd_a)
+        with np.errstate(divide="ignore"):
+            l_death = np.log(np.maximum(1.0 - r_a * ps, 0.0))
+            l_miss = np.log(r_a * ps * (1.0 - pd_miss))
+            l_base = np.log(r_a * ps * pd_a)
+        l_det = np.full((p, a, m), -np.inf)
+        explained = np.zeros((p, m), dtype=bool)
+        if a and m:
+            mu_a, cov_a = sl.mu[rows, act], sl.cov[rows, act]
+            zhat, h = fm.predict_sensor(sp[:, None, :], mu_a)
+            hph = matmul(h, matmul(cov_a, transpose(h)))
+            nu = fm.innovation(z[None, None, :, :], zhat[:, :, None, :])  # (P, A, M, dz)
+            if own_cov:
+                sm = hph[:, :, None] + rz[None, None]
+                m2, logdet = quad(inv(sm), nu), np.log(np.maximum(det(sm), 1e-300))
+            else:
+                sm = hph + self.r
+                m2, logdet = quad(inv(sm)[:, :, None], nu), np.log(np.maximum(det(sm), 1e-300))[:, :, None]
+            gated = (m2 <= cfg.gate) & in_a[..., None]
+            # a measurement 'can be associated with an existing feature' (the lower birth probability) when it lies
+            # in the gate of a track that is more likely there than not
+            explained = (gated & (~birth_a & (r_a >= 0.5))[..., None]).any(axis=1)
+            ok = gated & (pd_a > 0)[..., None]
+            lq = -0.5 * m2 - 0.5 * (dz * np.log(2 * np.pi) + logdet)
+            l_det = np.where(ok, l_base[..., None] + lq - log_kappa[None, None, :], -np.inf)
+        return _Costs(act.astype(np.int64), nact.astype(np.int64), l_death, l_miss, l_det, explained)
+
+    def _sample(self, logw: np.ndarray, member: np.ndarray, c: _Costs, prune: float, cap: int) -> JointResult:
+        out = joint_update(
+            self._seed(), np.ascontiguousarray(logw), np.ascontiguousarray(member), c.act, c.nact,
+            np.ascontiguousarray(c.l_death), np.ascontiguousarray(c.l_miss), np.ascontiguousarray(c.l_det),
+            int(self.cfg.samples), float(prune), int(cap),
+        )
+        return JointResult(*out)
+
+    def _updated(self, sl: _Slots, sp: np.ndarray, z: np.ndarray, rz: np.ndarray, res: JointResult):
+        """The new slots' Gaussians and labels, flat (N, dx), (N, dx, dx), (N,): the source slot's
+        density, EKF-updated with measurement a - 1 where a > 0 (eqs. 17, 30)."""
+        fm = self.feature
+        sp_, sk = res.slot_particle()
+        mu = sl.mu[sp_, res.slot_src].copy()
+        cov = sl.cov[sp_, res.slot_src].copy()
+        label = sl.label[sp_, res.slot_src]
+        upd = np.flatnonzero(res.slot_a > 0)
+        if upd.size:
+            pp, jj = sp_[upd], res.slot_a[upd] - 1
+            m0, c0 = mu[upd], cov[upd]
+            zhat, h = fm.predict_sensor(sp[pp], m0)
+            ph = matmul(c0, transpose(h))
+            s = matmul(h, ph) + rz[jj]
+            k = matmul(ph, inv(s))
+            mu[upd] = m0 + matvec(k, fm.innovation(z[jj], zhat))
+            c1 = c0 - matmul(k, transpose(ph))
+            cov[upd] = 0.5 * (c1 + transpose(c1))
+        return sp_, sk, mu, cov, label
+
+    def _births(self, sp: np.ndarray, z: np.ndarray, rz: np.ndarray, explained: np.ndarray) -> Births:
+        """Birth tracks for the next step from this step's measurements (eq. 28, adaptive birth)."""
+        p, m = sp.shape[0], z.shape[0]
+        d = self.feature.dim_x
+        if m == 0:
+            return Births.empty(p, d)
+        pos, g = self.feature.inverse_sensor(sp[:, None, :], z[None, :, :])  # (P, M, dx), (P, M, dx, dz)
+        cov = matmul(matmul(g, np.broadcast_to(rz, (p,) + rz.shape)), transpose(g)) + np.eye(d) * 1e-6
+        r = np.where(explained, self.cfg.birth_associated, self.cfg.birth_unassociated)
+        label = (np.int64(self.step) << LABEL_BITS) + np.arange(m, dtype=np.int64)
+        return Births(pos, cov, r, label)
+
+    @staticmethod
+    def _slots(tracks: Tracks, r_tracks: np.ndarray, births: Births) -> _Slots:
+        p, t = tracks.label.shape
+        b = births.label.size
+        return _Slots(
+            np.concatenate([tracks.mu, births.mu], axis=1),
+            np.concatenate([tracks.cov, births.cov], axis=1),
+            np.concatenate([r_tracks, births.r], axis=1),
+            np.concatenate([tracks.label, np.broadcast_to(births.label, (p, b))], axis=1),
+            np.concatenate([tracks.valid, np.ones((p, b), dtype=bool)], axis=1),
+            np.concatenate([np.zeros((p, t), dtype=bool), np.ones((p, b), dtype=bool)], axis=1),
+        )
+
+    @staticmethod
+    def _pad_tracks(p: int, d: int, sp_: np.ndarray, sk: np.ndarray, mu, cov, label) -> Tracks:
+        t = int(sk.max()) + 1 if sk.size else 0
+        out = Tracks.empty(p, d, t)
+        out.mu[sp_, sk], out.cov[sp_, sk], out.label[sp_, sk] = mu, cov, label
+        return out
+
+    def predict(self, maps, dt: float):
+        q = self.cfg.landmark_noise * max(dt, 0.0)
+        if q > 0 and maps.tracks.label.shape[1]:
+            t = maps.tracks
+            maps = replace(maps, tracks=Tracks(t.mu, t.cov + q * np.eye(self.feature.dim_x), t.label))
+        return maps
+
+    def pose_proposal(
+        self, maps, xbar: np.ndarray, q: np.ndarray, meas: Measurements, *, share: float = 0.5, iterations: int = 3
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A Gaussian approximation of the optimal importance density of each particle's pose (FastSLAM 2.0,
+        as RB-PHD's): the motion prior N(xbar, q) (P, 3), (P, 3, 3) updated by the frame's measurements
+        that the particle's map explains, each by its likeliest track when that track takes at least
+        ``share`` of it (r P_D g(z) against kappa(z) + the sum over tracks, g with the prior's pose
+        uncertainty in its covariance), with an iterated EKF
+        (re-linearised ``iterations`` times). Returns the mean (P, 3), covariance (P, 3, 3) and the number
+        of measurements used (P,)."""
+        fm = self.feature
+        t, ex = self._map_tracks(maps)
+        z, rz = self._noise(meas)
+        p, m = xbar.shape[0], z.shape[0]
+        if m == 0 or t.label.shape[1] == 0:
+            return xbar, q, np.zeros(p, dtype=np.int64)
+        sp = fm.sensor_pose(xbar)
+        pd, _ = self.detection.pd_features(sp, t.mu, t.cov, meas, ex)
+        seen = (pd > 0) & (ex > 0) & t.valid
+        js = int(seen.sum(axis=1).max())
+        if js == 0:
+            return xbar, q, np.zeros(p, dtype=np.int64)
+        rows = np.arange(p)[:, None]
+        sel = np.argsort(~seen, axis=1, kind="stable")[:, :js]
+        in_s = seen[rows, sel]
+        mu_s, cov_s = t.mu[rows, sel], t.cov[rows, sel]
+        w_s = np.where(in_s, ex[rows, sel] * np.minimum(pd[rows, sel], 1.0), 0.0)
+        zhat, hl = fm.predict_sensor(sp[:, None, :], mu_s)
+        s_pair = matmul(hl, matmul(cov_s, transpose(hl)))[:, :, None] + rz[None, None]  # (P, Js, M, dz, dz)
+        # which track explains a measurement is decided with the prior's pose uncertainty included (the
+        # marginal innovation covariance of FastSLAM 2.0's data association)
+        hx = fm.pose_jacobian(xbar[:, None, :], mu_s)  # (P, Js, dz, 3)
+        s_sel = s_pair + matmul(hx, matmul(q[:, None], transpose(hx)))[:, :, None]
+        nu = fm.innovation(z[None, None], zhat[:, :, None])
+        m2 = quad(inv(s_sel), nu)
+        dz = fm.dim_z
+        lik = np.where(m2 <= self.cfg.gate, np.exp(-0.5 * m2) / np.sqrt((2 * np.pi) ** dz * np.maximum(det(s_sel), 1e-300)), 0.0) * w_s[..., None]
+        kappa = np.exp(self._log_kappa(z, meas))
+        best = np.argmax(lik, axis=1)  # (P, M) the likeliest track of each measurement
+        lb = np.take_along_axis(lik, best[:, None, :], axis=1)[:, 0]
+        use = lb > share * (kappa[None, :] + lik.sum(axis=1))
+        n_used = use.sum(axis=1)
+        if not use.any():
+            return xbar, q, n_used
+        mu_b = mu_s[rows, best]  # (P, M, dx)
+        s_inv = np.where(use[..., None, None], inv(s_pair[rows, best, np.arange(m)[None, :]]), 0.0)
+        q_reg = q + np.eye(3) * 1e-12
+        q_inv = np.linalg.inv(q_reg)
+        x, cov = xbar.copy(), q_reg
+        for _ in range(iterations):
+            zh, _ = fm.predict(x[:, None, :], mu_b)
+            hx = fm.pose_jacobian(x[:, None, :], mu_b)  # (P, M, dz, 3)
+            r = fm.innovation(np.broadcast_to(z, zh.shape).copy(), zh)
+            dx = x - xbar
+            dx[:, 2] = np.mod(dx[:, 2] + np.pi, 2 * np.pi) - np.pi
+            r = r + (hx @ dx[:, None, :, None])[..., 0]  # iterated EKF: linearise at x, expand about xbar
+            hts = transpose(hx) @ s_inv
+            cov = np.linalg.inv(q_inv + (hts @ hx).sum(axis=1))
+            x = xbar + (cov @ (hts @ r[..., None]).sum(axis=1))[..., 0]
+            x[:, 2] = np.mod(x[:, 2] + np.pi, 2 * np.pi) - np.pi
+        return x, 0.5 * (cov + transpose(cov)), n_used
+
+    def _begin(self, poses: np.ndarray, meas: Measurements):
+        z, rz = self._noise(meas)
+        sp = self.feature.sensor_pose(np.asarray(poses, dtype=np.float64))
+        return z, rz, sp, self._log_kappa(z, meas)
+
+
+class GLMB(LabelledFilter):
+    """delta-GLMB map per particle (module docstring)."""
+
+    name = "delta-GLMB"
+
+    def __init__(self, feature: FeatureModel, detection, cfg: GLMBConfig, rng: np.random.Generator | None = None) -> None:
+        super().__init__(feature, detection, cfg, rng)
+
+    def empty(self, n: int) -> GLMBMaps:
+        d = self.feature.dim_x
+        return GLMBMaps(Tracks.empty(n, d), np.zeros((n, 1)), np.zeros((n, 1, 0), dtype=bool), Tracks.empty(n, d), np.zeros((n, 0)), Births.empty(n, d))
+
+    def size(self, maps: GLMBMaps) -> np.ndarray:
+        """(P,) tracks per particle (versions in the hypotheses and released ones)."""
+        return maps.tracks.valid.sum(axis=1) + maps.free.valid.sum(axis=1)
+
+    def hypotheses(self, maps: GLMBMaps) -> np.ndarray:
+        """(P,) hypotheses per particle."""
+        return np.isfinite(maps.logw).sum(axis=1)
+
+    def update(self, maps: GLMBMaps, poses: np.ndarray, meas: Measurements) -> tuple[GLMBMaps, np.ndarray]:
+        tm, cfg = self.timers, self.cfg
+        z, rz, sp, log_kappa = self._begin(poses, meas)
+        p = sp.shape[0]
+        d = self.feature.dim_x
+        tr, fr = maps.tracks, maps.free
+        t, f = tr.label.shape[1], fr.label.shape[1]
+        both = Tracks(np.concatenate([tr.mu, fr.mu], axis=1), np.concatenate([tr.cov, fr.cov], axis=1), np.concatenate([tr.label, fr.label], axis=1))
+        sl = self._slots(both, np.concatenate([tr.valid.astype(np.float64), maps.free_r], axis=1), maps.births)
+        s = sl.valid.shape[1]
+        with tm("pd"):
+            ex = np.concatenate([self._slot_existence(maps), maps.free_r, maps.births.r], axis=1)
+            pd, buf = self.detection.pd_features(sp, sl.mu, sl.cov, meas, ex)
+        with tm("costs"):
+            c = self._costs(sl, sp, z, rz, meas.cov is not None, log_kappa, pd, buf)
+            active = np.zeros((p, s), dtype=bool)
+            in_a = np.arange(c.act.shape[1])[None, :] < c.nact[:, None]
+            active[np.nonzero(in_a)[0], c.act[in_a]] = True
+            live = np.isfinite(maps.logw)
+            # candidates of every hypothesis: its tracks, the released tracks in view, the births
+            extra = np.concatenate([fr.valid & active[:, t : t + f], np.ones((p, s - t - f), dtype=bool)], axis=1)
+            member = np.concatenate([maps.member, live[:, :, None] & extra[:, None, :]], axis=2)
+        with tm("gibbs"):
+            res = self._sample(maps.logw, member, c, cfg.prune, 1 << 30)
+        with tm("update"):
+            sp_, _, mu, cov, label = self._updated(sl, sp, z, rz, res)
+            # tracks of the hypotheses that the sensor could not see leave them (module docstring)
+            release = (res.slot_a == 0) & (res.slot_src < t) & ~active[sp_, res.slot_src] if cfg.release_unseen else np.zeros(sp_.size, bool)
+        with tm("merge"):
+            out = reduce_hypotheses(
+                res.slot_count, label, np.ascontiguousarray(mu), np.ascontiguousarray(cov), release, res.hyp_count, res.hyp_logw,
+                res.mem_count, res.mem_slot, float(cfg.merge), float(cfg.prune), int(cfg.max_hypotheses),
+            )
+            capped, slot_count, o_label, o_mu, o_cov, hyp_count, hyp_logw, mem_count, mem_slot = out[:9]
+            free_count, f_label, f_r, f_mu, f_cov = out[9:]
+            self.capped_steps += int(capped)
+            red = JointResult(res.loglik, bool(capped), hyp_count, hyp_logw, mem_count, mem_slot, slot_count, np.zeros(0, np.int64), np.zeros(0, np.int64))
+            sp2, sk = red.slot_particle()
+            tracks = self._pad_tracks(p, d, sp2, sk, o_mu, o_cov, o_label)
+            logw = np.full((p, max(int(hyp_count.max()) if p else 0, 1)), -np.inf)
+            mp, mh, ms = red.memberships()
+            hp = np.repeat(np.arange(p), hyp_count)
+            hk = np.arange(hp.size) - np.concatenate([[0], np.cumsum(hyp_count)[:-1]])[hp]
+            logw[hp, hk] = hyp_logw
+            member = np.zeros((p, logw.shape[1], tracks.label.shape[1]), dtype=bool)
+            member[mp, mh, ms] = True
+            # released tracks: those released now and those still out of view
+            keep_old = fr.valid & ~active[:, t : t + f]
+            fp = np.concatenate([np.repeat(np.arange(p), free_count), np.nonzero(keep_old)[0]])
+            f_all = (
+                np.concatenate([f_mu, fr.mu[keep_old]]), np.concatenate([f_cov, fr.cov[keep_old]]),
+                np.concatenate([f_label, fr.label[keep_old]]), np.concatenate([f_r, maps.free_r[keep_old]]),
+            )
+            ok = f_all[3] >= cfg.prune_released
+            fp = fp[ok]
+            order = np.argsort(fp, kind="stable")
+            fp = fp[order]
+            fk = np.arange(fp.size) - np.searchsorted(fp, fp, side="left")
+            free = self._pad_tracks(p, d, fp, fk, *(a[ok][order] for a in f_all[:3]))
+            free_r = np.zeros(free.label.shape)
+            free_r[fp, fk] = f_all[3][ok][order]
+        births = self._births(sp, z, rz, c.explained)
+        self.step += 1
+        return GLMBMaps(tracks, logw, member, free, free_r, births), res.loglik
+
+    @staticmethod
+    def _slot_existence(maps: GLMBMaps) -> np.ndarray:
+        """(P, T) the summed weight of the hypotheses that hold each track (version)."""
+        return np.einsum("ph,pht->pt", np.exp(maps.logw), maps.member.astype(np.float64))
+
+    def _map_tracks(self, maps: GLMBMaps) -> tuple[Tracks, np.ndarray]:
+        tr, fr = maps.tracks, maps.free
+        both = Tracks(np.concatenate([tr.mu, fr.mu], axis=1), np.concatenate([tr.cov, fr.cov], axis=1), np.concatenate([tr.label, fr.label], axis=1))
+        return both, np.concatenate([self._slot_existence(maps), maps.free_r], axis=1)
+
+    # ------------------------------------------------------------------ estimates
+    def components(self, maps: GLMBMaps, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Particle i's every track (versions in the hypotheses, released ones) and its existence."""
+        t, r = self._map_tracks(maps)
+        keep = t.valid[i] & (r[i] > 0)
+        return t.mu[i][keep], r[i][keep]
+
+    def existence(self, maps: GLMBMaps, i: int) -> np.ndarray:
+        """(T,) existence probability of the label of each of particle i's tracks in the hypotheses."""
+        w = np.exp(maps.logw[i])
+        per_slot = (w[:, None] * maps.member[i]).sum(axis=0)
+        lab = maps.tracks.label[i]
+        ok = lab >= 0
+        out = np.zeros(lab.size)
+        if ok.any():
+            uniq, inv_ = np.unique(lab[ok], return_inverse=True)
+            out[ok] = np.bincount(inv_, weights=per_slot[ok], minlength=uniq.size)[inv_]
+        return out
+
+    def labels(self, maps: GLMBMaps, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Particle i's map estimate with labels: (labels (K,), states (K, dx), existence (K,)).
+
+        The MAP cardinality of the hypotheses, then their heaviest hypothesis of that cardinality
+        (sec. III-B), and the released tracks of existence >= ``map_threshold``."""
+        lw = maps.logw[i]
+        live = np.isfinite(lw)
+        fk = (maps.free_r[i] >= self.cfg.map_threshold) & maps.free.valid[i]
+        lab_f, x_f, r_f = maps.free.label[i, fk], maps.free.mu[i, fk], maps.free_r[i, fk]
+        if not live.any():
+            return lab_f, x_f, r_f
+        card = maps.member[i].sum(axis=1)
+        rho = np.bincount(card[live], weights=np.exp(lw[live]))
+        n = int(np.argmax(rho))
+        h = int(np.argmax(np.where(live & (card == n), lw, -np.inf)))
+        slots = np.flatnonzero(maps.member[i, h])
+        r = self.existence(maps, i)
+        return (
+            np.concatenate([maps.tracks.label[i, slots], lab_f]),
+            np.concatenate([maps.tracks.mu[i, slots], x_f]),
+            np.concatenate([r[slots], r_f]),
+        )
+
+    def estimate(self, maps: GLMBMaps, i: int) -> tuple[np.ndarray, np.ndarray]:
+        _, x, r = self.labels(maps, i)
+        return x, r
+
+    def cardinality(self, maps: GLMBMaps, i: int) -> np.ndarray:
+        """Particle i's cardinality distribution of the tracks in the hypotheses (n_max + 1,)."""
+        lw = maps.logw[i]
+        live = np.isfinite(lw)
+        return np.bincount(maps.member[i].sum(axis=1)[live], weights=np.exp(lw[live]))

@@ -1,0 +1,79 @@
+"""The odometry's noise and biases (calib.odometry) recovered from a simulated robot with known truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from detectors.logs import Odometry, ReferencePoses, SensorLog
+from profiles.errors import DataError
+
+
+def _robot(rng: np.random.Generator, *, scale: float, offset: float, s_v: float, s_w: float, seconds: float = 900.0) -> SensorLog:
+    """Velocity commands at 50 Hz held for 2 s each; the true motion is scale * v and omega - offset plus
+    white noise of std (s_v, s_w) per row, integrated exactly as the unicycle does (slam_runtime.vehicle)."""
+    dt, n = 0.02, int(seconds / 0.02)
+    hold = 100
+    v = np.repeat(rng.uniform(0.0, 0.3, n // hold + 1), hold)[:n]
+    w = np.repeat(rng.uniform(-0.4, 0.4, n // hold + 1), hold)[:n]
+    vt = scale * v + rng.normal(0.0, s_v, n)
+    wt = w - offset + rng.normal(0.0, s_w, n)
+    pose = np.zeros((n, 3))
+    for k in range(1, n):
+        x, y, th = pose[k - 1]
+        pose[k] = x + vt[k - 1] * dt * np.cos(th), y + vt[k - 1] * dt * np.sin(th), th + wt[k - 1] * dt
+    stamp = (np.arange(n) * dt * 1e9).astype(np.int64) + 10**9
+    odo = Odometry("velocity", stamp, np.column_stack([v, w]))
+    truth = ReferencePoses("ground_truth", stamp, pose)
+    return SensorLog(name="robot", odometry=odo, reference={"ground_truth": truth})
+
+
+def test_velocity_odometry_biases_and_noise_against_truth():
+    from calib.odometry import fit_velocity_odometry
+
+    rng = np.random.default_rng(4)
+    logs = [_robot(rng, scale=0.92, offset=0.01, s_v=0.08, s_w=0.3) for _ in range(2)]
+    got = fit_velocity_odometry(logs)
+    v = got["velocity"]
+    # 1,800 one-second windows (seeds 0-3 gave scale 0.920-0.923, offset 0.009-0.011, sigma_v 0.078-0.081,
+    # sigma_omega 0.29-0.30): the scale is a ratio of sums over ~270 m of path (error well below 1 %); the
+    # offset is a median of 1,800 window errors of std 0.3 sqrt(0.02) ~ 0.04 rad/s (its error ~0.001 rad/s)
+    assert v["speed_scale"] == pytest.approx(0.92, abs=0.006)
+    assert v["omega_offset"] == pytest.approx(0.01, abs=0.003)
+    # the per-row noise: a window's error is the mean of 50 rows, std s / sqrt(50), scaled back by
+    # sqrt(window / dt); the std of 1,800 samples has a relative error ~ 1 / sqrt(2 * 1800) < 2 %
+    assert v["sigma_v"] == pytest.approx(0.08, rel=0.06)
+    assert v["sigma_omega"] == pytest.approx(0.3, rel=0.06)
+    assert got["windows"] >= 1700 and got["row_period_s"] == pytest.approx(0.02)
+
+
+def test_velocity_odometry_needs_truth():
+    from calib.odometry import fit_velocity_odometry
+
+    log = _robot(np.random.default_rng(0), scale=1.0, offset=0.0, s_v=0.01, s_w=0.01, seconds=30.0)
+    bare = SensorLog(name="robot", odometry=log.odometry)
+    with pytest.raises(DataError, match="needs velocity odometry and ground-truth poses"):
+        fit_velocity_odometry([bare])
+
+
+def test_calibrate_writes_the_motion_settings_it_measured(tmp_path, capsys):
+    """A detection-level calibration of logs with velocity odometry and ground truth writes motion.yaml,
+    loadable as SLAM settings, with the same figures as the library call on the same log."""
+    from calib.config import load_yaml_model
+    from calib.io.registry import read_log
+    from calib.odometry import fit_velocity_odometry
+    from slam_runtime.config import SlamConfig
+    from tests.calib.test_cli import run
+    from tests.conftest import VENDORED
+
+    src = VENDORED / "utias_dataset1"
+    cal_cfg = tmp_path / "cal.yaml"  # 30 s of one robot: small bins, so that the excerpt calibrates at all
+    cal_cfg.write_text("pd: {table: {min_count: 5, range_bin: 1.0}}\n")
+    args = ["calibrate", str(src), "--config", str(cal_cfg), "--out", str(tmp_path / "cal"), "--profiles-dir", str(tmp_path / "p")]
+    code, out, err = run(capsys, *args)
+    assert code == 0, err
+    cfg = load_yaml_model(SlamConfig, tmp_path / "cal/motion.yaml")
+    want = fit_velocity_odometry([read_log(src)])["velocity"]
+    got = cfg.motion.velocity
+    for k in ("sigma_v", "sigma_omega", "speed_scale", "omega_offset"):
+        assert getattr(got, k) == pytest.approx(want[k], rel=1e-3, abs=1e-6)
