@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import datetime as dt
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from math import gamma as gamma_fn
 from math import pi
@@ -45,7 +46,7 @@ from calib.fits import (
 )
 from calib.label import Labelled, label_log
 from calib.landmarks import CloudLandmarkConfig
-from calib.rangenoise import RangeNoise, RangeNoiseConfig, estimate_range_noise
+from calib.rangenoise import RangeNoise, RangeNoiseConfig, pool_range_noise, range_residuals
 from detectors.circle import descriptor_matrix
 from detectors.geometry import compose, interpolate_poses
 from detectors.logs import SensorLog
@@ -235,6 +236,35 @@ def _log_digest(log: SensorLog) -> list[InputRef]:
     return []
 
 
+PerLog = Callable[[Callable, list[tuple]], list]
+
+
+def _in_turn(fn: Callable, args: list[tuple]) -> list:
+    return [fn(*a) for a in args]
+
+
+def place_log(log: SensorLog, poses: str, noise: RangeNoiseConfig | None = None) -> tuple[np.ndarray, str, tuple | None]:
+    """Per-log step 1: (sensor poses (S, 3) world frame, their source, range residuals for sigma_r or None)."""
+    sp, src = scan_sensor_poses(log, poses)
+    return sp, src, (range_residuals(log, sp, noise) if noise is not None else None)
+
+
+def label_placed(
+    log: SensorLog, sensor_poses: np.ndarray, cfg: CalibrateConfig, landmarks_csv: Path | str | None, range_sigma: float | None = None
+) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], Labelled]:
+    """Per-log step 2: the landmarks ((ids, xy, radius)) and the labelled tables; ``range_sigma`` replaces the log's sigma_r."""
+    if range_sigma is not None:
+        log = with_range_sigma(log, range_sigma)
+    ids, xy, r = log_landmarks(log, landmarks_csv, sensor_poses, cfg.detector, cfg.cloud_landmarks)
+    return (ids, xy, r), label_log(log, sensor_poses, ids, xy, r, cfg.detector, gate=cfg.gate, k_sigma=cfg.k_sigma)
+
+
+def place_and_label(log: SensorLog, cfg: CalibrateConfig, landmarks_csv: Path | str | None) -> tuple:
+    """Both per-log steps in one (when sigma_r is known and nothing is pooled between them): (poses, source, landmarks, labelled)."""
+    sp, src, _ = place_log(log, cfg.poses)
+    return (sp, src, *label_placed(log, sp, cfg, landmarks_csv))
+
+
 def calibrate(
     logs: list[SensorLog],
     cfg: CalibrateConfig,
@@ -246,12 +276,20 @@ def calibrate(
     input_refs: list[InputRef] | None = None,
     command: str = "",
     range_sigma_given: bool = False,
+    per_log: PerLog | None = None,
 ) -> Calibration:
     """Calibrate the circle detector on laser logs with truth (steps in the module docstring).
 
     sigma_r: the logs' own (or ``--range-sigma``, set on the logs by the reader,
     ``range_sigma_given``); when they state none it is estimated from the
     registered scans (:mod:`calib.rangenoise`).
+
+    per_log: how the per-log steps (poses, range residuals, landmarks and
+    labelling) run, ``per_log(fn, [(log, *args), ...]) -> [fn(log, *args), ...]``
+    in the order of the logs; default: one after the other in this process.
+    :mod:`calib.engine` runs them on Dask workers, each reading its log where it
+    lives. The fits always run here, on the gathered tables, so the result does
+    not depend on where or in which order the logs were done.
     """
     if not logs:
         raise UsageError("no logs to calibrate")
@@ -262,18 +300,21 @@ def calibrate(
     if sensor.range_max is None:
         raise DataError("the sensor model has no range_max")
     params = parameters(logs, cfg, landmarks_csv, range_sigma_given)
-    placed = [scan_sensor_poses(lg, cfg.poses) for lg in logs]
+    each = per_log or _in_turn
     noise = None
     if params["range_sigma_source"] == "estimated":
-        noise = estimate_range_noise(logs, [sp for sp, _ in placed], cfg.range_noise)
+        # sigma_r pools every log's residuals, and labelling needs it: two rounds over the logs
+        placed = each(place_log, [(lg, cfg.poses, cfg.range_noise) for lg in logs])
+        noise = pool_range_noise([part for _, _, part in placed], cfg.range_noise)
+        labelled = each(label_placed, [(lg, sp, cfg, landmarks_csv, noise.range_sigma) for lg, (sp, _, _) in zip(logs, placed, strict=True)])
+        done = [(sp, src, *lab) for (sp, src, _), lab in zip(placed, labelled, strict=True)]
         logs = [with_range_sigma(lg, noise.range_sigma) for lg in logs]
         sensor = logs[0].sensor
+    else:
+        done = each(place_and_label, [(lg, cfg, landmarks_csv) for lg in logs])
     det_tables, pair_tables, poses, lms, sources = [], [], [], [], []
     offset = 0
-    for k, lg in enumerate(logs):
-        sp, src = placed[k]
-        ids, xy, r = log_landmarks(lg, landmarks_csv, sp, cfg.detector, cfg.cloud_landmarks)
-        lab = label_log(lg, sp, ids, xy, r, cfg.detector, gate=cfg.gate, k_sigma=cfg.k_sigma)
+    for k, (sp, src, lm, lab) in enumerate(done):
         d = lab.detections.assign(log=k)
         p = lab.pairs.assign(log=k)
         p["det"] = np.where(p["det"] >= 0, p["det"] + offset, -1)
@@ -281,7 +322,7 @@ def calibrate(
         det_tables.append(d)
         pair_tables.append(p)
         poses.append(sp)
-        lms.append((ids, xy, r))
+        lms.append(lm)
         sources.append(src)
     dets = pd.concat(det_tables, ignore_index=True)
     pairs = pd.concat(pair_tables, ignore_index=True)

@@ -22,7 +22,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -53,6 +55,10 @@ class CalibrationJob:
     command: str = ""
     range_sigma_given: bool = False
     per_sensor: bool = False  # detection-level logs of several sensors: one profile per sensor too
+    # where each log came from, (path, format, reader options), so a worker can read it where it lives
+    sources: list[tuple] | None = None
+    workers: int | None = None  # --workers: Dask worker processes for the per-log work (0: this process)
+    scheduler: str | None = None  # --scheduler: an existing Dask cluster
 
 
 @dataclass
@@ -66,6 +72,7 @@ class CalibrationOutcome:
     figures: list[str]
     notes: list[str] = field(default_factory=list)  # what the user should know (records dropped, ...)
     members: list[tuple[Path, str]] = field(default_factory=list)  # per-sensor profiles: (path, status)
+    engine: str = "in this process"  # where the per-log work ran
 
 
 def check_name(name: str | None, version: str) -> None:
@@ -146,6 +153,7 @@ def run_calibration(job: CalibrationJob) -> CalibrationOutcome:
         check_save(dataclasses.replace(request, name=ref), job.profiles_dir, force=job.force)
     run_plan = _check_run_folder(run_dir, request, job.force)
     # ---- the work
+    where = "in this process"
     if planes:
         from calib.planes import calibrate_planes, fill_plane_run
 
@@ -156,6 +164,8 @@ def run_calibration(job: CalibrationJob) -> CalibrationOutcome:
     elif levels:
         from calib.detlevel import calibrate_detections, fill_detection_run
 
+        if job.workers or job.scheduler:
+            notes.append("detection-level logs are calibrated in this process (their per-log work takes milliseconds); --workers and --scheduler are not used")
         cal = calibrate_detections(
             logs, cfg, name=job.name, version=job.version, description=job.description, input_refs=list(job.inputs),
             command=job.command, per_sensor=job.per_sensor,
@@ -165,17 +175,19 @@ def run_calibration(job: CalibrationJob) -> CalibrationOutcome:
         from calib.calibrate import calibrate
         from calib.runs import fill_calibration_run
 
-        cal = calibrate(
-            logs,
-            cfg,
-            name=job.name,
-            version=job.version,
-            description=job.description,
-            landmarks_csv=job.landmarks,
-            input_refs=list(job.inputs),
-            command=job.command,
-            range_sigma_given=job.range_sigma_given,
-        )
+        with _per_log_engine(job, logs) as (per_log, where):
+            cal = calibrate(
+                logs,
+                cfg,
+                name=job.name,
+                version=job.version,
+                description=job.description,
+                landmarks_csv=job.landmarks,
+                input_refs=list(job.inputs),
+                command=job.command,
+                range_sigma_given=job.range_sigma_given,
+                per_log=per_log,
+            )
         fill = fill_calibration_run
     profile = cal.profile
     if Request.of(profile, derived) != request:  # the request said what the work would record
@@ -202,7 +214,23 @@ def run_calibration(job: CalibrationJob) -> CalibrationOutcome:
                 got = w(tmp)
                 if isinstance(got, list):
                     figures = got
-    return CalibrationOutcome(profile, cal.summary, path, status, run_dir, run_status, figures, notes, [(p, st) for _, p, st in written])
+    return CalibrationOutcome(profile, cal.summary, path, status, run_dir, run_status, figures, notes, [(p, st) for _, p, st in written], where)
+
+
+@contextlib.contextmanager
+def _per_log_engine(job: CalibrationJob, logs: list[SensorLog]) -> Iterator[tuple[object, str]]:
+    """(``per_log`` for :func:`calib.calibrate.calibrate`, where it runs): Dask workers for several laser logs
+    (or whenever ``--scheduler`` names a cluster), each reading its log where it lives; else None (this process)."""
+    distribute = job.sources is not None and (job.scheduler is not None or (job.workers != 0 and len(logs) > 1))
+    if not distribute:
+        yield None, "in this process"
+        return
+    from calib.engine import LogSource, open_engine
+    from calib.progress import progress
+
+    handles = [LogSource.of(lg, p, fmt, opts, trim=True) for lg, (p, fmt, opts) in zip(logs, job.sources, strict=True)]
+    with open_engine(job.workers, job.scheduler, len(logs)) as engine:
+        yield engine.per_log(handles, [lg.name for lg in logs], progress), engine.label
 
 
 def _check_run_folder(run_dir: Path, request: Request, force: bool) -> str:

@@ -198,7 +198,12 @@ def map_scans(sensor_poses: np.ndarray, move: float, turn: float) -> np.ndarray:
 def estimate_range_noise(logs: list[SensorLog], sensor_poses: list[np.ndarray], cfg: RangeNoiseConfig | None = None) -> RangeNoise:
     """Range noise pooled over logs of one laser; ``sensor_poses[k]`` (S_k, 3) world frame for log k."""
     cfg = cfg or RangeNoiseConfig()
-    parts = [range_residuals(lg, sp, cfg) for lg, sp in zip(logs, sensor_poses, strict=True)]
+    return pool_range_noise([range_residuals(lg, sp, cfg) for lg, sp in zip(logs, sensor_poses, strict=True)], cfg)
+
+
+def pool_range_noise(parts: list[tuple[np.ndarray, np.ndarray, int]], cfg: RangeNoiseConfig | None = None) -> RangeNoise:
+    """Range noise from the :func:`range_residuals` of each log (computed where each log is), pooled."""
+    cfg = cfg or RangeNoiseConfig()
     rng = np.concatenate([p[0] for p in parts])
     res = np.concatenate([p[1] for p in parts])
     scored = sum(p[2] for p in parts)

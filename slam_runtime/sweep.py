@@ -1,70 +1,338 @@
-"""Monte Carlo sweeps: many SLAM runs over logs x profiles x settings x seeds, in parallel processes.
+"""Monte Carlo sweeps: many SLAM runs over logs x profiles x settings x seeds, resumable, on any engine.
 
-Each job is a complete run (its own folder, written by
-:func:`slam_runtime.report.write_slam_run`); the sweep then tabulates every
-run's metrics and averages them per setting. Jobs carry the log in memory (it
-is pickled to the worker), so this module reads no files and never imports
-``calib``.
+Each job is one complete run (:func:`run_job`: filter, evaluation, the run
+folder of :func:`slam_runtime.report.write_slam_run` rendered where the job
+runs and handed back as bytes). :func:`run_sweep` hands the jobs to an engine
+(in turn in this process by default; ``calib.engine`` runs them on Dask
+workers), moves each run folder into the sweep folder as soon as its job
+completes, and tabulates the runs once all are done. A job carries its log,
+or a handle whose ``load()`` gives the log where the job runs (so a log is
+read where it lives rather than shipped); this module reads no files of its
+own and never imports ``calib``.
+
+The sweep folder is a container whose every entry is whole::
+
+    config.yaml     the plan: settings, logs (name, input files, content fingerprint),
+                    profiles (reference, sha256 of the text), every run (name, labels, frames)
+    <run>/          one run folder per run (what ``detcal slam run`` writes, and task.yaml:
+                    where the run ran, its wall and CPU seconds, the worker's peak memory)
+    failed.yaml     the runs that failed in the last attempt, with their errors (gone once none did)
+    runs.csv        one row per run: the labels and every metric but the timings
+    summary.csv     mean and standard deviation of those metrics per setting
+    timings.csv     per run: filter ms per step (wall, CPU) and the task's seconds, host, peak memory
+
+* The folder is created with its plan in one step (built beside, renamed in).
+* A run folder is built beside its name and moved in by one rename, after
+  every file is written: a run is *done* when its folder is there and its
+  config.yaml is the run the plan asks for. A killed sweep leaves whole run
+  folders and hidden ``.part`` entries only (removed by the next write).
+* The tables are written, each by one rename, once every run is done: their
+  presence says the sweep is complete. Rows follow the plan's order and come
+  from the run folders' metrics.yaml, so runs.csv and summary.csv are the
+  same bytes whatever the engine, the number of workers, the order in which
+  runs completed, or how many attempts the sweep took. The timings are apart
+  (timings.csv, and ``ms`` in steps.csv): they are the only figures that vary.
+* Running the same sweep again resumes it: the plan must be the same (else it
+  is refused; ``--force`` starts the folder anew), done runs are skipped.
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
-from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+import tempfile
+import traceback
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
+import yaml
 
 from detectors.logs import SensorLog
+from profiles.atomic import MARKER, atomic_output, check_replaceable, written_by_detcal
+from profiles.errors import DetcalError, UsageError
 from slam_runtime.config import SlamConfig
+
+#: The plan's format tag (config.yaml of a sweep folder).
+FORMAT = "detcal-sweep"
+FORMAT_VERSION = 1
+#: What varies between runs (the first columns of runs.csv).
+LABELS = ("log", "profile", "filter", "pd_mode", "particles", "seed")
+#: Metrics that are timings: they go to timings.csv, never to runs.csv or summary.csv.
+TIMING_KEYS = ("ms_per_step_mean", "ms_per_step_median", "cpu_ms_per_step_mean")
+TABLES = ("runs.csv", "summary.csv", "timings.csv")
 
 
 @dataclass
 class SweepJob:
     name: str  # the run folder's name inside the sweep folder
-    log: SensorLog
+    log: object  # a SensorLog, or a handle whose load() returns it where the job runs
     profile: object  # profiles.profile.DetectorProfile
     config: SlamConfig
     seed: int
     labels: dict  # what varies: log, profile, filter, pd_mode, particles, seed
     max_frames: int | None = None
+    inputs: list[dict] = field(default_factory=list)  # the log's input files with their sha256 (recorded in config.yaml)
+
+    def run_config(self) -> dict:
+        """The run folder's config.yaml: what the run was (the same whoever runs it)."""
+        return {
+            "log": self.labels.get("log"),
+            "inputs": list(self.inputs),
+            "profile": self.profile.ref,
+            "seed": self.seed,
+            "frames": self.max_frames,
+            "settings": self.config.model_dump(mode="json"),
+        }
 
 
-def run_job(job: SweepJob, folder: Path) -> dict:
-    """One run: filter, run folder, and the row for the sweep table."""
+def _log_of(job: SweepJob) -> SensorLog:
+    return job.log.load() if hasattr(job.log, "load") else job.log
+
+
+def run_job(job: SweepJob) -> dict[str, bytes]:
+    """One run where it is called: filter, evaluation and the run folder's files ({relative path: bytes})."""
     from slam_runtime.labels import labelled_hooks
     from slam_runtime.report import write_slam_run
     from slam_runtime.run import MapOSPA, evaluate, run_slam
 
+    log = _log_of(job)
     m = job.config.metric
-    hooks = (MapOSPA(job.log.landmarks.xy, m.ospa_c, m.ospa_p),) if job.log.landmarks is not None else ()
+    hooks = (MapOSPA(log.landmarks.xy, m.ospa_c, m.ospa_p),) if log.landmarks is not None else ()
     labelled = labelled_hooks() if job.config.filter.kind != "rbphd" else ()
-    res = run_slam(job.log, job.profile, job.config, job.seed, max_frames=job.max_frames, hooks=hooks + labelled)
-    res.metrics = evaluate(job.log, res, m.ospa_c, m.ospa_p, job.config)
-    cfg = {
-        "log": job.labels.get("log"),
-        "profile": job.profile.ref,
-        "seed": job.seed,
-        "frames": job.max_frames,
-        "settings": job.config.model_dump(mode="json"),
-    }
-    write_slam_run(job.log, res, folder / job.name, cfg, overwrite=False, labels=labelled[0] if labelled else None)
-    return {**job.labels, **{k: v for k, v in res.metrics.items() if not isinstance(v, str | dict)}}
+    res = run_slam(log, job.profile, job.config, job.seed, max_frames=job.max_frames, hooks=hooks + labelled)
+    res.metrics = evaluate(log, res, m.ospa_c, m.ospa_p, job.config)
+    with tempfile.TemporaryDirectory(prefix="detcal-run-") as tmp:
+        out = Path(tmp) / job.name
+        write_slam_run(log, res, out, job.run_config(), labels=labelled[0] if labelled else None)
+        return {p.relative_to(out).as_posix(): p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file() and p.name != MARKER}
 
 
-def _work(args):
-    job, folder = args
-    return run_job(job, folder)
+# ---------------------------------------------------------------------------- the plan and the folder
 
 
-def run_sweep(jobs: list[SweepJob], folder: Path, workers: int | None = None) -> list[dict]:
-    """Run ``jobs`` in ``workers`` processes (default: the CPU count); rows in job order."""
-    workers = max(1, min(len(jobs), workers or os.cpu_count() or 1))
-    if workers == 1:
-        return [run_job(j, folder) for j in jobs]
-    with ProcessPoolExecutor(workers) as ex:
-        return list(ex.map(_work, [(j, folder) for j in jobs]))
+def _dump(data: dict) -> str:
+    return yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=120)
+
+
+def _normal(data):
+    """``data`` as it reads back from YAML (tuples become lists, numpy scalars plain numbers)."""
+    return yaml.safe_load(_dump(data))
+
+
+def profile_digest(profile) -> str:
+    from profiles.store import dump_profile
+
+    return hashlib.sha256(dump_profile(profile).encode()).hexdigest()
+
+
+def make_plan(jobs: list[SweepJob], settings: dict, logs: list[dict]) -> dict:
+    """The sweep's config.yaml: the shared settings, the logs (as the caller describes them), the profiles, every run."""
+    profs: dict[str, str] = {}
+    for j in jobs:
+        profs.setdefault(j.profile.ref, profile_digest(j.profile))
+    return _normal(
+        {
+            "format": FORMAT,
+            "version": FORMAT_VERSION,
+            "settings": settings,
+            "logs": logs,
+            "profiles": [{"ref": r, "sha256": d} for r, d in profs.items()],
+            "runs": [{"name": j.name, **{k: j.labels.get(k) for k in LABELS}, "frames": j.max_frames} for j in jobs],
+        }
+    )
+
+
+def _same_run(folder: Path, job: SweepJob) -> bool:
+    """True when ``folder`` is the whole run folder of ``job``."""
+    if not written_by_detcal(folder, True) or not (folder / "metrics.yaml").is_file():
+        return False
+    try:
+        return yaml.safe_load((folder / "config.yaml").read_text()) == _normal(job.run_config())
+    except (OSError, yaml.YAMLError):
+        return False
+
+
+def open_sweep(folder: Path, plan: dict, jobs: list[SweepJob], *, force: bool = False) -> set[str]:
+    """Create the sweep folder with its plan, or reopen one with the same plan; the names of the runs already done.
+
+    ``force`` replaces an existing sweep folder (one detcal wrote) by an empty one.
+    """
+    folder = Path(folder)
+    if force or not os.path.lexists(folder):
+        with atomic_output(folder, overwrite=force, directory=True) as tmp:
+            tmp.mkdir()
+            (tmp / "config.yaml").write_text(_dump(plan))
+        return set()
+    if not written_by_detcal(folder, True):
+        raise UsageError(f"{folder}: already exists (use --force to replace it)")
+    try:
+        old = yaml.safe_load((folder / "config.yaml").read_text())
+    except (OSError, yaml.YAMLError):
+        old = None
+    if not isinstance(old, dict) or old.get("format") != FORMAT:
+        raise UsageError(f"{folder}: already exists and is not a sweep detcal can resume (use --force to replace it)")
+    if old != plan:
+        what = [k for k in ("version", "settings", "logs", "profiles", "runs") if old.get(k) != plan.get(k)] or ["plan"]
+        raise UsageError(
+            f"{folder}: holds a sweep with other {', '.join(what)} (the same command resumes a sweep; use --force to start it anew, or another --out)"
+        )
+    done = set()
+    for j in jobs:
+        path = folder / j.name
+        if _same_run(path, j):
+            done.add(j.name)
+        elif os.path.lexists(path):
+            check_replaceable(path, overwrite=True, directory=True)  # an unfinished attempt detcal wrote is replaced; nothing else is
+    return done
+
+
+def _ours(_path: Path) -> bool:  # the tables of a sweep folder detcal opened
+    return True
+
+
+def _write_text(path: Path, text: str) -> None:
+    with atomic_output(path, overwrite=True, owned=_ours) as tmp:
+        tmp.write_text(text)
+
+
+def install_run(folder: Path, job: SweepJob, files: dict[str, bytes], stats: dict) -> None:
+    """Move one run folder into the sweep folder in one rename (built beside it first), with task.yaml."""
+    with atomic_output(Path(folder) / job.name, overwrite=True, directory=True) as tmp:
+        tmp.mkdir()
+        for rel, data in files.items():
+            p = tmp / rel
+            p.parent.mkdir(parents=True, exist_ok=True)
+            p.write_bytes(data)
+        (tmp / "task.yaml").write_text(_dump({k: (round(v, 3) if isinstance(v, float) else v) for k, v in stats.items()}))
+
+
+# ---------------------------------------------------------------------------- running
+
+
+class InTurn:
+    """The default engine: every job in this process, in order (``calib.engine`` offers Dask ones)."""
+
+    workers = 0
+    label = "in this process"
+
+    def map_unordered(self, fn: Callable, args: list[tuple], keys: list[str]) -> Iterator[tuple[int, bool, object, dict]]:
+        import time
+
+        for i, a in enumerate(args):
+            t0, c0 = time.perf_counter(), time.process_time()
+            try:
+                value = fn(*a)
+            except KeyboardInterrupt:
+                raise
+            except Exception as exc:  # a failed run is recorded, the others go on  # noqa: BLE001
+                yield i, False, exc, {}
+            else:
+                yield i, True, value, {"wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0}
+
+
+@dataclass
+class Failure:
+    job: SweepJob
+    error: str
+    trace: str | None = None  # the traceback of an error that is not a detcal error (a bug), for failed.yaml
+
+    def line(self) -> str:
+        lb = self.job.labels
+        return f"{self.job.name} (log {lb.get('log')}, profile {lb.get('profile')}, {lb.get('pd_mode')}, {lb.get('particles')} particles, seed {lb.get('seed')}): {self.error}"
+
+
+@dataclass
+class SweepOutcome:
+    folder: Path
+    runs: int
+    skipped: int  # done before this attempt
+    ran: int  # done in this attempt
+    failed: list[Failure]
+    rows: list[dict] = field(default_factory=list)  # runs.csv (empty unless every run is done)
+    summary: list[dict] = field(default_factory=list)
+    timings: list[dict] = field(default_factory=list)
+
+    @property
+    def complete(self) -> bool:
+        return not self.failed
+
+
+def _failure(job: SweepJob, exc: BaseException) -> Failure:
+    if isinstance(exc, DetcalError):
+        return Failure(job, " ".join(str(exc).split()))
+    return Failure(job, " ".join(f"{type(exc).__name__}: {exc}".split()), "".join(traceback.format_exception(exc)))
+
+
+def run_sweep(
+    jobs: list[SweepJob],
+    folder: Path,
+    engine=None,
+    *,
+    plan: dict | None = None,
+    force: bool = False,
+    done: set[str] | None = None,
+    by: tuple[str, ...] = ("profile", "filter", "pd_mode", "particles"),
+    progress=None,
+) -> SweepOutcome:
+    """Run the jobs not done yet on ``engine``, each run folder moved in as its job completes; the tables once all are done.
+
+    engine: an object with ``map_unordered(fn, args, keys)`` yielding ``(index, ok,
+    result or exception, stats)`` as jobs complete (default :class:`InTurn`).
+    A failed job is recorded (failed.yaml, :attr:`SweepOutcome.failed`) and the
+    others go on; running the sweep again does only what is missing. ``done``:
+    what :func:`open_sweep` returned when the caller opened the folder itself
+    (to check it before starting an engine).
+    """
+    folder = Path(folder)
+    names = [j.name for j in jobs]
+    if len(set(names)) != len(names):
+        raise UsageError("two runs of the sweep have the same name")
+    if done is None:
+        done = open_sweep(folder, plan if plan is not None else make_plan(jobs, {}, []), jobs, force=force)
+    todo = [j for j in jobs if j.name not in done]
+    engine = engine or InTurn()
+    failures: list[Failure] = []
+    if todo:
+        it = engine.map_unordered(run_job, [(j,) for j in todo], [f"run-{j.name}" for j in todo])
+        if progress is not None:
+            it = progress(it, len(todo), f"sweep {engine.label}")
+        for i, ok, value, stats in it:
+            if ok:
+                install_run(folder, todo[i], value, stats)
+            else:
+                failures.append(_failure(todo[i], value))
+    outcome = SweepOutcome(folder, len(jobs), len(done), len(todo) - len(failures), sorted(failures, key=lambda f: names.index(f.job.name)))
+    failed_file = folder / "failed.yaml"
+    if outcome.failed:
+        detail = {
+            f.job.name: {**{k: f.job.labels.get(k) for k in LABELS}, "error": f.error, **({"traceback": f.trace} if f.trace else {})}
+            for f in outcome.failed
+        }
+        _write_text(failed_file, _dump({"failed": detail, "rerun": "the same command completes only these runs"}))
+        return outcome
+    if failed_file.exists():
+        failed_file.unlink()
+    outcome.rows, outcome.timings = tables(folder, jobs)
+    outcome.summary = summarise(outcome.rows, by, LABELS)
+    for name, rows in (("runs.csv", outcome.rows), ("summary.csv", outcome.summary), ("timings.csv", outcome.timings)):
+        _write_text(folder / name, pd.DataFrame(rows).to_csv(index=False, float_format="%.6g"))
+    return outcome
+
+
+def tables(folder: Path, jobs: list[SweepJob]) -> tuple[list[dict], list[dict]]:
+    """(runs.csv rows, timings.csv rows) from the run folders, in the order of the jobs."""
+    rows, timings = [], []
+    for j in jobs:
+        metrics = yaml.safe_load((folder / j.name / "metrics.yaml").read_text())
+        task_file = folder / j.name / "task.yaml"
+        task = yaml.safe_load(task_file.read_text()) if task_file.is_file() else {}
+        labels = {k: j.labels.get(k) for k in LABELS}
+        rows.append({**labels, **{k: v for k, v in metrics.items() if k not in TIMING_KEYS and not isinstance(v, str | dict)}})
+        timings.append({"run": j.name, **{k: metrics.get(k) for k in TIMING_KEYS}, **{f"task_{k}": v for k, v in task.items()}})
+    return rows, timings
 
 
 def summarise(rows: list[dict], by: tuple[str, ...], labels: tuple[str, ...] = ()) -> list[dict]:

@@ -23,11 +23,23 @@ def check_poses(poses: str | None) -> None:
         raise UsageError(f"--poses: expected {', '.join(POSE_SOURCES)}, got {poses!r}")
 
 
+#: Options that say where the work runs, not what it computes: not part of the command a profile records.
+EXECUTION_OPTIONS = ("--workers", "--scheduler")
+
+
 def typed_command(name: str) -> str:
-    """The command as typed; absolute paths lose their folders (a profile names inputs by file name and hash)."""
+    """The command as typed; absolute paths lose their folders (a profile names inputs by file name and hash);
+    ``--workers`` and ``--scheduler`` are left out, so a profile is the same bytes wherever it was computed."""
     from calib.cli.common import ARGV
 
-    words = [Path(a).name if os.path.isabs(a) else a for a in ARGV[1:]]
+    words, skip = [], False
+    for a in ARGV[1:]:
+        if skip:
+            skip = False
+        elif a in EXECUTION_OPTIONS:
+            skip = True
+        elif not a.startswith(tuple(f"{o}=" for o in EXECUTION_OPTIONS)):
+            words.append(Path(a).name if os.path.isabs(a) else a)
     return " ".join([f"detcal {name}", *(shlex.quote(w) for w in words)])
 
 
@@ -50,32 +62,44 @@ def calibrate_cmd(
     per_sensor: Annotated[
         bool, typer.Option(help="Detection-level logs of several sensors: also write one partially pooled profile per sensor (<name>-<sensor>).")
     ] = False,
+    workers: Annotated[
+        int | None,
+        typer.Option(
+            help="Laser logs: Dask worker processes for the per-log work (default: the CPU count when there are several logs); 0 = in this process."
+        ),
+    ] = None,
+    scheduler: Annotated[str | None, typer.Option(help="Address of an existing Dask scheduler (e.g. tcp://10.0.0.5:8786) for the per-log work.")] = None,
 ) -> None:
     """Calibrate a detector on logs with truth -> a profile and a report.
 
     Laser logs: the circle detector, P_D against n_p, Hotelling ellipsoid, Poisson clutter;
     sigma_r from the log, --range-sigma, or estimated from the registered scans.
     Detection-level logs (UTIAS): P_D against range, clutter from non-landmark detections.
+    Several laser logs: detection, ground truth and labelling of each log on Dask workers, the fits here.
     3D lidar logs with plane truth (detcal simulate street): the plane detector, P_D against the
     ray-traced visible points and incidence angle, clutter planes (profile kind lidar3d-planes).
     """
+    from calib.engine import check_options
     from calib.pipeline import CalibrationJob, check_name, run_calibration
 
     check_poses(poses)
     check_name(name, version)
+    check_options(workers, scheduler)
     landmark_ref = landmark_input(landmarks)
     if logs:
         loaded, paths = reader.read_many(logs, robot)
         prof_name = name or loaded[0].name.lower().replace("_", "-")
+        fmt = reader.fmt
     else:
         from calib.default import DEFAULT_PROFILE_NAME, default_log
 
         log, path = default_log()
-        loaded, paths, prof_name = [log], [path], name or DEFAULT_PROFILE_NAME
+        loaded, paths, prof_name, fmt = [log], [path], name or DEFAULT_PROFILE_NAME, "native"
     refs = unique_refs([r for p, lg in zip(paths, loaded, strict=True) for r in input_refs(p, lg)] + landmark_ref)
+    sources = [(p, fmt, reader.options_of(lg)) for p, lg in zip(paths, loaded, strict=True)]
     job = CalibrationJob(
         loaded, refs, prof_name, version, out_dir, profiles_dir, description, config, landmarks, poses, force,
-        typed_command("calibrate"), reader.options.range_sigma is not None, per_sensor,
+        typed_command("calibrate"), reader.options.range_sigma is not None, per_sensor, sources, workers, scheduler,
     )  # fmt: skip
     done = run_calibration(job)
     for note in done.notes:
@@ -85,6 +109,7 @@ def calibrate_cmd(
         "profile": f"{p.ref} ({done.profile_status}: {done.profile_path})",
         "run folder": f"{done.run_folder} ({done.run_status}" + (f", {len(done.figures)} figures)" if done.figures else ")"),
         **({"per-sensor profiles": ", ".join(f"{path.stem} ({st})" for path, st in done.members)} if done.members else {}),
+        **({"per-log work": done.engine} if len(done.summary["logs"]) > 1 else {}),
         **{k: v for k, v in done.summary.items() if k not in ("logs", "range_noise")},
     }
     if not p.pd.two_d:

@@ -103,6 +103,11 @@ class ReaderArgs:
         warn_untimed(path, log)
         return log
 
+    def options_of(self, log):
+        """The reader options that read ``log`` (a UTIAS log: with its robot)."""
+        robot = log.source.get("robot")
+        return self.options if robot is None else self.options.model_copy(update={"robot": int(robot)})
+
     def read_many(self, paths: list[Path], robots: list[int] | None = None) -> tuple[list, list[Path]]:
         """Logs from paths; a UTIAS dataset folder gives one log per requested robot (each robot once)."""
         from calib.io.registry import detect_format

@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 import typer
 from rich.table import Table
 
-from calib.cli.common import ReaderArgs, fresh, input_refs, out, positive, reader_options, summary_table
-from profiles.errors import UsageError
+from calib.cli.common import ReaderArgs, fresh, input_refs, out, positive, reader_options, summary_table, warn
+from profiles.errors import DataError, UsageError
 
 app = typer.Typer(help="Run SLAM filters with a detector profile.", no_args_is_help=True, rich_markup_mode=None)
 
@@ -107,6 +109,13 @@ def seed_list(text: str) -> list[int]:
     return seeds
 
 
+WorkersOpt = Annotated[
+    int | None,
+    typer.Option(help="Worker processes of the local Dask cluster (default: the CPU count); 0 = in this process, one task after another."),
+]
+SchedulerOpt = Annotated[str | None, typer.Option(help="Address of an existing Dask scheduler (e.g. tcp://10.0.0.5:8786) instead of a local cluster.")]
+
+
 @app.command("sweep")
 @reader_options("fmt", "max_backstep", "robot")
 def slam_sweep_cmd(
@@ -119,25 +128,29 @@ def slam_sweep_cmd(
     seeds: Annotated[str, typer.Option(help="Filter seeds: a count (3), a list (1,3,7) or a range (1-5).")] = "1",
     config: Annotated[Path | None, typer.Option(help="YAML settings shared by every run.")] = None,
     frames: Annotated[int | None, typer.Option(help="Only the first N frames of each log.")] = None,
-    jobs: Annotated[int | None, typer.Option(help="Parallel processes (default: the CPU count).")] = None,
-    out_dir: Annotated[Path, typer.Option("--out", help="Sweep folder: one run folder per run, runs.csv and summary.csv.")] = Path("runs/sweep"),
-    force: Annotated[bool, typer.Option(help="Replace the sweep folder if it exists.")] = False,
+    workers: WorkersOpt = None,
+    scheduler: SchedulerOpt = None,
+    out_dir: Annotated[Path, typer.Option("--out", help="Sweep folder: one run folder per run, runs.csv, summary.csv, timings.csv.")] = Path("runs/sweep"),
+    force: Annotated[bool, typer.Option(help="Start the sweep folder anew (without it, the same command resumes an unfinished sweep).")] = False,
 ) -> None:
-    """Monte Carlo sweep: every log x profile x filter x P_D mode x particle count x seed, in parallel processes."""
-    import pandas as pd
+    """Monte Carlo sweep: every log x profile x filter x P_D mode x particle count x seed, on Dask workers.
 
-    from calib.config import dump_yaml
-    from calib.io.atomic import atomic_output
+    Each run's folder is moved into the sweep folder as soon as the run ends; a
+    failed run is named (log, seed) and the others go on; the same command again
+    does only the runs that are missing. runs.csv and summary.csv are the same
+    bytes whatever the number of workers.
+    """
+    from calib.engine import InProcess, LogSource, check_options, open_engine
+    from calib.progress import progress
     from profiles.store import resolve
+    from slam_runtime.config import FILTER_KINDS, override, with_filter
     from slam_runtime.run import check_inputs
-    from slam_runtime.sweep import SweepJob, run_sweep, summarise
+    from slam_runtime.sweep import SweepJob, make_plan, open_sweep, run_sweep
 
     modes = list(dict.fromkeys(pd_modes or list(PD_MODES)))
     for m in modes:
         if m not in PD_MODES:
             raise UsageError(f"--pd-mode: expected one of {', '.join(PD_MODES)}, got {m!r}")
-    from slam_runtime.config import FILTER_KINDS, override, with_filter
-
     base = slam_config(config, None, None, None)
     kinds = list(dict.fromkeys(filters or [base.filter.kind]))
     for f in kinds:
@@ -147,38 +160,48 @@ def slam_sweep_cmd(
     if min(counts) < 1:
         raise UsageError(f"--particles: expected positive integers, got {counts}")
     positive("--frames", frames)
-    positive("--jobs", jobs)
+    check_options(workers, scheduler)
     seeds_ = seed_list(seeds)
     profs = [resolve(r) for r in dict.fromkeys(profile_refs)]
-    loaded = []
+    sources, described = [], []
     for p in logs:
         log = reader.read(p)
         for prof in profs:
             check_inputs(log, prof)
-        loaded.append((p, log))
-    fresh(out_dir, force)
+        src = LogSource.of(log, p, reader.fmt, reader.options)
+        refs = [r.model_dump() for r in input_refs(p, log)]
+        sources.append((src, refs))
+        described.append({"name": log.name, "file": p.name, "inputs": refs, "fingerprint": src.fingerprint})
+        del log  # the runs read it where they run
     job_list = []
-    for i, (p, log) in enumerate(loaded):
+    for i, (src, refs) in enumerate(sources):
         for prof in profs:
             for f in kinds:
                 for m in modes:
                     for n in counts:
                         cfg = override(with_filter(base, f), particles=n, **{"detection.pd_mode": m})
                         for sd in seeds_:
-                            name = f"{i:02d}_{log.name}_{prof.ref}_{f}_{m}_p{n}_s{sd}"
-                            labels = {"log": log.name, "profile": prof.ref, "filter": f, "pd_mode": m, "particles": n, "seed": sd}
-                            job_list.append(SweepJob(name, log, prof, cfg, sd, labels, frames))
-    by = ("profile", "filter", "pd_mode", "particles")
-    with atomic_output(out_dir, overwrite=force, directory=True) as tmp:
-        tmp.mkdir()
-        rows = run_sweep(job_list, tmp, jobs)
-        label_keys = ("log", "profile", "filter", "pd_mode", "particles", "seed")
-        pd.DataFrame(rows).to_csv(tmp / "runs.csv", index=False, float_format="%.6g")
-        summary = summarise(rows, by, label_keys)
-        pd.DataFrame(summary).to_csv(tmp / "summary.csv", index=False, float_format="%.6g")
-        (tmp / "config.yaml").write_text(dump_yaml({"settings": base.model_dump(mode="json"), "logs": [p.name for p, _ in loaded], "seeds": seeds_}))
+                            name = f"{i:02d}_{src.name}_{prof.ref}_{f}_{m}_p{n}_s{sd}"
+                            labels = {"log": src.name, "profile": prof.ref, "filter": f, "pd_mode": m, "particles": n, "seed": sd}
+                            job_list.append(SweepJob(name, src, prof, cfg, sd, labels, frames, refs))
+    plan = make_plan(job_list, base.model_dump(mode="json"), described)
+    done = open_sweep(out_dir, plan, job_list, force=force)  # checked (and created) before any worker starts
+    todo = len(job_list) - len(done)
+    engine_cm = open_engine(workers, scheduler, todo) if todo else contextlib.nullcontext(InProcess())
+    with engine_cm as engine:
+        res = run_sweep(job_list, out_dir, engine, done=done, progress=progress)
+        where = engine.label
+    if res.failed:
+        for f in res.failed:
+            warn(f"run {f.line()}")
+        raise DataError(
+            f"{len(res.failed)} of {res.runs} runs failed ({', '.join(f.job.name for f in res.failed)}; listed in {out_dir / 'failed.yaml'}); "
+            f"the {res.skipped + res.ran} others are in {out_dir}: run the same command again to complete only the missing ones"
+        )
     # one column per setting, one row per metric (mean +- standard deviation over its runs)
-    t = Table(title=f"sweep of {len(job_list)} runs -> {out_dir}")
+    summary = res.summary
+    attempt = (f"{res.ran} run {where}" + (f", {res.skipped} done before" if res.skipped else "")) if res.ran else "all done before"
+    t = Table(title=f"sweep of {res.runs} runs ({attempt}) -> {out_dir}")
     t.add_column("metric")
     for e in summary:
         t.add_column(f"{e['profile']}\n{e['filter']}, {e['pd_mode']}, {e['particles']} particles\n{e['runs']} runs", justify="right")
@@ -192,9 +215,12 @@ def slam_sweep_cmd(
         ("RMSE heading [deg]", "rmse_heading_vs_ground_truth_deg"),
         ("map OSPA", "map_ospa"),
         ("map features", "map_features"),
-        ("ms per step", "ms_per_step_mean"),
     ]
     for label, key in shown:
         if f"{key}_mean" in summary[0]:
             t.add_row(label, *(f"{e[key + '_mean']:.3f} ± {e[key + '_std']:.3f}" for e in summary))
+    ms = {}
+    for row, tim in zip(res.rows, res.timings, strict=True):
+        ms.setdefault(tuple(row[k] for k in ("profile", "pd_mode", "particles")), []).append(tim["ms_per_step_mean"])
+    t.add_row("ms per step", *(f"{np.mean(v):.1f}" for v in ms.values()))
     out.print(t)

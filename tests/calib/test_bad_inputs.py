@@ -166,6 +166,8 @@ CASES = [
     ("opt-unknown", "an option that does not exist", lambda t: ["log", "info", small_log(t), "--no-such-option"], 2, "No such option: --no-such-option"),
     ("opt-frames", "--frames 0", lambda t: ["slam", "run", small_log(t), "--profile", "sim-park-laser", "--frames", "0"], 2, "--frames: expected a positive integer, got 0"),
     ("opt-seeds", "--seeds x", lambda t: ["slam", "sweep", small_log(t), "--profile", "sim-park-laser", "--seeds", "x"], 2, "--seeds: expected a count (5), a list (1,3,7) or a range (1-5), got 'x'"),
+    ("opt-workers", "negative --workers", lambda t: ["slam", "sweep", small_log(t), "--profile", "sim-park-laser", "--workers", "-2"], 2, "--workers: expected 0 (this process) or a positive number of worker processes, got -2"),
+    ("opt-workers-scheduler", "--workers with --scheduler", lambda t: ["calibrate", small_log(t), "--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], 2, "--workers: the cluster at --scheduler has its own workers; give one of the two"),
     ("opt-landmarks-missing", "--landmarks file that does not exist", lambda t: ["calibrate", small_log(t), "--landmarks", str(t / "none.csv")], 2, "--landmarks: "),
     ("opt-landmarks-bad", "landmark CSV with a text radius", lambda t: ["calibrate", small_log(t), "--landmarks", text(t, "l.csv", "id,x,y,radius\n1,0,0,big\n")], 1, "l.csv:2: id must be an integer, x, y numbers and radius > 0"),
     ("opt-landmarks-columns", "landmark CSV without a radius column", lambda t: ["calibrate", small_log(t), "--landmarks", text(t, "l.csv", "id,x,y\n1,0,0\n")], 1, "l.csv: missing columns ['radius']"),

@@ -88,7 +88,7 @@ def test_slam_run_on_a_detection_log_with_gps(tmp_path, capsys):
 def test_slam_sweep_tabulates_runs(tmp_path, capsys, park_log):
     code, out, err = run(
         capsys, "slam", "sweep", str(park_log), "--profile", "sim-park-laser", "--seeds", "2", "--frames", "25",
-        "--particles", "5", "--jobs", "2", "--out", str(tmp_path / "sw"),
+        "--particles", "5", "--workers", "0", "--out", str(tmp_path / "sw"),
     )
     assert code == 0, err
     runs = list(csv.DictReader((tmp_path / "sw/runs.csv").read_text().splitlines()))
