@@ -53,7 +53,7 @@ def test_sweep_over_filters(tmp_path, capsys, paper):
     out = tmp_path / "sw"
     code, _, err = run(
         capsys, "slam", "sweep", str(paper / "log.dlog"), "--profile", str(paper / "profile.yaml"), "--filter", "lmb", "--filter", "glmb",
-        "--pd-mode", "profile", "--particles", "3", "--seeds", "1", "--frames", "30", "--jobs", "1", "--out", str(out),
+        "--pd-mode", "profile", "--particles", "3", "--seeds", "1", "--frames", "30", "--workers", "0", "--out", str(out),
     )  # fmt: skip
     assert code == 0, err
     rows = list(csv.DictReader((out / "runs.csv").read_text().splitlines()))
