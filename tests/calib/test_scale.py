@@ -130,7 +130,7 @@ def test_sweep_on_two_local_workers_gives_the_serial_bytes(tmp_path, capsys, par
 
 def test_a_killed_worker_is_retried_and_the_sweep_finishes(tmp_path, capsys, park_log, serial, cluster):
     c, client = cluster
-    victim = "00_park_seed71_sim-park-laser@1.0.0_profile_p5_s1"
+    victim = "00_park_seed71_sim-park-laser@1.0.0_rbphd_profile_p5_s1"
     arm_kill(client, victim, tmp_path / "killed")
     code, _, err = run(capsys, "slam", "sweep", str(park_log), *SWEEP, "--scheduler", c.scheduler_address, "--out", str(tmp_path / "sw"))
     assert (tmp_path / "killed").exists(), "the armed run never ran"
@@ -141,7 +141,7 @@ def test_a_killed_worker_is_retried_and_the_sweep_finishes(tmp_path, capsys, par
 
 def test_without_retries_the_lost_run_is_named_and_a_rerun_does_only_it(tmp_path, capsys, park_log, serial, cluster):
     c, client = cluster
-    victim = "00_park_seed71_sim-park-laser@1.0.0_constant_p5_s2"
+    victim = "00_park_seed71_sim-park-laser@1.0.0_rbphd_constant_p5_s2"
     arm_kill(client, victim, tmp_path / "killed")
     saved, c.scheduler.allowed_failures = c.scheduler.allowed_failures, 0  # a task whose worker dies fails at once
     try:
