@@ -1,11 +1,14 @@
 """Scaling out on Dask: speed-up of a SLAM sweep and of a multi-log calibration at 1 and 2 workers, and the overhead per task.
 
-Run: ``python benchmarks/bench_scale.py [--seeds 8] [--logs 4] [--work runs/bench_scale]``.
+Run: ``python benchmarks/bench_scale.py [--seeds 8] [--rounds 3] [--logs 4] [--work runs/bench_scale]``.
 
 * Sweep: one simulated park (``benchmarks/configs/small_park.yaml``, seed 71) x
   P_D mode (profile, constant) x ``--seeds`` filter seeds at 20 particles: 16 runs
-  of 2-6 s each. In this process (the reference), then on a local cluster of 1 and
-  of 2 workers.
+  of 2-6 s each. In this process (the reference), on a local cluster of 1 and
+  of 2 workers, ``--rounds`` times with the order turned each round: the speed of
+  this shared machine drifts by 10-20 % over minutes (the same in-process sweep
+  took 62 and 76 s of CPU twenty minutes apart), so each round's speed-ups are
+  against that round's in-process run, and the median over rounds is reported.
 * Calibration: ``--logs`` default parks (seeds 1..N, 1,573 scans each; simulated
   once into ``--work``), per-log detection, ground truth and labelling (about 8 s
   a log) in this process, then on 1 and 2 workers; the fits always run here.
@@ -27,6 +30,7 @@ import argparse
 import os
 import resource
 import shutil
+import statistics
 import sys
 import time
 from contextlib import contextmanager
@@ -65,7 +69,7 @@ def measured(label: str, out: dict):
     )
 
 
-def sweep_bench(work: Path, seeds: int) -> None:
+def sweep_bench(work: Path, seeds: int, rounds: int) -> None:
     from calib.engine import InProcess, LogSource, open_engine
     from calib.io.registry import ReadOptions, read_log
     from calib.config import load_yaml_model
@@ -89,50 +93,73 @@ def sweep_bench(work: Path, seeds: int) -> None:
             labels = {"log": log.name, "profile": prof.ref, "pd_mode": mode, "particles": 20, "seed": sd}
             jobs.append(SweepJob(f"{mode}_s{sd}", src, prof, cfg, sd, labels))
     plan = make_plan(jobs, base.model_dump(mode="json"), [{"name": log.name, "fingerprint": src.fingerprint}])
-    print(f"\nsweep: {len(jobs)} runs ({log.name}, {len(log.scans)} frames, 20 particles, P_D profile/constant x {seeds} seeds)")
-    res: dict[str, dict] = {}
-    outs: dict[str, Path] = {}
-    for label, workers in (("in this process", 0), ("1 worker", 1), ("2 workers", 2)):
-        out = work / f"sweep_{workers}"
-        shutil.rmtree(out, ignore_errors=True)
-        m: dict = {}
-        if workers == 0:
-            with measured(label, m):
-                outcome = run_sweep(jobs, out, InProcess(), plan=plan)
-        else:
-            start: dict = {}
-            with measured(f"{label}: idle start+close", start), open_engine(workers, None, len(jobs)):
-                pass
-            with measured(label + " (start..close)", m), open_engine(workers, None, len(jobs)) as engine:
-                t0 = time.perf_counter()
-                outcome = run_sweep(jobs, out, engine, plan=plan)
-                m["sweep_wall"] = time.perf_counter() - t0
-            m["start"] = start["wall"]
-        assert outcome.complete and len(outcome.rows) == len(jobs)
-        task_wall = sum(t["task_wall_s"] for t in outcome.timings)
-        task_cpu = sum(t["task_cpu_s"] for t in outcome.timings)
-        rss = max(t["task_max_rss_mb"] for t in outcome.timings)
-        m.update(task_wall=task_wall, task_cpu=task_cpu)
-        print(f"    runs: {task_wall:6.1f} s wall, {task_cpu:6.1f} s CPU in all; worker peak memory {rss:.0f} MB"
-              + (f"; sweep alone {m['sweep_wall']:.1f} s" if "sweep_wall" in m else ""))
-        res[label], outs[label] = m, out
+    print(f"\nsweep: {len(jobs)} runs ({log.name}, {len(log.scans)} frames, 20 particles, P_D profile/constant x {seeds} seeds),"
+          f" {rounds} rounds of in this process / 1 worker / 2 workers, the order turned each round")
+    settings = [("in this process", 0), ("1 worker", 1), ("2 workers", 2)]
+    reference: dict[str, bytes] = {}
+    speed: dict[str, list[float]] = {"1 worker": [], "2 workers": []}
+    speed_all: dict[str, list[float]] = {"1 worker": [], "2 workers": []}
+    cpu_run: dict[str, list[float]] = {label: [] for label, _ in settings}
+    overhead: list[tuple[float, float, float]] = []
+    for r in range(rounds):
+        print(f"round {r + 1}:")
+        order = settings[r % 3:] + settings[: r % 3]
+        res: dict[str, dict] = {}
+        for label, workers in order:
+            out = work / f"sweep_{workers}"
+            shutil.rmtree(out, ignore_errors=True)
+            m: dict = {}
+            if workers == 0:
+                with measured(label, m):
+                    outcome = run_sweep(jobs, out, InProcess(), plan=plan)
+                m["sweep_wall"] = m["wall"]
+            else:
+                start: dict = {}
+                with measured(f"{label}: idle start+close", start), open_engine(workers, None, len(jobs)):
+                    pass
+                with measured(label + " (start..close)", m), open_engine(workers, None, len(jobs)) as engine:
+                    t0 = time.perf_counter()
+                    outcome = run_sweep(jobs, out, engine, plan=plan)
+                    m["sweep_wall"] = time.perf_counter() - t0
+                m["start"] = start["wall"]
+            assert outcome.complete and len(outcome.rows) == len(jobs)
+            task_wall = sum(t["task_wall_s"] for t in outcome.timings)
+            task_cpu = sum(t["task_cpu_s"] for t in outcome.timings)
+            rss = max(t["task_max_rss_mb"] for t in outcome.timings)
+            m.update(task_wall=task_wall, task_cpu=task_cpu)
+            cpu_run[label].append(task_cpu / len(jobs))
+            print(f"    runs: {task_wall:6.1f} s wall, {task_cpu:6.1f} s CPU in all; worker peak memory {rss:.0f} MB"
+                  + (f"; sweep alone {m['sweep_wall']:.1f} s" if workers else ""))
+            for f in ("runs.csv", "summary.csv"):
+                data = (out / f).read_bytes()
+                if f not in reference:
+                    reference[f] = data
+                elif data != reference[f]:
+                    print(f"  {label}: {f} DIFFERS from the first run's")
+                    raise SystemExit(1)
+            res[label] = m
+        s0 = res["in this process"]["wall"]
+        for label in ("1 worker", "2 workers"):
+            speed[label].append(s0 / res[label]["sweep_wall"])
+            speed_all[label].append(s0 / res[label]["wall"])
+        one, here = res["1 worker"], res["in this process"]
+        overhead.append(((one["sweep_wall"] - s0) / len(jobs), (one["cpu_workers"] + one["cpu_self"] - here["cpu_self"]) / len(jobs), one["start"]))
+        print(f"  round {r + 1}: speed-up on 1 worker {speed['1 worker'][-1]:.2f}x, on 2 workers {speed['2 workers'][-1]:.2f}x (sweep alone, against this round's in-process run)")
+    print(f"  runs.csv and summary.csv identical in all {3 * rounds} sweeps")
+
+    def rng(xs: list[float], fmt: str = "{:.2f}") -> str:
+        xs = sorted(xs)
+        return f"{fmt.format(statistics.median(xs))} (rounds {', '.join(fmt.format(x) for x in xs)})"
+
     for label in ("1 worker", "2 workers"):
-        for f in ("runs.csv", "summary.csv"):
-            same = (outs[label] / f).read_bytes() == (outs["in this process"] / f).read_bytes()
-            print(f"  {label}: {f} {'identical to' if same else 'DIFFERS from'} the in-process run")
-    s0 = res["in this process"]["wall"]
-    for label in ("1 worker", "2 workers"):
-        m = res[label]
-        print(
-            f"  speed-up on {label}: {s0 / m['sweep_wall']:.2f}x (sweep alone), {s0 / m['wall']:.2f}x (with the cluster's start and close);"
-            f" CPU per run {m['task_cpu'] / len(jobs):.2f} s (in this process {res['in this process']['task_cpu'] / len(jobs):.2f} s)"
-        )
-    one, here = res["1 worker"], res["in this process"]
-    per_task = (one["sweep_wall"] - s0) / len(jobs)
-    per_task_cpu = (one["cpu_workers"] + one["cpu_self"] - here["cpu_self"]) / len(jobs)
+        print(f"  speed-up on {label}: median {rng(speed[label])} sweep alone; {rng(speed_all[label])} with the cluster's start and close")
+    for label, _ in settings:
+        print(f"  CPU per run {label}: {rng(cpu_run[label])} s")
+    w = [o[0] * 1e3 for o in overhead]
+    c = [o[1] * 1e3 for o in overhead]
     print(
-        f"  overhead per run on 1 worker vs this process: {per_task * 1e3:.0f} ms wall, {per_task_cpu * 1e3:.0f} ms CPU"
-        f" (the worker's start, imports and first compilations included; an idle cluster starts and closes in {one['start']:.1f} s)"
+        f"  overhead per run on 1 worker vs this process: {rng(w, '{:.0f}')} ms wall, {rng(c, '{:.0f}')} ms CPU"
+        f" (the worker's start, imports and first compilations included; an idle cluster starts and closes in {statistics.median(o[2] for o in overhead):.1f} s)"
     )
 
 
@@ -191,6 +218,7 @@ def calibration_bench(work: Path, n_logs: int) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, default=8, help="filter seeds per P_D mode (2 modes: 2 x seeds runs)")
+    ap.add_argument("--rounds", type=int, default=3, help="sweep rounds (each: in this process, 1 worker, 2 workers): the machine's speed drifts, so each round is compared within itself")
     ap.add_argument("--logs", type=int, default=4, help="parks to calibrate")
     ap.add_argument("--work", type=Path, default=ROOT / "runs/bench_scale", help="logs and outputs (the parks are simulated once)")
     ap.add_argument("--skip", choices=("sweep", "calibration", "overhead"), action="append", default=[])
@@ -201,7 +229,7 @@ def main() -> None:
     if "overhead" not in a.skip:
         overhead_bench()
     if "sweep" not in a.skip:
-        sweep_bench(a.work, a.seeds)
+        sweep_bench(a.work, a.seeds, a.rounds)
     if "calibration" not in a.skip:
         calibration_bench(a.work, a.logs)
     print(f"\nload average at the end {load()}")

@@ -284,6 +284,16 @@ def test_the_local_cluster_listens_on_loopback_only():
         assert list(client.run(_http_sockets).values()) == [["127.0.0.1"]]
         env = client.run(lambda: {k: os.environ.get(k) for k in ("MALLOC_TRIM_THRESHOLD_", "OPENBLAS_NUM_THREADS")})
         assert list(env.values()) == [{"MALLOC_TRIM_THRESHOLD_": None, "OPENBLAS_NUM_THREADS": "1"}]
+        # no statistical profiler walking the task's stack; what the tasks import is there before the first task
+        assert list(client.run(_worker_state).values()) == [(False, [])]
+
+
+def _worker_state(dask_worker=None):
+    import sys
+
+    from calib.engine import PRELOAD
+
+    return "profile" in dask_worker.periodic_callbacks, [m for m in PRELOAD if m not in sys.modules]
 
 
 class _Terminal(io.StringIO):
