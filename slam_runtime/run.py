@@ -142,6 +142,18 @@ class MapOSPA:
         return ospa(slam.mf.feature.position(slam.map_estimate()[0]), self.truth, self.c, self.p, self.distance)
 
 
+class LogEvidence:
+    """Hook: the run's log marginal likelihood of the measurements so far, log p(Z_1:k) up to a constant that
+    depends only on the clutter model (sum over steps of the log normaliser of the particle weights; with the
+    optimal proposal the weights include prior / proposal). Settings of one filter on one log compare by it
+    without ground truth: the larger, the better the model explains the measurements."""
+
+    name = "log_evidence"
+
+    def __call__(self, k: int, slam: RBSlam) -> float:
+        return float(slam.log_evidence)
+
+
 def run_slam(
     log: SensorLog, profile, cfg: SlamConfig, seed: int, *, progress=None, max_frames: int | None = None, hooks: tuple = ()
 ) -> SlamResult:

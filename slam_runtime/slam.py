@@ -68,6 +68,10 @@ class RBSlam:
         self.resample_every = resample_every
         self.x = vehicle.initial(np.asarray(start, dtype=np.float64), n)
         self.logw = np.full(n, -np.log(n))
+        # log p(Z_1:k) up to the filter's constant (log of the clutter-only likelihood): the sum over steps of
+        # the log normaliser of the weights (the sequential Monte Carlo estimate of the marginal likelihood);
+        # a criterion for settings that needs no ground truth
+        self.log_evidence = 0.0
         if hasattr(mapfilter, "bind"):
             mapfilter.bind(rng)  # filters that sample draw from the run's generator
         self.maps = mapfilter.empty(n)
@@ -114,7 +118,8 @@ class RBSlam:
         self.history.append(self.x, self._pending)
         self._pending = np.arange(self.n, dtype=np.int32)
         self.maps, loglik = self.mf.update(self.maps, self.vehicle.pose(self.x), meas)
-        self.logw, _ = normalise_log(self.logw + loglik + correction)
+        self.logw, log_norm = normalise_log(self.logw + loglik + correction)
+        self.log_evidence += log_norm
         t0 = time.perf_counter()
         e = ess(self.logw)
         self._since += 1
