@@ -42,12 +42,12 @@ from calib.config import load_yaml_model  # noqa: E402
 from calib.io.registry import ReadOptions, read_log  # noqa: E402
 from profiles.store import load_profile_file  # noqa: E402
 from slam_runtime.config import SlamConfig, override, with_filter  # noqa: E402
-from slam_runtime.run import evaluate, run_slam  # noqa: E402
+from slam_runtime.run import LogEvidence, evaluate, run_slam  # noqa: E402
 
 CONFIGS = ROOT / "benchmarks/configs"
 VP_PROFILE = ROOT / "benchmarks/profiles/victoria-park-selfcal@1.0.0.yaml"
 FIELDS = ("log", "robot", "filter", "seed", "particles", "frames", "rmse_m", "dead_reckoning_m", "map_ospa", "map_features",
-          "landmarks_mapped", "ms_step_wall", "ms_step_cpu", "wall_s", "load")  # fmt: skip
+          "landmarks_mapped", "ms_step_wall", "ms_step_cpu", "log_evidence", "wall_s", "load")  # fmt: skip
 
 
 def load() -> str:
@@ -83,7 +83,7 @@ def utias_profile(data: Path, robot: int, profiles: Path | None, work: Path) -> 
 
 def one(log, prof, cfg: SlamConfig, seed: int, name: str, robot: int | str, frames: int | None) -> dict:
     t0 = time.perf_counter()
-    res = run_slam(log, prof, cfg, seed, max_frames=frames)
+    res = run_slam(log, prof, cfg, seed, max_frames=frames, hooks=(LogEvidence(),))
     wall = time.perf_counter() - t0
     m = evaluate(log, res, cfg=cfg)
     ref = "ground_truth" if "trajectory_rmse_vs_ground_truth_m" in m else "gps"
@@ -93,7 +93,7 @@ def one(log, prof, cfg: SlamConfig, seed: int, name: str, robot: int | str, fram
         "rmse_m": m[f"trajectory_rmse_vs_{ref}_m"], "dead_reckoning_m": m[f"odometry_rmse_vs_{ref}_m"],
         "map_ospa": m.get("map_ospa", float("nan")), "map_features": m.get("map_features", int(res.map_xy.shape[0])),
         "landmarks_mapped": m.get("landmarks_mapped", ""), "ms_step_wall": float(step.mean()), "ms_step_cpu": float(cpu.mean()),
-        "wall_s": wall, "load": load(),
+        "log_evidence": float(res.per_step["log_evidence"][-1]), "wall_s": wall, "load": load(),
     }  # fmt: skip
 
 
@@ -101,7 +101,7 @@ def show(r: dict) -> None:
     print(
         f"{r['log']:<6} {str(r['robot']):>2} {r['filter']:<6} seed {r['seed']}  RMSE {r['rmse_m']:7.3f} m (DR {r['dead_reckoning_m']:6.2f})"
         f"  OSPA {r['map_ospa']:6.3f}  features {r['map_features']:>4}  {r['ms_step_wall']:7.2f} ms/step wall {r['ms_step_cpu']:7.2f} CPU"
-        f"  ({r['wall_s']:.0f} s, load {r['load']})",
+        f"  log evidence {r['log_evidence']:.1f}  ({r['wall_s']:.0f} s, load {r['load']})",
         flush=True,
     )
 
@@ -139,10 +139,16 @@ def main() -> None:
     rows: list[dict] = []
     writer = None
     if a.csv is not None:
-        new = not a.csv.exists()
+        old = list(csv.DictReader(a.csv.open(newline=""))) if a.csv.exists() else None
+        if old is not None and (not old or list(old[0]) != list(FIELDS)):  # an older layout: rewrite it in this one
+            with a.csv.open("w", newline="") as f:
+                w = csv.DictWriter(f, FIELDS, extrasaction="ignore")
+                w.writeheader()
+                w.writerows(old)
+            old = []
         fh = a.csv.open("a", newline="")
         writer = csv.DictWriter(fh, FIELDS)
-        if new:
+        if old is None:
             writer.writeheader()
 
     def run(log, prof, base, seed, name, robot):
