@@ -47,7 +47,7 @@ from slam_runtime.run import LogEvidence, evaluate, run_slam  # noqa: E402
 CONFIGS = ROOT / "benchmarks/configs"
 VP_PROFILE = ROOT / "benchmarks/profiles/victoria-park-selfcal@1.0.0.yaml"
 FIELDS = ("log", "robot", "filter", "seed", "particles", "frames", "rmse_m", "dead_reckoning_m", "map_ospa", "map_features",
-          "landmarks_mapped", "ms_step_wall", "ms_step_cpu", "log_evidence", "wall_s", "load")  # fmt: skip
+          "landmarks_mapped", "ms_step_wall", "ms_step_cpu", "log_evidence", "settings", "wall_s", "load")  # fmt: skip
 
 
 def load() -> str:
@@ -157,6 +157,7 @@ def main() -> None:
             if sets:
                 cfg = override(cfg, **sets)
             r = one(log, prof, cfg, seed, name, robot, a.frames)
+            r["settings"] = " ".join(a.sets)
             show(r)
             rows.append(r)
             if writer is not None:
