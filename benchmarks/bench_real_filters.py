@@ -1,7 +1,7 @@
 """RB-PHD, LMB and delta-GLMB side by side on real logs: UTIAS MRCLAM dataset 1 (robots 1-5) and Victoria Park.
 
 Run: ``python benchmarks/bench_real_filters.py [--data ../shared/data] [--filters rbphd,lmb,glmb] [--seeds 0-2]
-[--robots 1-5] [--skip utias|vp]``. About 30 s per UTIAS run and 1.5-2 minutes per Victoria Park run on one core.
+[--robots 1-5] [--skip utias|vp] [--survival 0.95]``. About 30 s per UTIAS run and 1.5-2 minutes per Victoria Park run on one core.
 
 * UTIAS: robot K is held out. Its camera profile is calibrated here on the other four robots (``calibrate_detections`` with
   the default settings, as ``detcal calibrate dataset1 --robot ... --name utias-notK``), and its settings are
@@ -13,7 +13,8 @@ Run: ``python benchmarks/bench_real_filters.py [--data ../shared/data] [--filter
   (there is no landmark truth).
 
 The labelled filters take their default settings (``slam_runtime.glmb.LabelledSettings``, those of the
-glmb-paper scenario): only the filter kind changes (``slam_runtime.config.with_filter``). Every figure is one
+glmb-paper scenario): only the filter kind changes (``slam_runtime.config.with_filter``), and with
+``--survival`` their P_S in the field of view (the paper's 0.95; 1 by default). Every figure is one
 process on one core (BLAS pinned to one thread); the load average is printed with each row.
 """
 
@@ -65,11 +66,19 @@ def row(label: str, ms: list[dict], key: str, extra: str = "") -> None:
     )
 
 
-def utias(root: Path, robots: list[int], filters: list[str], seeds: list[int]) -> None:
+def labelled(cfg, kind: str, survival: float | None):
+    """``cfg`` with the filter ``kind``; the labelled filters' survival in view set when given."""
+    from slam_runtime.config import override, with_filter
+
+    cfg = with_filter(cfg, kind)
+    return override(cfg, **{"filter.survival": survival}) if survival is not None and kind in ("lmb", "glmb") else cfg
+
+
+def utias(root: Path, robots: list[int], filters: list[str], seeds: list[int], survival: float | None) -> None:
     from calib.config import load_yaml_model
     from calib.detlevel import DetectionCalibConfig, calibrate_detections
     from calib.io.utias import read_utias
-    from slam_runtime.config import SlamConfig, with_filter
+    from slam_runtime.config import SlamConfig
 
     logs = {r: read_utias(root, robot=r) for r in range(1, 6)}
     print(f"\nUTIAS dataset 1, leave one robot out; seeds {seeds}; map OSPA c = 1 m, p = 1 against 15 landmarks")
@@ -80,7 +89,7 @@ def utias(root: Path, robots: list[int], filters: list[str], seeds: list[int]) -
         base = load_yaml_model(SlamConfig, ROOT / f"benchmarks/configs/utias_mrclam/robot{k}.yaml")
         print(f"robot {k} (profile calibrated on the other four in {time.perf_counter() - t0:.0f} s)")
         for f in filters:
-            cfg = with_filter(base, f)
+            cfg = labelled(base, f, survival)
             ms = [run(logs[k], prof, cfg, s) for s in seeds]
             extra = (
                 f", odometry {ms[0]['odometry_rmse_vs_ground_truth_m']:.2f}; OSPA {statistics.mean(m['map_ospa'] for m in ms):.3f}"
@@ -89,18 +98,18 @@ def utias(root: Path, robots: list[int], filters: list[str], seeds: list[int]) -
             row(f, ms, "trajectory_rmse_vs_ground_truth_m", extra)
 
 
-def victoria(root: Path, filters: list[str], seeds: list[int]) -> None:
+def victoria(root: Path, filters: list[str], seeds: list[int], survival: float | None) -> None:
     from calib.config import load_yaml_model
     from calib.io.registry import read_log
     from profiles.store import load_profile_file
-    from slam_runtime.config import SlamConfig, with_filter
+    from slam_runtime.config import SlamConfig
 
     log = read_log(root)
     prof = load_profile_file(ROOT / "benchmarks/profiles/victoria-park-selfcal@1.0.0.yaml")
     base = load_yaml_model(SlamConfig, ROOT / "benchmarks/configs/victoria_park.yaml")
     print(f"\nVictoria Park, full run ({len(list(log.frames()))} frames), 10 particles; seeds {seeds}; RMSE vs GPS after a rigid fit")
     for f in filters:
-        ms = [run(log, prof, with_filter(base, f), s) for s in seeds]
+        ms = [run(log, prof, labelled(base, f, survival), s) for s in seeds]
         row(f, ms, "trajectory_rmse_vs_gps_m", f", odometry {ms[0]['odometry_rmse_vs_gps_m']:.1f}; features {statistics.mean(m['map_features'] for m in ms):.0f}")
 
 
@@ -111,6 +120,7 @@ def main() -> None:
     ap.add_argument("--seeds", default="0-2", help="filter seeds: 0-2, or 0,3")
     ap.add_argument("--robots", default="1-5", help="UTIAS robots held out in turn")
     ap.add_argument("--skip", choices=("utias", "vp"), action="append", default=[])
+    ap.add_argument("--survival", type=float, default=None, help="LMB and delta-GLMB: P_S in view (default theirs, 1; the paper: 0.95)")
     a = ap.parse_args()
     os.environ.setdefault("SOURCE_DATE_EPOCH", "1700000000")
     filters = a.filters.split(",")
@@ -119,12 +129,12 @@ def main() -> None:
     ut, vp = a.data / "utias_mrclam/dataset1", a.data / "victoria_park"
     if "utias" not in a.skip:
         if ut.is_dir():
-            utias(ut, _ints(a.robots), filters, seeds)
+            utias(ut, _ints(a.robots), filters, seeds, a.survival)
         else:
             print(f"UTIAS dataset 1 not found at {ut}: skipped")
     if "vp" not in a.skip:
         if vp.is_dir():
-            victoria(vp, filters, seeds)
+            victoria(vp, filters, seeds, a.survival)
         else:
             print(f"Victoria Park not found at {vp}: skipped")
 
