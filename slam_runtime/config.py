@@ -157,15 +157,21 @@ def override(cfg: SlamConfig, **changes) -> SlamConfig:
         raise UsageError(f"{'.'.join(str(x) for x in e['loc'])}: {e['msg']}") from None
 
 
+#: Settings whose name two filters share but whose meaning differs: never carried from one filter to another
+#: (RB-PHD's ``prune`` drops Gaussian components of weight below it, delta-GLMB's drops hypotheses).
+_NOT_CARRIED = frozenset({"kind", "prune"})
+
+
 def with_filter(cfg: SlamConfig, kind: str | None) -> SlamConfig:
-    """``cfg`` with the map filter ``kind``; the settings the two filters share (e.g. survival and birth of
-    LMB and delta-GLMB) carry over, the others take the new filter's defaults."""
+    """``cfg`` with the map filter ``kind``; the settings the two filters share and that mean the same in both
+    (gate, noise inflation, landmark noise, map threshold; survival and birth of LMB and delta-GLMB) carry over,
+    the others take the new filter's defaults."""
     if kind is None or kind == cfg.filter.kind:
         return cfg
     target = {"rbphd": RBPHDConfig, "lmb": LMBConfig, "glmb": GLMBConfig}.get(kind)
     if target is None:
         raise UsageError(f"filter.kind: {kind!r} is not available (expected one of {', '.join(FILTER_KINDS)})")
-    shared = {k: v for k, v in cfg.filter.model_dump().items() if k != "kind" and k in target.model_fields}
+    shared = {k: v for k, v in cfg.filter.model_dump().items() if k not in _NOT_CARRIED and k in target.model_fields}
     return override(cfg, **{"filter": {**shared, "kind": kind}})
 
 

@@ -78,6 +78,7 @@ class RBSlam:
         self.history = ParticleHistory(self.x)
         self._pending = np.arange(n, dtype=np.int32)  # parents of the next history row
         self._since = 0
+        self._heaviest: int | None = None  # after a resampling: a copy of the particle that was heaviest before it
         self.time = {"predict": 0.0, "resample": 0.0}
         # the optimal proposal needs a planar-pose vehicle and a map filter that offers it
         self.proposal = proposal if (vehicle.dim == 3 and hasattr(mapfilter, "pose_proposal")) else "prior"
@@ -127,6 +128,11 @@ class RBSlam:
         if resampled:
             w = np.exp(self.logw)
             idx = self.resample(w / w.sum(), self.rng)
+            # the weights are uniform after resampling: the estimate stays with the heaviest particle's first copy
+            # (systematic, stratified and residual resampling keep every particle of weight >= 1/n, as the heaviest is;
+            # a multinomial draw may lose it, and then the argmax of the uniform weights stands)
+            copies = np.flatnonzero(idx == int(np.argmax(w)))
+            self._heaviest = int(copies[0]) if copies.size else None
             self.x = self.x[idx]
             self.maps = self.maps.take(idx)
             self._pending = idx.astype(np.int32)
@@ -138,6 +144,10 @@ class RBSlam:
 
     # ------------------------------------------------------------------ estimates
     def best(self) -> int:
+        """The particle whose map and trajectory are the estimate: the heaviest; right after a resampling (uniform
+        weights, where the argmax would be particle 0 whatever it holds) a copy of the one that was heaviest."""
+        if self._since == 0 and self._heaviest is not None:
+            return self._heaviest
         return int(np.argmax(self.logw))
 
     def weights(self) -> np.ndarray:

@@ -62,3 +62,50 @@ def test_ancestry_rebuilds_every_trajectory_through_resampling():
         expected = [0.0] + [t * 1000 + k for t, k in lineage[i][1:]]
         np.testing.assert_array_equal(traj, expected)
     assert hist.states.shape == (steps, p, 1) and hist.parents.shape == (steps, p)
+
+
+class _ScoredMaps:
+    """A map filter whose map is a score per particle; the log-likelihood of a step is the score (a particle's
+    map says how well it explains the data), so which particle is heaviest is known."""
+
+    name = "scored"
+
+    def __init__(self, scores: np.ndarray) -> None:
+        self.scores = scores
+
+    def empty(self, n: int) -> np.ndarray:
+        return self.scores[:n].copy()
+
+    def predict(self, maps, dt):
+        return maps
+
+    def update(self, maps, poses, meas):
+        return maps, maps.copy()
+
+    def size(self, maps):
+        return np.ones(maps.shape[0])
+
+    def estimate(self, maps, i):
+        return np.array([[maps[i], 0.0]]), np.ones(1)
+
+
+@pytest.mark.parametrize("resampler", ["systematic", "stratified", "residual"])
+def test_the_estimate_stays_with_the_heaviest_particle_through_resampling(resampler):
+    """After a resampling every weight is 1/n; the estimate must still be the particle that was heaviest (the
+    argmax of uniform weights would be particle 0, whatever it holds)."""
+    from slam_runtime.slam import RBSlam
+    from slam_runtime.sources import Measurements
+    from slam_runtime.vehicle import OdometryIncrement
+
+    # weights 0.3 and 0.6 for particles 0 and 3 (ESS 2.2 of 8: resampled); particle 0 keeps copies, so the
+    # first particle after resampling is one of its copies, not the heaviest's
+    scores = np.log([0.3, 0.01, 0.01, 0.6, 0.02, 0.02, 0.02, 0.02])
+    slam = RBSlam(OdometryIncrement(), _ScoredMaps(scores), 8, np.zeros(3), np.random.default_rng(0), resampler=resampler)
+    info = slam.update(Measurements(np.zeros((0, 2))))
+    assert info.resampled and np.allclose(slam.weights(), 1 / 8)
+    assert slam.maps[0] == scores[0]  # the argmax of the uniform weights would give particle 0's map
+    assert slam.map_estimate()[0][0, 0] == scores[3]
+    assert slam.maps[slam.best()] == scores[3] and slam.trajectory().shape == (2, 3)
+    # the next step without resampling: the argmax again (the copies of particle 3 keep the largest score)
+    slam.resample_ess = 0.0
+    assert not slam.update(Measurements(np.zeros((0, 2)))).resampled and slam.map_estimate()[0][0, 0] == scores[3]

@@ -69,3 +69,16 @@ def test_a_frame_no_particle_explains_is_a_data_error_naming_it(monkeypatch):
     monkeypatch.setattr(RBPHD, "update", impossible_at_frame_7)
     with pytest.raises(DataError, match=r"frame 7 \(t = 0\.70 s\): every particle has zero weight: no particle explains"):
         run_slam(log, truth_profile(sim), SlamConfig(particles=3), 0)
+
+
+def test_switching_the_filter_carries_only_the_settings_that_mean_the_same():
+    """RB-PHD's prune (component weight) must not become delta-GLMB's (hypothesis weight); the gate, the noise
+    inflation and the labelled filters' survival and birth carry over."""
+    from slam_runtime.config import SlamConfig, override, with_filter
+
+    rb = override(SlamConfig(), **{"filter.prune": 0.01, "filter.gate": 9.0, "filter.noise_inflation": 2.0})
+    g = with_filter(rb, "glmb").filter
+    assert g.kind == "glmb" and g.prune == 1e-5 and g.gate == 9.0 and g.noise_inflation == 2.0
+    lm = with_filter(override(with_filter(SlamConfig(), "glmb"), **{"filter.survival": 0.95, "filter.prune": 1e-3}), "lmb").filter
+    assert lm.kind == "lmb" and lm.survival == 0.95
+    assert with_filter(override(with_filter(SlamConfig(), "glmb"), **{"filter.prune": 1e-3}), "rbphd").filter.prune == SlamConfig().filter.prune
