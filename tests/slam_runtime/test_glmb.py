@@ -13,7 +13,7 @@ from slam_runtime.glmb import GLMB, GLMBConfig, label_parts
 from slam_runtime.labels import labelled_hooks
 from slam_runtime.lmb import LMB, LMBConfig
 from slam_runtime.mapfilter import Measurements
-from slam_runtime.run import evaluate, run_slam
+from slam_runtime.run import LogEvidence, evaluate, run_slam
 
 SENSOR = SensorModel(kind="camera", fov=np.pi, range_max=20.0)
 FILTERS = [(GLMB, GLMBConfig), (LMB, LMBConfig)]
@@ -227,8 +227,6 @@ def test_log_evidence_is_largest_at_the_true_measurement_noise(kind):
     and to three times it: over 150 scans of the glmb-paper circuit at 5 false alarms per scan the gap measured
     is about 170 nats either way (seeds 0-1; 0.7x and 1.5x still lose 20-40 nats) while seed to seed the
     evidence moves by a few nats, so a 50-nat margin cannot be met by chance."""
-    from slam_runtime.run import LogEvidence
-
     cfg_sim = GlmbPaperConfig(clutter=5.0)
     log, prof = simulate_glmb_paper(cfg_sim, 3), truth_profile(cfg_sim)
     base = override(SlamConfig(), particles=5, **{"filter.kind": kind})
