@@ -57,6 +57,7 @@ def run(log, profile, cfg, seed: int) -> dict:
     m = evaluate(log, res, cfg=cfg)
     m["wall_s"] = time.perf_counter() - t0
     m["log_evidence"] = float(res.per_step["log_evidence"][-1])
+    m.setdefault("map_features", int(res.map_xy.shape[0]))  # evaluate counts them only against landmark truth
     return m
 
 
