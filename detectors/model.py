@@ -253,12 +253,10 @@ class DetectionModel:
         s_lat = np.sqrt(np.maximum(u[..., 1] ** 2 * c[..., 0, 0] - 2 * u[..., 0] * u[..., 1] * c[..., 0, 1] + u[..., 0] ** 2 * c[..., 1, 1], 0.0))
         rad = self.occluder_radius
         half = np.arcsin(np.clip(rad / r, 0.0, 1.0))  # (P, Jv) each occluder's angular half-width
-        ahead = r[:, None, :] < r[:, :, None] - 2 * rad  # [p, i, k]: k is nearer than i by more than a trunk
-        sep = np.abs(_wrap(b[:, :, None] - b[:, None, :]))
-        cand = ahead & occluder[:, None, :]
-        hidden = (cand & (sep < half[:, None, :])).any(axis=2) & in_v
         margin = self.buffer_sigmas * s_lat / r
-        near = (cand & (sep < half[:, None, :] + margin[:, :, None])).any(axis=2) & in_v & ~hidden
+        from detectors.occlusion import occlusion_flags  # numba: imported by the filters that need it only
+
+        hidden, near = occlusion_flags(r, b, occluder, in_v, half, margin, float(rad))
         pd_v, buf_v = pd[rows, sel], buf[rows, sel]
         pd = pd.copy()
         buf = buf.copy()

@@ -130,8 +130,16 @@ class GMBatch:
 
 
 def prune_merge(
-    gm: GMBatch, *, prune: float = 1e-4, merge: float = 4.0, cap: int = 200, inflate: float = 1.0, mutual: bool = False
-) -> tuple[GMBatch, bool]:
+    gm: GMBatch,
+    *,
+    prune: float = 1e-4,
+    merge: float = 4.0,
+    cap: int = 200,
+    inflate: float = 1.0,
+    mutual: bool = False,
+    fresh: np.ndarray | None = None,
+    groups: bool = False,
+):
     """Vo & Ma pruning and merging for every particle; at most ``cap`` components each.
 
     merge: squared Mahalanobis distance under which components merge.
@@ -147,8 +155,19 @@ def prune_merge(
     (Vo & Ma test only the head's): a heavy, broad head (a feature seen from
     afar, or one already grown by merging) then cannot swallow a well-localised
     neighbouring landmark, while duplicates of one landmark still merge.
+    fresh: (P, J) bool, the components this step created or changed (None: all).
+    A pair of two components that are not fresh is not tested. That gives the
+    groups of testing every pair when the components that are not fresh came out
+    of the previous call unchanged, each alone in its group (``groups=True``
+    returns which outputs merged several components: pass them as fresh at the
+    next call): a pair that was not merged then was tested then, with the
+    weights and moments it still has. Outside the field of view lies most of a
+    map, so this turns the cost from O(components^2) into O(components x fresh
+    ones) per particle.
     Returns the mixture and whether the cap bound (a particle had more merged
-    components than ``cap``; its lightest were dropped, as Vo & Ma do).
+    components than ``cap``; its lightest were dropped, as Vo & Ma do), and with
+    ``groups=True`` also (P, J_out) bool: the outputs that merged more than one
+    component.
 
     The greedy grouping (heaviest remaining component takes every remaining one
     inside its gate) is sequential by nature: it runs compiled (:func:`_group`,
@@ -158,55 +177,144 @@ def prune_merge(
     p, j = gm.shape
     d = gm.dim
     if j == 0:
-        return GMBatch.empty(p, 0, d), False
-    alive = gm.w > prune
-    n_alive = alive.sum(axis=1)
+        return (GMBatch.empty(p, 0, d), False, np.zeros((p, 0), dtype=bool)) if groups else (GMBatch.empty(p, 0, d), False)
+    n_alive = (gm.w > prune).sum(axis=1)
     # the live components, heaviest first (at most 10 cap: a bound on the cost in pathological cases)
     k = int(min(j, 10 * cap, max(1, n_alive.max())))
-    order = np.argsort(-np.where(alive, gm.w, -1.0), axis=1, kind="stable")[:, :k]
-    w = np.take_along_axis(gm.w, order, axis=1)
-    mu = np.take_along_axis(gm.mu, order[..., None], axis=1)
-    cov = np.take_along_axis(gm.cov, order[..., None, None], axis=1)
-    label, filled, _ = _group(w, mu, inv(cov), prune, merge, k, mutual)
+    new = np.ones((p, j), dtype=np.bool_) if fresh is None else np.ascontiguousarray(fresh, dtype=np.bool_)
+    w_out, mu_out, cov_out, size, filled = _prune_merge(
+        np.ascontiguousarray(gm.w, dtype=np.float64), np.ascontiguousarray(gm.mu, dtype=np.float64),
+        np.ascontiguousarray(gm.cov, dtype=np.float64), new, float(prune), float(merge), k, bool(mutual), float(inflate),
+    )  # fmt: skip
     capped = bool(k < n_alive.max())
     if filled == 0:
-        return GMBatch.empty(p, 0, d), capped
-    # moments of each group (weights, means, covariances with the spread of the means)
-    ok = label >= 0
-    idx = (np.arange(p)[:, None] * filled + label)[ok]
-    wt = w[ok]
-    n = p * filled
-    tot = np.bincount(idx, weights=wt, minlength=n)
-    size = np.bincount(idx, minlength=n)
-    safe = np.where(tot > 0, tot, 1.0)
-    m = np.stack([np.bincount(idx, weights=wt * mu[ok][:, c], minlength=n) for c in range(d)], axis=-1) / safe[:, None]
-    dm = mu[ok] - m[idx]
-    second = cov[ok] + inflate * (dm[:, :, None] * dm[:, None, :])
-    c = np.stack([np.bincount(idx, weights=wt * second[:, a, b], minlength=n) for a in range(d) for b in range(d)], axis=-1)
-    c = c.reshape(n, d, d) / safe[:, None, None]
-    c[tot == 0] = np.eye(d)
-    out = GMBatch(tot.reshape(p, filled), m.reshape(p, filled, d), c.reshape(p, filled, d, d))
+        out, merged = GMBatch.empty(p, 0, d), np.zeros((p, 0), dtype=bool)
+        return (out, capped, merged) if groups else (out, capped)
+    out = GMBatch(w_out[:, :filled], mu_out[:, :filled], cov_out[:, :filled])
+    merged = size[:, :filled] > 1
     if filled > cap:  # Vo & Ma: keep the cap heaviest merged components
         capped = capped or bool((out.w > 0).sum(axis=1).max() > cap)
         keep = np.argsort(-out.w, axis=1, kind="stable")[:, :cap]
         out = GMBatch(np.take_along_axis(out.w, keep, 1), np.take_along_axis(out.mu, keep[..., None], 1), np.take_along_axis(out.cov, keep[..., None, None], 1))
-    return out, capped
+        merged = np.take_along_axis(merged, keep, 1)
+    return (out, capped, merged) if groups else (out, capped)
 
 
 @numba.njit(cache=True, nogil=True)
-def _group(w, mu, icov, prune, merge, cap, mutual):  # pragma: no cover - compiled
+def _prune_merge(w_all, mu_all, cov_all, fresh_all, prune, merge, k, mutual, inflate):  # pragma: no cover - compiled
+    """Prune, group (:func:`_group`) and moment-match every particle's mixture (P, J) in one pass.
+
+    Per particle: the live components (weight > prune), heaviest first (ties in index order), at most k;
+    their inverse covariances (2x2 in closed form, the determinant floored as :func:`inv` does); the
+    groups; then each group's weight, mean and covariance (with ``inflate`` times the spread of the
+    means), in the order of the heads. Returns w (P, k), mu (P, k, d), cov (P, k, d, d) (empty slots:
+    weight 0, identity covariance), the size of each group (P, k) and the largest number of groups of a
+    particle."""
+    p, j = w_all.shape
+    d = mu_all.shape[2]
+    out_w = np.zeros((p, k))
+    out_mu = np.zeros((p, k, d))
+    out_cov = np.zeros((p, k, d, d))
+    out_n = np.zeros((p, k), dtype=np.int64)
+    for a in range(p):
+        for s_ in range(k):
+            for r in range(d):
+                out_cov[a, s_, r, r] = 1.0
+    filled = 0
+    for a in range(p):
+        live = np.flatnonzero(w_all[a] > prune)
+        order = live[np.argsort(-w_all[a, live], kind="mergesort")][:k]
+        n = order.size
+        if n == 0:
+            continue
+        w = np.empty((1, n))
+        mu = np.empty((1, n, d))
+        cov = np.empty((1, n, d, d))
+        fresh = np.empty((1, n), dtype=np.bool_)
+        for q in range(n):
+            i = order[q]
+            w[0, q] = w_all[a, i]
+            fresh[0, q] = fresh_all[a, i]
+            for r in range(d):
+                mu[0, q, r] = mu_all[a, i, r]
+                for c in range(d):
+                    cov[0, q, r, c] = cov_all[a, i, r, c]
+        icov = np.empty((1, n, d, d))
+        for q in range(n):
+            if d == 2:
+                dt = cov[0, q, 0, 0] * cov[0, q, 1, 1] - cov[0, q, 0, 1] * cov[0, q, 1, 0]
+                if not abs(dt) > 1e-300:
+                    dt = 1e-300
+                icov[0, q, 0, 0] = cov[0, q, 1, 1] / dt
+                icov[0, q, 1, 1] = cov[0, q, 0, 0] / dt
+                icov[0, q, 0, 1] = -cov[0, q, 0, 1] / dt
+                icov[0, q, 1, 0] = -cov[0, q, 1, 0] / dt
+            else:
+                icov[0, q] = np.linalg.inv(cov[0, q])
+        label, used, _ = _group(w, mu, icov, cov, fresh, prune, merge, k, mutual)
+        if used > filled:
+            filled = used
+        # moments of each group, summed in the order of the sorted components
+        tot = np.zeros(used)
+        m = np.zeros((used, d))
+        for q in range(n):
+            g = label[0, q]
+            if g < 0:
+                continue
+            tot[g] += w[0, q]
+            out_n[a, g] += 1
+            for r in range(d):
+                m[g, r] += w[0, q] * mu[0, q, r]
+        for g in range(used):
+            if tot[g] > 0:
+                for r in range(d):
+                    m[g, r] /= tot[g]
+        c2 = np.zeros((used, d, d))
+        for q in range(n):
+            g = label[0, q]
+            if g < 0:
+                continue
+            for r in range(d):
+                dr = mu[0, q, r] - m[g, r]
+                for c in range(d):
+                    c2[g, r, c] += w[0, q] * (cov[0, q, r, c] + inflate * dr * (mu[0, q, c] - m[g, c]))
+        for g in range(used):
+            out_w[a, g] = tot[g]
+            if tot[g] > 0:
+                for r in range(d):
+                    out_mu[a, g, r] = m[g, r]
+                    for c in range(d):
+                        out_cov[a, g, r, c] = c2[g, r, c] / tot[g]
+    return out_w, out_mu, out_cov, out_n, filled
+
+
+@numba.njit(cache=True, nogil=True)
+def _group(w, mu, icov, cov, fresh, prune, merge, cap, mutual):  # pragma: no cover - compiled
     """Vo & Ma grouping of components sorted by weight (heaviest first) in every particle.
 
-    w (P, K), mu (P, K, d), icov (P, K, d, d) the inverse covariances. Returns
-    label (P, K) (the output slot of each component, -1 for pruned or dropped
-    ones), the number of slots used and whether the cap dropped any group.
+    w (P, K), mu (P, K, d), icov and cov (P, K, d, d) the inverse covariances and the
+    covariances, fresh (P, K) the components that take part in every test (a pair of
+    two others is not tested). Returns label (P, K) (the output slot of each
+    component, -1 for pruned or dropped ones), the number of slots used and whether
+    the cap dropped any group.
+
+    Only the components within the head's reach along the first axis are tested: with
+    the components sorted by that coordinate, a head i looks at the ones with
+    |x_j - x_i| <= sqrt(merge trace(cov_i)) (trace >= the largest eigenvalue, so no
+    component farther out can lie in the gate): the same groups as testing every pair,
+    at the cost of the neighbours instead of the whole map.
     """
     p, k = w.shape
     d = mu.shape[2]
     label = np.full((p, k), -1, dtype=np.int64)
+    pos = np.empty(k, dtype=np.int64)
     filled = 0
     capped = False
     for a in range(p):
+        by_x = np.argsort(mu[a, :, 0])
+        xs = mu[a, by_x, 0]
+        for q in range(k):
+            pos[by_x[q]] = q
         slot = 0
         for i in range(k):
             if w[a, i] <= prune or label[a, i] >= 0:
@@ -215,19 +323,30 @@ def _group(w, mu, icov, prune, merge, cap, mutual):  # pragma: no cover - compil
                 capped = True
                 break
             label[a, i] = slot
-            for j in range(i + 1, k):  # every lighter live component inside the head's gate joins it
-                if label[a, j] >= 0 or w[a, j] <= prune:
-                    continue
-                m2 = 0.0
-                m2j = 0.0
-                for r in range(d):
-                    dr = mu[a, j, r] - mu[a, i, r]
-                    for c in range(d):
-                        dc = mu[a, j, c] - mu[a, i, c]
-                        m2 += dr * icov[a, i, r, c] * dc
-                        m2j += dr * icov[a, j, r, c] * dc
-                if m2 <= merge and (not mutual or m2j <= merge):
-                    label[a, j] = slot
+            every = fresh[a, i]
+            tr = 0.0
+            for r in range(d):
+                tr += cov[a, i, r, r]
+            reach = np.sqrt(merge * max(tr, 0.0))
+            xi = mu[a, i, 0]
+            for side in range(2):
+                q = pos[i] + 1 if side == 0 else pos[i] - 1
+                while 0 <= q < k and abs(xs[q] - xi) <= reach:
+                    j = by_x[q]
+                    q = q + 1 if side == 0 else q - 1
+                    # every lighter live component inside the head's gate joins it (an old head: only fresh ones)
+                    if j <= i or label[a, j] >= 0 or w[a, j] <= prune or not (every or fresh[a, j]):
+                        continue
+                    m2 = 0.0
+                    m2j = 0.0
+                    for r in range(d):
+                        dr = mu[a, j, r] - mu[a, i, r]
+                        for c in range(d):
+                            dc = mu[a, j, c] - mu[a, i, c]
+                            m2 += dr * icov[a, i, r, c] * dc
+                            m2j += dr * icov[a, j, r, c] * dc
+                    if m2 <= merge and (not mutual or m2j <= merge):
+                        label[a, j] = slot
             slot += 1
         if slot > filled:
             filled = slot

@@ -52,6 +52,10 @@ class RBPHDConfig(BaseModel):
         default="head", description="merge a component into the heaviest one when it lies in the head's gate (Vo & Ma), or in both gates"
     )
     merge_inflation: float = Field(default=1.0, ge=1.0, description="factor on the spread of the means of a merged group (not on the whole covariance: that compounds)")
+    merge_scope: Literal["fresh", "all"] = Field(
+        default="fresh",
+        description="test only the pairs with a component this step updated or created (the rest was merged before), or every pair (Vo & Ma)",
+    )
     cap: int = Field(default=150, ge=1, description="components per particle at most")
     gate: float = Field(default=16.0, gt=0.0, description="squared Mahalanobis distance beyond which a measurement does not update a component")
     landmark_noise: float = Field(default=0.0, ge=0.0, description="landmark position variance added per second [m^2/s]")
@@ -65,9 +69,11 @@ class PHDMaps:
 
     gm: GMBatch
     birth: GMBatch
+    #: (P, J) the components of gm that the last merge formed from several (None: all of them count as such)
+    merged: np.ndarray | None = None
 
     def take(self, idx: np.ndarray) -> PHDMaps:
-        return PHDMaps(self.gm.take(idx), self.birth.take(idx))
+        return PHDMaps(self.gm.take(idx), self.birth.take(idx), None if self.merged is None else self.merged[idx])
 
 
 class _Innovations:
@@ -115,7 +121,7 @@ class RBPHD(MapFilter):
         q = self.cfg.landmark_noise * max(dt, 0.0)
         if q > 0 and maps.gm.shape[1]:
             d = self.feature.dim_x
-            maps = PHDMaps(GMBatch(maps.gm.w, maps.gm.mu, maps.gm.cov + q * np.eye(d)), maps.birth)
+            maps = PHDMaps(GMBatch(maps.gm.w, maps.gm.mu, maps.gm.cov + q * np.eye(d)), maps.birth)  # every gate grew
         return maps
 
     def size(self, maps: PHDMaps) -> np.ndarray:
@@ -194,6 +200,12 @@ class RBPHD(MapFilter):
             cov_det = 0.5 * (cov_det + transpose(cov_det))
             w_kept = np.where(np.take_along_axis(keep, pick, axis=1), w_det[rows, jj, mm], 0.0)
             upd = GMBatch(missed, mu, cov).concat(GMBatch(w_kept, mu_det, cov_det))
+            # what this step touched: the map features in view, the ones the last merge formed (their moments
+            # changed), this step's births and every detection update; the rest was tested at the last merge
+            fresh = None
+            if cfg.merge_scope == "fresh" and maps.merged is not None:
+                fresh = np.ones(upd.shape, dtype=np.bool_)
+                fresh[:, :n_map] = seen[:, :n_map] | maps.merged
             pd_upd = np.concatenate([pd, pd_s[rows, jj]], axis=1)
         with tm("weight"):
             if cfg.weighting == "marginal":
@@ -204,11 +216,13 @@ class RBPHD(MapFilter):
             else:
                 loglik = self._log_weight(prior, upd, pd_upd, sp, z, kappa, rz)
         with tm("merge"):
-            gm, capped = prune_merge(upd, prune=cfg.prune, merge=cfg.merge, cap=cfg.cap, inflate=cfg.merge_inflation, mutual=cfg.merge_rule == "mutual")
+            gm, capped, merged = prune_merge(
+                upd, prune=cfg.prune, merge=cfg.merge, cap=cfg.cap, inflate=cfg.merge_inflation, mutual=cfg.merge_rule == "mutual", fresh=fresh, groups=True
+            )
             self.capped_steps += int(capped)
         # adaptive birth: a measurement the map already explains gives birth to little
         birth = self._birth(sp, z, rz, 1.0 - np.clip(w_det.sum(axis=1), 0.0, 1.0) if cfg.adaptive_birth else None)
-        return PHDMaps(gm, birth), loglik
+        return PHDMaps(gm, birth, merged), loglik
 
     def pose_proposal(
         self, maps: PHDMaps, xbar: np.ndarray, q: np.ndarray, meas: Measurements, *, share: float = 0.5, iterations: int = 3

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 
+import numba
 import numpy as np
 
 from detectors.geometry import compose
@@ -221,6 +222,75 @@ class Ackermann(VehicleModel):
         f = np.tile(np.eye(3), (x.shape[0], 1, 1))
         f[:, 0, 2], f[:, 1, 2] = -dt * vc * np.sin(th), dt * vc * np.cos(th)
         return f
+
+    def predict_gaussian(self, x, controls, dts):
+        """As :meth:`VehicleModel.predict_gaussian`, with the control Jacobian in closed form and the rows of a
+        frame integrated in one compiled loop (a frame of Victoria Park holds ~7 odometry rows; the generic
+        form costs six vectorised model evaluations per row)."""
+        if np.ndim(self.steer_offset) or np.ndim(self.speed_scale):  # one bias per state: the generic form
+            return super().predict_gaussian(x, controls, dts)
+        c = np.asarray(controls, dtype=np.float64).reshape(-1, 2)
+        return _ackermann_gaussian(
+            np.ascontiguousarray(x, dtype=np.float64), c, np.asarray(dts, dtype=np.float64).reshape(-1),
+            self.L, self.H, self.sig[0], self.sig[1], float(self.steer_offset), float(self.speed_scale),
+        )  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True)
+def _ackermann_gaussian(x, controls, dts, wheelbase, h, s_v, s_g, offset, scale):  # pragma: no cover - compiled
+    """Mean motion and linearised covariance of the Ackermann model through control rows (R, 2).
+
+    Per row: v_c = s v / (1 - tan(g) H / L), g = steer - offset; x += dt v_c cos th, y += dt v_c sin th,
+    th += dt v_c tan(g) / L; C <- F C F^T + G diag(s_v^2, s_g^2) G^T with F = d(motion)/d(state) and
+    G = d(motion)/d(v, steer) written out."""
+    p = x.shape[0]
+    out = x.copy()
+    cov = np.zeros((p, 3, 3))
+    f = np.zeros((3, 3))
+    g_ = np.zeros((3, 2))
+    tmp = np.zeros((3, 3))
+    for r in range(controls.shape[0]):
+        dt = dts[r]
+        g = controls[r, 1] - offset
+        t = np.tan(g)
+        sec2 = 1.0 + t * t
+        den = 1.0 - t * h / wheelbase
+        a = scale / den  # d v_c / d v
+        vc = a * controls[r, 0]
+        dvc = scale * controls[r, 0] * (h / wheelbase) * sec2 / (den * den)  # d v_c / d steer
+        dth = dt * vc * t / wheelbase
+        for i in range(p):
+            th = out[i, 2]
+            ct, st = np.cos(th), np.sin(th)
+            f[0, 0] = 1.0
+            f[1, 1] = 1.0
+            f[2, 2] = 1.0
+            f[0, 2] = -dt * vc * st
+            f[1, 2] = dt * vc * ct
+            g_[0, 0] = dt * a * ct * s_v
+            g_[1, 0] = dt * a * st * s_v
+            g_[2, 0] = dt * a * t / wheelbase * s_v
+            g_[0, 1] = dt * dvc * ct * s_g
+            g_[1, 1] = dt * dvc * st * s_g
+            g_[2, 1] = dt / wheelbase * (dvc * t + vc * sec2) * s_g
+            for m in range(3):
+                for n in range(3):
+                    acc = 0.0
+                    for k in range(3):
+                        acc += f[m, k] * cov[i, k, n]
+                    tmp[m, n] = acc
+            for m in range(3):
+                for n in range(3):
+                    acc = 0.0
+                    for k in range(3):
+                        acc += tmp[m, k] * f[n, k]
+                    acc += g_[m, 0] * g_[n, 0] + g_[m, 1] * g_[n, 1]
+                    cov[i, m, n] = acc
+            out[i, 0] += dt * vc * ct
+            out[i, 1] += dt * vc * st
+            w = np.mod(th + dth + np.pi, 2.0 * np.pi) - np.pi
+            out[i, 2] = np.pi if w == -np.pi else w  # wrap_angle: (-pi, pi]
+    return out, cov
 
 
 def fit_ackermann_bias(

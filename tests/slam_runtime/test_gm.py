@@ -96,3 +96,63 @@ def test_mutual_merge_keeps_two_close_landmarks_apart():
     # duplicates of one landmark (each inside the other's gate) still merge under the mutual rule
     dup, _ = prune_merge(GMBatch(np.array([[0.6, 0.5]]), truth[[0, 0]][None] + np.array([[[0.0, 0.0], [0.05, 0.0]]]), np.stack([tight, tight])[None]), mutual=True)
     assert dup.shape == (1, 1) and dup.w[0, 0] == pytest.approx(1.1)
+
+
+def _vo_ma_groups(w, mu, cov, prune, merge, mutual=False, fresh=None):
+    """Brute-force Vo & Ma grouping of one mixture (every pair, no spatial window): the weights of the groups,
+    heaviest head first. fresh: pairs of two non-fresh components are not tested."""
+    icov = np.linalg.inv(cov)
+    left = [i for i in np.argsort(-w, kind="stable") if w[i] > prune]
+    out = []
+    while left:
+        i, rest = left[0], left[1:]
+        group = [i]
+        for j in rest:
+            if fresh is not None and not (fresh[i] or fresh[j]):
+                continue
+            d = mu[j] - mu[i]
+            if d @ icov[i] @ d <= merge and (not mutual or d @ icov[j] @ d <= merge):
+                group.append(j)
+        out.append(w[group].sum())
+        left = [j for j in rest if j not in group]
+    return np.array(out)
+
+
+@pytest.mark.parametrize("mutual", [False, True])
+def test_grouping_matches_the_brute_force_rule_on_random_mixtures(mutual):
+    """The compiled grouping tests only neighbours along x (within sqrt(merge trace(cov)) of the head) and,
+    given fresh flags, only pairs with a fresh component: the groups must be those of testing every pair."""
+    rng = np.random.default_rng(11)
+    for trial in range(30):
+        j = int(rng.integers(5, 120))
+        centres = rng.uniform(-30, 30, (max(1, j // 3), 2))
+        mu = centres[rng.integers(0, len(centres), j)] + rng.normal(0, 0.3, (j, 2))
+        a = rng.normal(0, 1, (j, 2, 2)) * rng.uniform(0.05, 0.6, (j, 1, 1))
+        cov = a @ np.swapaxes(a, 1, 2) + 1e-3 * np.eye(2)
+        w = rng.uniform(0, 1.2, j)
+        fresh = rng.random(j) < 0.3 if trial % 2 else None
+        out, _ = prune_merge(
+            GMBatch(w[None], mu[None], cov[None]), prune=1e-3, merge=4.0, cap=500, mutual=mutual, fresh=None if fresh is None else fresh[None]
+        )
+        want = _vo_ma_groups(w, mu, cov, 1e-3, 4.0, mutual, fresh)
+        got = out.w[0][out.w[0] > 0]
+        np.testing.assert_allclose(np.sort(got), np.sort(want), rtol=1e-12)
+        assert len(want) < (w > 1e-3).sum() or trial > 25  # merges happen
+
+
+def test_a_merged_component_is_tested_again_at_the_next_merge():
+    """A and B merge into one broad component; C lay outside A's gate (A's own covariance) but lies inside the
+    merged one's. At the next merge, with nothing in view (no fresh component), C joins only when the merged
+    component is flagged as formed by the last merge, as testing every pair does."""
+    tight = 0.1**2 * np.eye(2)
+    mu = np.array([[[0.0, 0.0], [0.25, 0.0], [-0.35, 0.0]]])  # A, B, C
+    w = np.array([[1.0, 0.9, 0.3]])
+    first, _, merged = prune_merge(GMBatch(w[:, :2], mu[:, :2], np.stack([tight, tight])[None]), prune=1e-3, merge=9.0, cap=10, groups=True)
+    assert first.shape == (1, 1) and merged.tolist() == [[True]]
+    assert (mu[0, 2] - mu[0, 0]) @ np.linalg.inv(tight) @ (mu[0, 2] - mu[0, 0]) > 9.0  # C was outside A's gate
+    gm = first.concat(GMBatch(w[:, 2:], mu[:, 2:], tight[None, None]))
+    every, _ = prune_merge(gm, prune=1e-3, merge=9.0, cap=10)
+    flagged, _ = prune_merge(gm, prune=1e-3, merge=9.0, cap=10, fresh=np.array([[True, False]]))
+    unflagged, _ = prune_merge(gm, prune=1e-3, merge=9.0, cap=10, fresh=np.array([[False, False]]))
+    assert every.shape == flagged.shape == (1, 1) and unflagged.shape == (1, 2)
+    np.testing.assert_array_equal(flagged.mu, every.mu)

@@ -160,6 +160,27 @@ def test_the_optimal_proposal_keeps_three_particles_on_the_path():
     assert np.mean(rmse["optimal"]) < 0.8 * np.mean(rmse["prior"])
 
 
+def test_merging_only_what_changed_gives_the_maps_of_merging_every_pair():
+    """merge_scope fresh tests only the pairs with a component this step updated, created or merged; the
+    rest was tested before with the moments it still has. A cluttered rfs-sim run (clutter 20 per scan, so
+    that merges happen everywhere) must give the same maps and trajectory, byte for byte, as testing every
+    pair (Vo & Ma). Why the last merge's flags are needed: tests/slam_runtime/test_gm.py."""
+    from pathlib import Path
+
+    from calib.config import load_yaml_model
+    from calib.sim.rfs import RfsSimConfig, simulate_rfs, truth_profile
+    from slam_runtime.config import SlamConfig, override
+    from slam_runtime.run import run_slam
+
+    sim = RfsSimConfig(steps=300, clutter_intensity=2e-3)
+    log = simulate_rfs(sim, 5)
+    base = override(load_yaml_model(SlamConfig, Path(__file__).resolve().parents[2] / "benchmarks/configs/rfs_sim.yaml"), particles=5)
+    runs = {sc: run_slam(log, truth_profile(sim), override(base, **{"filter.merge_scope": sc}), 0) for sc in ("fresh", "all")}
+    np.testing.assert_array_equal(runs["fresh"].trajectory, runs["all"].trajectory)
+    np.testing.assert_array_equal(runs["fresh"].map_xy, runs["all"].map_xy)
+    assert runs["fresh"].map_xy.shape[0] >= 20
+
+
 def test_the_optimal_proposal_associates_under_the_motion_prior_uncertainty():
     """One mapped landmark 10 m ahead, the measurement taken from the true pose (0, 0, 0); the motion prior's
     mean is 0.03 rad off in heading (1 sigma of the prior, 6 sigma of the bearing noise). The measurement is
