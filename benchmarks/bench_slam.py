@@ -32,7 +32,7 @@ from slam_runtime.config import SlamConfig, override  # noqa: E402
 from slam_runtime.run import evaluate, run_slam  # noqa: E402
 
 VP = ROOT.parent / "shared/data/victoria_park"
-STAGES = ("predict", "pd", "update", "weight", "merge", "resample", "detect")
+STAGES = ("predict", "proposal", "pd", "update", "weight", "merge", "resample", "detect")
 
 
 def row(name, n, seed, res, m) -> None:
