@@ -170,9 +170,9 @@ def prune_merge(
     component.
 
     The greedy grouping (heaviest remaining component takes every remaining one
-    inside its gate) is sequential by nature: it runs compiled (:func:`_group`,
-    numba), O(groups x components) per particle; the merged moments are then
-    summed for all particles in one pass with ``bincount``.
+    inside its gate) is sequential by nature: ordering, inverses, grouping
+    (:func:`_group`: a head looks only at its neighbours along x) and the merged
+    moments run compiled (numba), one pass per particle (:func:`_prune_merge`).
     """
     p, j = gm.shape
     d = gm.dim
