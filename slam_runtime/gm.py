@@ -178,13 +178,21 @@ def prune_merge(
     d = gm.dim
     if j == 0:
         return (GMBatch.empty(p, 0, d), False, np.zeros((p, 0), dtype=bool)) if groups else (GMBatch.empty(p, 0, d), False)
-    n_alive = (gm.w > prune).sum(axis=1)
+    alive = gm.w > prune
+    n_alive = alive.sum(axis=1)
     # the live components, heaviest first (at most 10 cap: a bound on the cost in pathological cases)
     k = int(min(j, 10 * cap, max(1, n_alive.max())))
     new = np.ones((p, j), dtype=np.bool_) if fresh is None else np.ascontiguousarray(fresh, dtype=np.bool_)
+    if d == 2:  # closed form, safe on any slot
+        icov = inv(gm.cov)
+    else:  # LAPACK: only the live components (an empty slot's covariance may be singular)
+        icov = np.zeros_like(gm.cov)
+        icov[alive] = inv(gm.cov[alive])
+    # how far along x a component's gate can reach: trace >= the largest eigenvalue of its covariance
+    reach = np.sqrt(merge * np.maximum(np.einsum("...ii->...", gm.cov), 0.0))
     w_out, mu_out, cov_out, size, filled = _prune_merge(
         np.ascontiguousarray(gm.w, dtype=np.float64), np.ascontiguousarray(gm.mu, dtype=np.float64),
-        np.ascontiguousarray(gm.cov, dtype=np.float64), new, float(prune), float(merge), k, bool(mutual), float(inflate),
+        np.ascontiguousarray(gm.cov, dtype=np.float64), icov, reach, new, float(prune), float(merge), k, bool(mutual), float(inflate),
     )  # fmt: skip
     capped = bool(k < n_alive.max())
     if filled == 0:
@@ -201,153 +209,105 @@ def prune_merge(
 
 
 @numba.njit(cache=True, nogil=True)
-def _prune_merge(w_all, mu_all, cov_all, fresh_all, prune, merge, k, mutual, inflate):  # pragma: no cover - compiled
+def _prune_merge(w_all, mu_all, cov_all, icov_all, reach_all, fresh_all, prune, merge, k, mutual, inflate):  # pragma: no cover - compiled
     """Prune, group (:func:`_group`) and moment-match every particle's mixture (P, J) in one pass.
 
     Per particle: the live components (weight > prune), heaviest first (ties in index order), at most k;
-    their inverse covariances (2x2 in closed form, the determinant floored as :func:`inv` does); the
-    groups; then each group's weight, mean and covariance (with ``inflate`` times the spread of the
-    means), in the order of the heads. Returns w (P, k), mu (P, k, d), cov (P, k, d, d) (empty slots:
-    weight 0, identity covariance), the size of each group (P, k) and the largest number of groups of a
-    particle."""
-    p, j = w_all.shape
+    their groups; then each group's weight, mean and covariance (with ``inflate`` times the spread of
+    the means), in the order of the heads. icov_all: the inverse covariances of the live components;
+    reach_all: how far along x each component's gate reaches. Returns w (P, k), mu (P, k, d), cov
+    (P, k, d, d) (empty slots: weight 0, identity covariance), the size of each group (P, k) and the
+    largest number of groups of a particle."""
+    p = w_all.shape[0]
     d = mu_all.shape[2]
     out_w = np.zeros((p, k))
     out_mu = np.zeros((p, k, d))
     out_cov = np.zeros((p, k, d, d))
+    for r in range(d):
+        out_cov[:, :, r, r] = 1.0
     out_n = np.zeros((p, k), dtype=np.int64)
-    for a in range(p):
-        for s_ in range(k):
-            for r in range(d):
-                out_cov[a, s_, r, r] = 1.0
     filled = 0
     for a in range(p):
         live = np.flatnonzero(w_all[a] > prune)
-        order = live[np.argsort(-w_all[a, live], kind="mergesort")][:k]
-        n = order.size
-        if n == 0:
+        order = live[np.argsort(-w_all[a][live], kind="mergesort")][:k]
+        if order.size == 0:
             continue
-        w = np.empty((1, n))
-        mu = np.empty((1, n, d))
-        cov = np.empty((1, n, d, d))
-        fresh = np.empty((1, n), dtype=np.bool_)
-        for q in range(n):
-            i = order[q]
-            w[0, q] = w_all[a, i]
-            fresh[0, q] = fresh_all[a, i]
-            for r in range(d):
-                mu[0, q, r] = mu_all[a, i, r]
-                for c in range(d):
-                    cov[0, q, r, c] = cov_all[a, i, r, c]
-        icov = np.empty((1, n, d, d))
-        for q in range(n):
-            if d == 2:
-                dt = cov[0, q, 0, 0] * cov[0, q, 1, 1] - cov[0, q, 0, 1] * cov[0, q, 1, 0]
-                if not abs(dt) > 1e-300:
-                    dt = 1e-300
-                icov[0, q, 0, 0] = cov[0, q, 1, 1] / dt
-                icov[0, q, 1, 1] = cov[0, q, 0, 0] / dt
-                icov[0, q, 0, 1] = -cov[0, q, 0, 1] / dt
-                icov[0, q, 1, 0] = -cov[0, q, 1, 0] / dt
-            else:
-                icov[0, q] = np.linalg.inv(cov[0, q])
-        label, used, _ = _group(w, mu, icov, cov, fresh, prune, merge, k, mutual)
-        if used > filled:
-            filled = used
+        w, mu, cov = w_all[a][order], mu_all[a][order], cov_all[a][order]
+        label, used = _group(mu, icov_all[a][order], reach_all[a][order], fresh_all[a][order], merge, mutual)
+        filled = max(filled, used)
         # moments of each group, summed in the order of the sorted components
         tot = np.zeros(used)
         m = np.zeros((used, d))
-        for q in range(n):
-            g = label[0, q]
-            if g < 0:
-                continue
-            tot[g] += w[0, q]
+        for q in range(order.size):
+            g = label[q]
+            tot[g] += w[q]
             out_n[a, g] += 1
             for r in range(d):
-                m[g, r] += w[0, q] * mu[0, q, r]
+                m[g, r] += w[q] * mu[q, r]
         for g in range(used):
-            if tot[g] > 0:
-                for r in range(d):
-                    m[g, r] /= tot[g]
-        c2 = np.zeros((used, d, d))
-        for q in range(n):
-            g = label[0, q]
-            if g < 0:
-                continue
             for r in range(d):
-                dr = mu[0, q, r] - m[g, r]
+                m[g, r] /= tot[g]
+        c2 = np.zeros((used, d, d))
+        for q in range(order.size):
+            g = label[q]
+            for r in range(d):
+                dr = mu[q, r] - m[g, r]
                 for c in range(d):
-                    c2[g, r, c] += w[0, q] * (cov[0, q, r, c] + inflate * dr * (mu[0, q, c] - m[g, c]))
+                    c2[g, r, c] += w[q] * (cov[q, r, c] + inflate * dr * (mu[q, c] - m[g, c]))
         for g in range(used):
             out_w[a, g] = tot[g]
-            if tot[g] > 0:
-                for r in range(d):
-                    out_mu[a, g, r] = m[g, r]
-                    for c in range(d):
-                        out_cov[a, g, r, c] = c2[g, r, c] / tot[g]
+            for r in range(d):
+                out_mu[a, g, r] = m[g, r]
+                for c in range(d):
+                    out_cov[a, g, r, c] = c2[g, r, c] / tot[g]
     return out_w, out_mu, out_cov, out_n, filled
 
 
 @numba.njit(cache=True, nogil=True)
-def _group(w, mu, icov, cov, fresh, prune, merge, cap, mutual):  # pragma: no cover - compiled
-    """Vo & Ma grouping of components sorted by weight (heaviest first) in every particle.
+def _group(mu, icov, reach, fresh, merge, mutual):  # pragma: no cover - compiled
+    """Vo & Ma grouping of one particle's live components, sorted by weight (heaviest first).
 
-    w (P, K), mu (P, K, d), icov and cov (P, K, d, d) the inverse covariances and the
-    covariances, fresh (P, K) the components that take part in every test (a pair of
-    two others is not tested). Returns label (P, K) (the output slot of each
-    component, -1 for pruned or dropped ones), the number of slots used and whether
-    the cap dropped any group.
+    mu (K, d), icov (K, d, d) the inverse covariances, reach (K,) how far along x each
+    one's gate reaches, fresh (K,) the components that take part in every test (a pair
+    of two others is not tested). Returns label (K,) (the group of each component) and
+    the number of groups.
 
-    Only the components within the head's reach along the first axis are tested: with
-    the components sorted by that coordinate, a head i looks at the ones with
-    |x_j - x_i| <= sqrt(merge trace(cov_i)) (trace >= the largest eigenvalue, so no
-    component farther out can lie in the gate): the same groups as testing every pair,
-    at the cost of the neighbours instead of the whole map.
+    Only the components within the head's reach along x are tested: with the components
+    sorted by that coordinate, a head i looks at the ones with |x_j - x_i| <= reach_i =
+    sqrt(merge trace(cov_i)) (trace >= the largest eigenvalue, so no component farther
+    out can lie in the gate): the same groups as testing every pair, at the cost of the
+    neighbours instead of the whole map.
     """
-    p, k = w.shape
-    d = mu.shape[2]
-    label = np.full((p, k), -1, dtype=np.int64)
-    pos = np.empty(k, dtype=np.int64)
-    filled = 0
-    capped = False
-    for a in range(p):
-        by_x = np.argsort(mu[a, :, 0])
-        xs = mu[a, by_x, 0]
-        for q in range(k):
-            pos[by_x[q]] = q
-        slot = 0
-        for i in range(k):
-            if w[a, i] <= prune or label[a, i] >= 0:
-                continue
-            if slot == cap:
-                capped = True
-                break
-            label[a, i] = slot
-            every = fresh[a, i]
-            tr = 0.0
-            for r in range(d):
-                tr += cov[a, i, r, r]
-            reach = np.sqrt(merge * max(tr, 0.0))
-            xi = mu[a, i, 0]
-            for side in range(2):
-                q = pos[i] + 1 if side == 0 else pos[i] - 1
-                while 0 <= q < k and abs(xs[q] - xi) <= reach:
-                    j = by_x[q]
-                    q = q + 1 if side == 0 else q - 1
-                    # every lighter live component inside the head's gate joins it (an old head: only fresh ones)
-                    if j <= i or label[a, j] >= 0 or w[a, j] <= prune or not (every or fresh[a, j]):
-                        continue
-                    m2 = 0.0
-                    m2j = 0.0
-                    for r in range(d):
-                        dr = mu[a, j, r] - mu[a, i, r]
-                        for c in range(d):
-                            dc = mu[a, j, c] - mu[a, i, c]
-                            m2 += dr * icov[a, i, r, c] * dc
-                            m2j += dr * icov[a, j, r, c] * dc
-                    if m2 <= merge and (not mutual or m2j <= merge):
-                        label[a, j] = slot
-            slot += 1
-        if slot > filled:
-            filled = slot
-    return label, filled, capped
+    n, d = mu.shape
+    label = np.full(n, -1, dtype=np.int64)
+    by_x = np.argsort(mu[:, 0])
+    xs = mu[by_x, 0]
+    pos = np.empty(n, dtype=np.int64)
+    pos[by_x] = np.arange(n)
+    slot = 0
+    for i in range(n):
+        if label[i] >= 0:
+            continue
+        label[i] = slot
+        every = fresh[i]
+        for side in range(2):
+            step = 1 if side == 0 else -1
+            q = pos[i] + step
+            while 0 <= q < n and abs(xs[q] - mu[i, 0]) <= reach[i]:
+                j = by_x[q]
+                q += step
+                # every lighter ungrouped component inside the head's gate joins it (an old head: only fresh ones)
+                if j <= i or label[j] >= 0 or not (every or fresh[j]):
+                    continue
+                m2 = 0.0
+                m2j = 0.0
+                for r in range(d):
+                    dr = mu[j, r] - mu[i, r]
+                    for c in range(d):
+                        dc = mu[j, c] - mu[i, c]
+                        m2 += dr * icov[i, r, c] * dc
+                        m2j += dr * icov[j, r, c] * dc
+                if m2 <= merge and (not mutual or m2j <= merge):
+                    label[j] = slot
+        slot += 1
+    return label, slot

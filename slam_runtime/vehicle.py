@@ -246,7 +246,7 @@ def _ackermann_gaussian(x, controls, dts, wheelbase, h, s_v, s_g, offset, scale)
     p = x.shape[0]
     out = x.copy()
     cov = np.zeros((p, 3, 3))
-    f = np.zeros((3, 3))
+    f = np.eye(3)  # d(motion)/d(state): the identity but for the heading column's position terms
     g_ = np.zeros((3, 2))
     tmp = np.zeros((3, 3))
     for r in range(controls.shape[0]):
@@ -262,9 +262,6 @@ def _ackermann_gaussian(x, controls, dts, wheelbase, h, s_v, s_g, offset, scale)
         for i in range(p):
             th = out[i, 2]
             ct, st = np.cos(th), np.sin(th)
-            f[0, 0] = 1.0
-            f[1, 1] = 1.0
-            f[2, 2] = 1.0
             f[0, 2] = -dt * vc * st
             f[1, 2] = dt * vc * ct
             g_[0, 0] = dt * a * ct * s_v
