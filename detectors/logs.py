@@ -196,11 +196,18 @@ class ReferencePoses:
     source: ``"ground_truth"`` (e.g. Vicon, simulator) or ``"gps"`` (partial truth)
     stamp:  (M,) int64 ns
     poses:  (M, 3) float64 (x, y, theta); theta is NaN when not measured (GPS)
+    point:  (x, y) [m], vehicle frame: the point of the vehicle whose positions ``poses`` give. (0, 0)
+            is the vehicle's own reference point, the one the filters estimate (the rear-axle centre of an
+            Ackermann vehicle); a GPS antenna elsewhere on the vehicle, or a data set whose published
+            reference follows another point, gives that point's offset. An estimate is compared with the
+            reference at this point (``pose (+) point``): a lever arm of metres turns with the heading, and
+            no rigid fit of the whole trajectory takes it out.
     """
 
     source: str
     stamp: np.ndarray
     poses: np.ndarray
+    point: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         if self.source not in REFERENCE_SOURCES:
@@ -210,8 +217,23 @@ class ReferencePoses:
         bad = np.flatnonzero(~np.isfinite(poses[:, :2]).all(axis=1))
         if bad.size:
             raise DataError(f"reference[{self.source}].poses[{int(bad[0])}]: position is not finite")
+        point = tuple(float(v) for v in np.asarray(self.point, dtype=np.float64).reshape(-1))
+        if len(point) != 2 or not all(np.isfinite(point)):
+            raise DataError(f"reference[{self.source}].point: expected (x, y) in metres, finite, got {self.point!r}")
         object.__setattr__(self, "stamp", stamp)
         object.__setattr__(self, "poses", poses)
+        object.__setattr__(self, "point", point)
+
+    def at_point(self, poses: np.ndarray) -> np.ndarray:
+        """Vehicle poses (N, 3) [world frame] moved to the point this reference locates: (N, 3), heading kept."""
+        poses = np.asarray(poses, dtype=np.float64)
+        if self.point == (0.0, 0.0):
+            return poses
+        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+        out = poses.copy()
+        out[:, 0] += c * self.point[0] - s * self.point[1]
+        out[:, 1] += s * self.point[0] + c * self.point[1]
+        return out
 
     def __len__(self) -> int:
         return int(self.stamp.size)

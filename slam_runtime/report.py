@@ -121,16 +121,17 @@ def _figures(log: SensorLog, res: SlamResult, odo: np.ndarray, folder: Path) -> 
         t = interpolate_poses(gt.stamp, gt.poses, res.stamps[(res.stamps >= gt.stamp[0]) & (res.stamps <= gt.stamp[-1])])
         ax.plot(t[:, 0], t[:, 1], "k-", lw=1.2, label="ground truth")
     elif gps is not None and "trajectory_rmse_vs_gps_m" in res.metrics:
-        # the estimates are drawn in the GPS frame, moved by the rigid fit the metric used
+        # the estimates are drawn in the GPS frame, moved by the rigid fit the metric used, and the paths at the
+        # point of the vehicle the GPS locates (as the metric compares them)
         sel = (gps.stamp >= res.stamps[0]) & (gps.stamp <= res.stamps[-1])
-        tf = rigid_transform(interpolate_poses(res.stamps, res.trajectory, gps.stamp[sel]), gps.poses[sel])
+        tf = rigid_transform(gps.at_point(interpolate_poses(res.stamps, res.trajectory, gps.stamp[sel])), gps.poses[sel])
         res = replace(
             res,
-            trajectory=compose(tf, res.trajectory),
-            mean_trajectory=compose(tf, res.mean_trajectory),
+            trajectory=compose(tf, gps.at_point(res.trajectory)),
+            mean_trajectory=compose(tf, gps.at_point(res.mean_trajectory)),
             map_xy=compose(tf, np.column_stack([res.map_xy, np.zeros(len(res.map_xy))]))[:, :2] if res.map_xy.size else res.map_xy,
         )
-        odo = compose(tf, odo) if np.isfinite(odo).all() else odo
+        odo = compose(tf, gps.at_point(odo)) if np.isfinite(odo).all() else odo
         ax.plot(gps.poses[sel, 0], gps.poses[sel, 1], "k.", ms=2, label="GPS (estimates rigidly aligned to it)")
     if np.isfinite(odo).all():
         ax.plot(odo[:, 0], odo[:, 1], "r--", lw=0.8, label="dead reckoning")

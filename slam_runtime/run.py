@@ -261,10 +261,13 @@ def evaluate(log: SensorLog, res: SlamResult, c: float = 1.0, p: float = 1.0, cf
         if at.size == 0:
             continue
         truth = interpolate_poses(ref.stamp, ref.poses, at)
-        est = interpolate_poses(res.stamps, res.trajectory, at)
-        dr = interpolate_poses(res.stamps, odo, at)
+        # compared at the point of the vehicle the reference locates (a GPS antenna's lever arm turns with the heading)
+        est = ref.at_point(interpolate_poses(res.stamps, res.trajectory, at))
+        dr = ref.at_point(interpolate_poses(res.stamps, odo, at))
+        if ref.point != (0.0, 0.0):
+            out[f"reference_point_{key}_m"] = list(ref.point)
         out[f"trajectory_rmse_vs_{key}_m"] = trajectory_rmse(est, truth, align)
-        out[f"mean_trajectory_rmse_vs_{key}_m"] = trajectory_rmse(interpolate_poses(res.stamps, res.mean_trajectory, at), truth, align)
+        out[f"mean_trajectory_rmse_vs_{key}_m"] = trajectory_rmse(ref.at_point(interpolate_poses(res.stamps, res.mean_trajectory, at)), truth, align)
         out[f"odometry_rmse_vs_{key}_m"] = trajectory_rmse(dr, truth, align)
         if key == "ground_truth":  # per axis (the delta-GLMB-SLAM paper's figs. 2-4)
             rx, ry, rh = axis_rmse(est, truth)

@@ -25,6 +25,7 @@ import json
 import zipfile
 import zlib
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -70,7 +71,10 @@ def _arrays(log: SensorLog) -> tuple[dict, dict[str, np.ndarray]]:
         arrays["odometry/stamp"] = log.odometry.stamp
         arrays["odometry/values"] = log.odometry.values
     if log.reference:
-        streams["reference"] = {k: {"n": len(r)} for k, r in sorted(log.reference.items())}
+        # the point is written only where it is not the vehicle's own (other logs keep their bytes)
+        streams["reference"] = {
+            k: {"n": len(r), **({"point": list(r.point)} if r.point != (0.0, 0.0) else {})} for k, r in sorted(log.reference.items())
+        }
         for k, r in sorted(log.reference.items()):
             arrays[f"reference/{k}/stamp"] = r.stamp
             arrays[f"reference/{k}/poses"] = r.poses
@@ -122,6 +126,11 @@ class _CountMeta(_Meta):
     n: int = Field(ge=0)
 
 
+class _ReferenceMeta(_Meta):
+    n: int = Field(ge=0)
+    point: Annotated[list[Annotated[float, Field(allow_inf_nan=False)]], Field(min_length=2, max_length=2)] = [0.0, 0.0]
+
+
 class _DetectionsMeta(_Meta):
     n: int = Field(ge=0)
     n_frames: int = Field(ge=0)
@@ -138,7 +147,7 @@ class _Streams(_Meta):
 
     scan: _ScanMeta | None = None
     odometry: _OdometryMeta | None = None
-    reference: dict[str, _CountMeta] | None = None
+    reference: dict[str, _ReferenceMeta] | None = None
     landmarks: _CountMeta | None = None
     detections: _DetectionsMeta | None = None
     clouds: _CloudsMeta | None = None
@@ -369,7 +378,9 @@ def _build(meta: dict, sensor: SensorModel | None, vehicle: Vehicle | None, stre
         )
     if streams.odometry is not None:
         odometry = Odometry(streams.odometry.kind, load("odometry/stamp"), load("odometry/values"))
-    reference = {k: ReferencePoses(k, load(f"reference/{k}/stamp"), load(f"reference/{k}/poses")) for k in (streams.reference or {})}
+    reference = {
+        k: ReferencePoses(k, load(f"reference/{k}/stamp"), load(f"reference/{k}/poses"), point=tuple(m.point)) for k, m in (streams.reference or {}).items()
+    }
     if streams.landmarks is not None:
         landmarks = Landmarks(load("landmarks/ids"), load("landmarks/xy"), load("landmarks/radius"), load("landmarks/sigma"))
     if streams.detections is not None:

@@ -82,3 +82,55 @@ def test_switching_the_filter_carries_only_the_settings_that_mean_the_same():
     lm = with_filter(override(with_filter(SlamConfig(), "glmb"), **{"filter.survival": 0.95, "filter.prune": 1e-3}), "lmb").filter
     assert lm.kind == "lmb" and lm.survival == 0.95
     assert with_filter(override(with_filter(SlamConfig(), "glmb"), **{"filter.prune": 1e-3}), "rbphd").filter.prune == SlamConfig().filter.prune
+
+
+def _gps_log_and_truth(point):
+    """The rfs-sim path with its positions replaced by GPS fixes of a point ``point`` on the vehicle (no heading),
+    and the true vehicle poses at the frames."""
+    import dataclasses
+
+    from calib.sim.rfs import RfsSimConfig, simulate_rfs
+    from detectors.geometry import interpolate_poses
+    from detectors.logs import ReferencePoses
+
+    log = simulate_rfs(RfsSimConfig(steps=400), 2)
+    gt = log.reference["ground_truth"]
+    fixes = ReferencePoses("gps", gt.stamp, gt.poses, point=point).at_point(gt.poses)
+    fixes[:, 2] = np.nan
+    frames = np.array([fr.stamp for fr in log.frames()], dtype=np.int64)
+    vehicle = interpolate_poses(gt.stamp, gt.poses, frames)
+    return dataclasses.replace(log, reference={"gps": ReferencePoses("gps", gt.stamp, fixes, point=point)}), frames, vehicle
+
+
+def test_a_reference_point_moves_the_pose_by_the_lever_arm_turned_with_the_heading():
+    from detectors.logs import ReferencePoses
+    from profiles.errors import DataError
+
+    ref = ReferencePoses("gps", np.array([0]), np.array([[0.0, 0.0, np.nan]]), point=(3.78, 0.5))
+    poses = np.array([[1.0, 2.0, 0.0], [1.0, 2.0, np.pi / 2], [0.0, 0.0, np.pi]])
+    np.testing.assert_allclose(ref.at_point(poses), [[4.78, 2.5, 0.0], [0.5, 5.78, np.pi / 2], [-3.78, -0.5, np.pi]], atol=1e-12)
+    assert ReferencePoses("gps", np.array([0]), np.zeros((1, 3))).at_point(poses) is not None
+    with pytest.raises(DataError, match=r"reference\[gps\]\.point: expected \(x, y\) in metres, finite"):
+        ReferencePoses("gps", np.array([0]), np.zeros((1, 3)), point=(np.nan, 0.0))
+
+
+def test_gps_is_compared_at_the_point_it_locates():
+    """GPS fixes of a point 3.78 m ahead and 0.5 m left of the vehicle's reference: the true vehicle path scores
+    ~0 against them when compared at that point; compared at the vehicle's own point, the lever arm turning
+    with the heading leaves metres that no rigid fit removes (what Victoria Park's rear-axle scores carried)."""
+    from slam_runtime.run import SlamResult, evaluate
+
+    log, frames, vehicle = _gps_log_and_truth((3.78, 0.5))
+    n = frames.size
+    res = SlamResult("RB-PHD", frames, vehicle, vehicle, np.zeros((0, 2)), np.zeros(0), np.zeros(n), np.zeros(n), np.zeros(n),
+                     np.zeros(n, dtype=bool), np.zeros(n), vehicle[0])  # fmt: skip
+    m = evaluate(log, res)
+    assert m["trajectory_rmse_vs_gps_m"] < 0.01  # interpolation between 10 Hz truth rows only
+    assert m["reference_point_gps_m"] == [3.78, 0.5]
+    import dataclasses
+
+    from detectors.logs import ReferencePoses
+
+    g = log.reference["gps"]
+    at_axle = dataclasses.replace(log, reference={"gps": ReferencePoses("gps", g.stamp, g.poses)})
+    assert evaluate(at_axle, res)["trajectory_rmse_vs_gps_m"] > 1.0

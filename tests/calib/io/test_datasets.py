@@ -22,6 +22,7 @@ def test_victoria_excerpt_geometry_and_frames():
     assert d.descriptors["diameter"][0] == pytest.approx(0.35404)
     assert log.odometry.kind == "ackermann" and len(log.odometry) == 400
     assert np.isnan(log.reference["gps"].poses[:, 2]).all()
+    assert log.reference["gps"].point == (3.78, 0.5)  # the data set's GPS is compared with the laser's position
     assert log.vehicle.wheelbase == 2.83 and log.sensor.mount.x == 3.78 and log.sensor.mount.y == 0.5
 
 

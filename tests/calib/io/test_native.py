@@ -30,7 +30,7 @@ def full_log() -> SensorLog:
         odometry=Odometry("increment", np.arange(9) * 50_000_000, rng.normal(size=(9, 3))),
         reference={
             "ground_truth": ReferencePoses("ground_truth", np.arange(3), rng.normal(size=(3, 3))),
-            "gps": ReferencePoses("gps", np.arange(2), np.array([[1.0, 2.0, np.nan], [3.0, 4.0, np.nan]])),
+            "gps": ReferencePoses("gps", np.arange(2), np.array([[1.0, 2.0, np.nan], [3.0, 4.0, np.nan]]), point=(3.78, -0.5)),
         },
         landmarks=Landmarks(np.array([4, 9]), rng.normal(size=(2, 2)), np.array([0.2, np.nan])),
         detections=Detections(np.array([7, 8, 9]), np.array([0, 0, 2]), np.ones(3), np.zeros(3), {"barcode": np.array([5, 14, 90]), "d": np.ones(3) / 3}),
@@ -69,6 +69,7 @@ def assert_logs_equal(a: SensorLog, b: SensorLog) -> None:
     for k in a.reference:
         same(a.reference[k].stamp, b.reference[k].stamp)
         same(a.reference[k].poses, b.reference[k].poses)
+        assert a.reference[k].point == b.reference[k].point
 
 
 def test_round_trip_is_lossless(tmp_path):
