@@ -10,7 +10,7 @@ Run: ``python benchmarks/bench_real_filters.py [--data ../shared/data] [--filter
   against the 15 surveyed landmarks, the map's features.
 * Victoria Park: the self-calibrated profile ``benchmarks/profiles/victoria-park-selfcal@1.0.0.yaml`` and
   ``benchmarks/configs/victoria_park.yaml`` (10 particles, optimal proposal). Scored against GPS after a rigid fit
-  (there is no landmark truth).
+  (there is no landmark truth), at the laser's position, the point the data set's GPS locates (``calib.io.victoria``).
 
 The labelled filters take their default settings (``slam_runtime.glmb.LabelledSettings``, those of the
 glmb-paper scenario): only the filter kind changes (``slam_runtime.config.with_filter``), and with
@@ -126,7 +126,7 @@ def victoria(root: Path, filters: list[str], seeds: list[int], survival: float |
     log = read_log(root)
     prof = load_profile_file(ROOT / "benchmarks/profiles/victoria-park-selfcal@1.0.0.yaml")
     base = load_yaml_model(SlamConfig, ROOT / "benchmarks/configs/victoria_park.yaml")
-    print(f"\nVictoria Park, full run ({len(list(log.frames()))} frames), 10 particles; seeds {seeds}; RMSE vs GPS after a rigid fit")
+    print(f"\nVictoria Park, full run ({len(list(log.frames()))} frames), 10 particles; seeds {seeds}; RMSE vs GPS at the laser after a rigid fit")
     for f in filters:
         ms = [run(log, prof, labelled(base, f, survival), s) for s in seeds]
         row(f, ms, "trajectory_rmse_vs_gps_m", f", odometry {ms[0]['odometry_rmse_vs_gps_m']:.1f}; features {statistics.mean(m['map_features'] for m in ms):.0f}")
