@@ -217,7 +217,10 @@ class ReferencePoses:
         bad = np.flatnonzero(~np.isfinite(poses[:, :2]).all(axis=1))
         if bad.size:
             raise DataError(f"reference[{self.source}].poses[{int(bad[0])}]: position is not finite")
-        point = tuple(float(v) for v in np.asarray(self.point, dtype=np.float64).reshape(-1))
+        try:
+            point = tuple(float(v) for v in np.asarray(self.point, dtype=np.float64).reshape(-1))
+        except (TypeError, ValueError):
+            point = ()
         if len(point) != 2 or not all(np.isfinite(point)):
             raise DataError(f"reference[{self.source}].point: expected (x, y) in metres, finite, got {self.point!r}")
         object.__setattr__(self, "stamp", stamp)

@@ -261,6 +261,8 @@ def write_ros2(log: SensorLog, path: str | Path, *, overwrite: bool = False) -> 
         "source": dict(log.source),
         "odometry_kind": None if log.odometry is None else log.odometry.kind,
         "references": sorted(log.reference),
+        # the point of the vehicle each reference locates, where it is not the vehicle's own (other bags keep their bytes)
+        **({"reference_points": pts} if (pts := {k: list(r.point) for k, r in sorted(log.reference.items()) if r.point != (0.0, 0.0)}) else {}),
         "scan": None if log.scans is None else _scan_meta(log.scans),
         "detections": None
         if det is None
@@ -400,7 +402,8 @@ def _read_detcal(reader: AnyReader, meta: dict, path: Path) -> SensorLog:
     reference = {}
     for k in meta["references"]:
         st, rows = table(f"/detcal/reference/{k}")
-        reference[k] = ReferencePoses(k, st, np.concatenate(rows))
+        point = (meta.get("reference_points") or {}).get(k, (0.0, 0.0))
+        reference[k] = ReferencePoses(k, st, np.concatenate(rows), point=tuple(point))
     if meta["detections"] is not None:
         st, rows = table("/detcal/detections")
         names = list(meta["detections"]["descriptors"])

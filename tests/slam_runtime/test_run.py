@@ -112,6 +112,8 @@ def test_a_reference_point_moves_the_pose_by_the_lever_arm_turned_with_the_headi
     assert ReferencePoses("gps", np.array([0]), np.zeros((1, 3))).at_point(poses) is not None
     with pytest.raises(DataError, match=r"reference\[gps\]\.point: expected \(x, y\) in metres, finite"):
         ReferencePoses("gps", np.array([0]), np.zeros((1, 3)), point=(np.nan, 0.0))
+    with pytest.raises(DataError, match=r"reference\[gps\]\.point: expected \(x, y\) in metres, finite, got \['a', 1\]"):
+        ReferencePoses("gps", np.array([0]), np.zeros((1, 3)), point=["a", 1])
 
 
 def test_gps_is_compared_at_the_point_it_locates():
