@@ -175,17 +175,23 @@ def self_calibrate(
     iteration: int = 0,
     input_refs: list[InputRef] | None = None,
     command: str = "",
+    mount_yaw: float = 0.0,
 ) -> SelfCalibration:
     """The profile measured against a SLAM run (its trajectory at the log's frames and its map).
 
     map_w (K,): the components' weights (None: every row of map_xy is a feature); the
     components of weight >= ``cfg.map_weight`` are the features. The sensor model (field of
-    view, range limit, mount) is the prior profile's: what is not seen cannot be measured.
+    view, range limit, mount) is the prior profile's: what is not seen cannot be measured;
+    ``mount_yaw`` [rad] turns the mount as the SLAM run did (``SlamConfig.mount_yaw``), so the
+    detections are placed from the sensor pose the run used.
     """
     if map_w is not None:
         map_xy = np.asarray(map_xy)[np.asarray(map_w) >= cfg.map_weight]
-    sensor = prior.sensor
-    pairs, dets = measure(log, trajectory, map_xy, sensor, cfg)
+    sensor = prior.sensor  # the profile keeps the prior's sensor; the correction belongs to the run's settings
+    seen_from = sensor
+    if mount_yaw:
+        seen_from = sensor.model_copy(update={"mount": sensor.mount.model_copy(update={"theta": sensor.mount.theta + mount_yaw})})
+    pairs, dets = measure(log, trajectory, map_xy, seen_from, cfg)
     free = pairs[~pairs["occluded"]]
     table = fit_pd_table(free["range"].to_numpy(), free["detected"].to_numpy(), "range", cfg.pd)
     table = table.model_copy(update={"clamping": table.clamping + "; unoccluded (frame, map feature) pairs of a SLAM run"})

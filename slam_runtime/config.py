@@ -127,6 +127,13 @@ class SlamConfig(_Strict):
         default="prior", description="draw poses from the motion model, or from its Gaussian updated by the measurements the map explains"
     )
     filter: FilterConfig = RBPHDConfig()
+    mount_yaw: float = Field(
+        default=0.0,
+        ge=-0.2,
+        le=0.2,
+        description="[rad] added to the sensor's mount yaw (a sensor mounted a little turned: the map then holds the heading "
+        "while the odometry drives crabwise); a calibration the log evidence can choose",
+    )
     measurement: MeasurementNoiseConfig = MeasurementNoiseConfig()
     motion: MotionNoise = MotionNoise()
     detection: DetectionOptions = DetectionOptions()

@@ -98,7 +98,7 @@ class Built:
 def build(log: SensorLog, profile, cfg: SlamConfig) -> Built:
     """The models, the map filter and the measurement source of a run (the factory of the settings)."""
     sensor = log.sensor if log.sensor is not None else profile.sensor
-    mount = np.array([sensor.mount.x, sensor.mount.y, sensor.mount.theta])
+    mount = np.array([sensor.mount.x, sensor.mount.y, sensor.mount.theta + cfg.mount_yaw])
     planar = profile.detector.kind == "plane3d"
     if planar != (cfg.features == "planes"):
         raise UsageError(

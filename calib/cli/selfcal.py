@@ -70,7 +70,7 @@ def selfcal_cmd(
     def measure(lg, traj, map_xy, map_w, prior, k):
         c = self_calibrate(
             lg, traj, map_xy, map_w, prior, scfg, name=prof_name, version=version, run=f"iteration {k} of this self-calibration",
-            iteration=k, input_refs=refs, command=command,
+            iteration=k, input_refs=refs, command=command, mount_yaw=cfg.mount_yaw,
         )
         return c.profile, c.summary
 
