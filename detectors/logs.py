@@ -32,6 +32,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from detectors.geometry import compose
 from profiles.errors import DataError
 from profiles.schema import BeamGeometry, Mount, SensorModel, Vehicle  # noqa: F401  (re-exported: part of the log model)
 
@@ -227,15 +228,18 @@ class ReferencePoses:
         object.__setattr__(self, "poses", poses)
         object.__setattr__(self, "point", point)
 
+    @property
+    def on_vehicle_point(self) -> bool:
+        """True when the reference locates the vehicle's own reference point (point (0, 0))."""
+        return self.point == (0.0, 0.0)
+
     def at_point(self, poses: np.ndarray) -> np.ndarray:
         """Vehicle poses (N, 3) [world frame] moved to the point this reference locates: (N, 3), heading kept."""
         poses = np.asarray(poses, dtype=np.float64)
-        if self.point == (0.0, 0.0):
+        if self.on_vehicle_point:
             return poses
-        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
         out = poses.copy()
-        out[:, 0] += c * self.point[0] - s * self.point[1]
-        out[:, 1] += s * self.point[0] + c * self.point[1]
+        out[:, :2] = compose(poses, np.array([self.point[0], self.point[1], 0.0]))[:, :2]
         return out
 
     def __len__(self) -> int:

@@ -264,7 +264,7 @@ def evaluate(log: SensorLog, res: SlamResult, c: float = 1.0, p: float = 1.0, cf
         # compared at the point of the vehicle the reference locates (a GPS antenna's lever arm turns with the heading)
         est = ref.at_point(interpolate_poses(res.stamps, res.trajectory, at))
         dr = ref.at_point(interpolate_poses(res.stamps, odo, at))
-        if ref.point != (0.0, 0.0):
+        if not ref.on_vehicle_point:
             out[f"reference_point_{key}_m"] = list(ref.point)
         out[f"trajectory_rmse_vs_{key}_m"] = trajectory_rmse(est, truth, align)
         out[f"mean_trajectory_rmse_vs_{key}_m"] = trajectory_rmse(ref.at_point(interpolate_poses(res.stamps, res.mean_trajectory, at)), truth, align)

@@ -73,7 +73,7 @@ def _arrays(log: SensorLog) -> tuple[dict, dict[str, np.ndarray]]:
     if log.reference:
         # the point is written only where it is not the vehicle's own (other logs keep their bytes)
         streams["reference"] = {
-            k: {"n": len(r), **({"point": list(r.point)} if r.point != (0.0, 0.0) else {})} for k, r in sorted(log.reference.items())
+            k: {"n": len(r), **({} if r.on_vehicle_point else {"point": list(r.point)})} for k, r in sorted(log.reference.items())
         }
         for k, r in sorted(log.reference.items()):
             arrays[f"reference/{k}/stamp"] = r.stamp

@@ -262,7 +262,7 @@ def write_ros2(log: SensorLog, path: str | Path, *, overwrite: bool = False) -> 
         "odometry_kind": None if log.odometry is None else log.odometry.kind,
         "references": sorted(log.reference),
         # the point of the vehicle each reference locates, where it is not the vehicle's own (other bags keep their bytes)
-        **({"reference_points": pts} if (pts := {k: list(r.point) for k, r in sorted(log.reference.items()) if r.point != (0.0, 0.0)}) else {}),
+        **({"reference_points": pts} if (pts := {k: list(r.point) for k, r in sorted(log.reference.items()) if not r.on_vehicle_point}) else {}),
         "scan": None if log.scans is None else _scan_meta(log.scans),
         "detections": None
         if det is None

@@ -109,7 +109,7 @@ def test_a_reference_point_moves_the_pose_by_the_lever_arm_turned_with_the_headi
     ref = ReferencePoses("gps", np.array([0]), np.array([[0.0, 0.0, np.nan]]), point=(3.78, 0.5))
     poses = np.array([[1.0, 2.0, 0.0], [1.0, 2.0, np.pi / 2], [0.0, 0.0, np.pi]])
     np.testing.assert_allclose(ref.at_point(poses), [[4.78, 2.5, 0.0], [0.5, 5.78, np.pi / 2], [-3.78, -0.5, np.pi]], atol=1e-12)
-    assert ReferencePoses("gps", np.array([0]), np.zeros((1, 3))).at_point(poses) is not None
+    np.testing.assert_array_equal(ReferencePoses("gps", np.array([0]), np.zeros((1, 3))).at_point(poses), poses)  # (0, 0): unmoved
     with pytest.raises(DataError, match=r"reference\[gps\]\.point: expected \(x, y\) in metres, finite"):
         ReferencePoses("gps", np.array([0]), np.zeros((1, 3)), point=(np.nan, 0.0))
     with pytest.raises(DataError, match=r"reference\[gps\]\.point: expected \(x, y\) in metres, finite, got \['a', 1\]"):
