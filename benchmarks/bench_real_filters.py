@@ -8,7 +8,7 @@ Run: ``python benchmarks/bench_real_filters.py [--data ../shared/data] [--filter
   ``benchmarks/configs/utias_mrclam/robotK.yaml`` (unicycle noise and biases measured on the other four robots'
   ground truth, 20 particles, the optimal proposal). Scored against Vicon: trajectory RMSE, map OSPA (c = 1 m, p = 1)
   against the 15 surveyed landmarks, the map's features.
-* Victoria Park: the self-calibrated profile ``benchmarks/profiles/victoria-park-selfcal@1.0.0.yaml`` and
+* Victoria Park: the self-calibrated profile ``benchmarks/profiles/victoria-park-selfcal@1.1.0.yaml`` and
   ``benchmarks/configs/victoria_park.yaml`` (10 particles, optimal proposal). Scored against GPS after a rigid fit
   (there is no landmark truth), at the laser's position, the point the data set's GPS locates (``calib.io.victoria``).
 
@@ -124,7 +124,7 @@ def victoria(root: Path, filters: list[str], seeds: list[int], survival: float |
     from slam_runtime.config import SlamConfig
 
     log = read_log(root)
-    prof = load_profile_file(ROOT / "benchmarks/profiles/victoria-park-selfcal@1.0.0.yaml")
+    prof = load_profile_file(ROOT / "benchmarks/profiles/victoria-park-selfcal@1.1.0.yaml")
     base = load_yaml_model(SlamConfig, ROOT / "benchmarks/configs/victoria_park.yaml")
     print(f"\nVictoria Park, full run ({len(list(log.frames()))} frames), 10 particles; seeds {seeds}; RMSE vs GPS at the laser after a rigid fit")
     for f in filters:
