@@ -1,15 +1,17 @@
 """RB-PHD, LMB and delta-GLMB side by side on real logs: UTIAS MRCLAM dataset 1 (robots 1-5) and Victoria Park.
 
 Run: ``python benchmarks/bench_real_filters.py [--data ../shared/data] [--filters rbphd,lmb,glmb] [--seeds 0-2]
-[--robots 1-5] [--skip utias|vp] [--survival 0.95] [--set filter.noise_inflation=2 ...]``. About 30 s per UTIAS run and 1.5-2 minutes per Victoria Park run on one core.
+[--robots 1-5] [--skip utias|vp] [--survival 0.95] [--set filter.noise_inflation=2 ...] [--vp-profiles own|shared]``. About 30 s per UTIAS run and 1.5-2 minutes per Victoria Park run on one core.
 
 * UTIAS: robot K is held out. Its camera profile is calibrated here on the other four robots (``calibrate_detections`` with
   the default settings, as ``detcal calibrate dataset1 --robot ... --name utias-notK``), and its settings are
   ``benchmarks/configs/utias_mrclam/robotK.yaml`` (unicycle noise and biases measured on the other four robots'
   ground truth, 20 particles, the optimal proposal). Scored against Vicon: trajectory RMSE, map OSPA (c = 1 m, p = 1)
   against the 15 surveyed landmarks, the map's features.
-* Victoria Park: the self-calibrated profile ``benchmarks/profiles/victoria-park-selfcal@1.1.0.yaml`` and
-  ``benchmarks/configs/victoria_park.yaml`` (10 particles, optimal proposal). Scored against GPS after a rigid fit
+* Victoria Park: ``benchmarks/configs/victoria_park.yaml`` (10 particles, optimal proposal) and, per filter, the
+  profile self-calibrated with that filter's own map (``benchmarks/profiles/victoria-park-selfcal@1.1.0.yaml`` for
+  RB-PHD, ``victoria-park-selfcal-lmb@1.0.0.yaml``, ``victoria-park-selfcal-glmb@1.0.0.yaml``); with
+  ``--vp-profiles shared`` every filter takes RB-PHD's. Scored against GPS after a rigid fit
   (there is no landmark truth), at the laser's position, the point the data set's GPS locates (``calib.io.victoria``).
 
 The labelled filters take their default settings (``slam_runtime.glmb.LabelledSettings``, those of the
@@ -117,19 +119,28 @@ def utias(root: Path, robots: list[int], filters: list[str], seeds: list[int], s
             row(f, ms, "trajectory_rmse_vs_ground_truth_m", extra)
 
 
-def victoria(root: Path, filters: list[str], seeds: list[int], survival: float | None) -> None:
+#: Victoria Park profiles: self-calibrated with RB-PHD's map, and with each labelled filter's own map
+VP_PROFILES = {
+    "rbphd": "victoria-park-selfcal@1.1.0.yaml",
+    "lmb": "victoria-park-selfcal-lmb@1.0.0.yaml",
+    "glmb": "victoria-park-selfcal-glmb@1.0.0.yaml",
+}
+
+
+def victoria(root: Path, filters: list[str], seeds: list[int], survival: float | None, profiles: str = "own") -> None:
     from calib.config import load_yaml_model
     from calib.io.registry import read_log
     from profiles.store import load_profile_file
     from slam_runtime.config import SlamConfig
 
     log = read_log(root)
-    prof = load_profile_file(ROOT / "benchmarks/profiles/victoria-park-selfcal@1.1.0.yaml")
     base = load_yaml_model(SlamConfig, ROOT / "benchmarks/configs/victoria_park.yaml")
     print(f"\nVictoria Park, full run ({len(list(log.frames()))} frames), 10 particles; seeds {seeds}; RMSE vs GPS at the laser after a rigid fit")
     for f in filters:
+        name = VP_PROFILES[f if profiles == "own" else "rbphd"]
+        prof = load_profile_file(ROOT / "benchmarks/profiles" / name)
         ms = [run(log, prof, labelled(base, f, survival), s) for s in seeds]
-        row(f, ms, "trajectory_rmse_vs_gps_m", f", odometry {ms[0]['odometry_rmse_vs_gps_m']:.1f}; features {statistics.mean(m['map_features'] for m in ms):.0f}")
+        row(f, ms, "trajectory_rmse_vs_gps_m", f", odometry {ms[0]['odometry_rmse_vs_gps_m']:.1f}; features {statistics.mean(m['map_features'] for m in ms):.0f}; profile {name}")
 
 
 def main() -> None:
@@ -141,6 +152,10 @@ def main() -> None:
     ap.add_argument("--skip", choices=("utias", "vp"), action="append", default=[])
     ap.add_argument("--survival", type=float, default=None, help="LMB and delta-GLMB: P_S in view (default theirs, 1; the paper: 0.95)")
     ap.add_argument("--set", dest="sets", action="append", default=[], help="override a setting of every run: key=value (repeatable)")
+    ap.add_argument(
+        "--vp-profiles", choices=("own", "shared"), default="own",
+        help="Victoria Park: each filter with the profile self-calibrated with its own map (own), or every filter with RB-PHD's (shared)",
+    )
     a = ap.parse_args()
     SETS.update(parse_set(x) for x in a.sets)
     os.environ.setdefault("SOURCE_DATE_EPOCH", "1700000000")
@@ -155,7 +170,7 @@ def main() -> None:
             print(f"UTIAS dataset 1 not found at {ut}: skipped")
     if "vp" not in a.skip:
         if vp.is_dir():
-            victoria(vp, filters, seeds, a.survival)
+            victoria(vp, filters, seeds, a.survival, a.vp_profiles)
         else:
             print(f"Victoria Park not found at {vp}: skipped")
 

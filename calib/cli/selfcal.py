@@ -17,6 +17,12 @@ def selfcal_cmd(
     reader: ReaderArgs,
     profile_ref: Annotated[str, typer.Option("--profile", help="The starting profile (e.g. a nominal one): name@version or a file.")],
     config: Annotated[Path | None, typer.Option(help="YAML SLAM settings (see detcal slam run).")] = None,
+    filter_: Annotated[
+        str | None,
+        typer.Option(
+            "--filter", help="Map filter of the SLAM runs: rbphd, lmb or glmb (default: the config's); the profile is measured against its map."
+        ),
+    ] = None,
     iterations: Annotated[int, typer.Option(help="SLAM runs at most.")] = 5,
     tolerance: Annotated[float, typer.Option(help="Stop when P_D (absolute) and noise and clutter (relative) change by less than this.")] = 0.02,
     seed: Annotated[int, typer.Option(help="Filter seed of every run.")] = 0,
@@ -48,7 +54,7 @@ def selfcal_cmd(
         raise UsageError(f"--tolerance: expected a positive number, got {tolerance}")
     if not SEMVER_RE.match(version):
         raise UsageError(f"--version: {version!r} is not MAJOR.MINOR.PATCH")
-    cfg = slam_config(config, None, particles, None)
+    cfg = slam_config(config, filter_, particles, None)
     start = resolve(profile_ref)
     if start.pd.covariate != "range":
         raise UsageError(f"profile {start.ref}: self-calibration measures P_D against range; this profile has a {start.pd.covariate} table")

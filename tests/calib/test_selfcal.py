@@ -101,3 +101,23 @@ def test_selfcal_command_writes_its_folder_and_the_profile(tmp_path, capsys, log
     assert code == 2
     assert_one_line_error(err, "self-calibration measures P_D against range")
     assert not (tmp_path / "x").exists()
+
+
+def test_selfcal_measures_against_the_map_of_the_filter_it_is_given(tmp_path, capsys):
+    """`--filter lmb`: every SLAM run of the self-calibration is LMB-SLAM (the run folder says so), and the profile is
+    measured against that filter's map; an unknown filter is one clear error before any work."""
+    from calib.io.native import write_native
+    from profiles.store import dump_profile
+
+    lp = write_native(simulate_rfs(SIM.model_copy(update={"steps": 80}), 6), tmp_path / "sim.dlog")
+    (tmp_path / "start.yaml").write_text(dump_profile(nominal()))
+    base = ["selfcal", str(lp), "--profile", str(tmp_path / "start.yaml"), "--iterations", "1", "--particles", "3", "--profiles-dir", str(tmp_path / "p")]
+    code, out, err = run(capsys, *base, "--filter", "lmb", "--out", str(tmp_path / "sc"), "--name", "sim-lmb")
+    assert code == 0, err
+    used = yaml.safe_load((tmp_path / "sc/last_run/config.yaml").read_text())["settings"]
+    assert used["filter"]["kind"] == "lmb" and used["particles"] == 3
+    assert yaml.safe_load((tmp_path / "sc/profile.yaml").read_text())["name"] == "sim-lmb"
+    code, _, err = run(capsys, *base, "--filter", "ekf", "--out", str(tmp_path / "sc2"), "--name", "sim-x")
+    assert code == 2
+    assert_one_line_error(err, "--filter: expected one of rbphd, lmb, glmb")
+    assert not (tmp_path / "sc2").exists()
