@@ -188,10 +188,7 @@ def self_calibrate(
     if map_w is not None:
         map_xy = np.asarray(map_xy)[np.asarray(map_w) >= cfg.map_weight]
     sensor = prior.sensor  # the profile keeps the prior's sensor; the correction belongs to the run's settings
-    seen_from = sensor
-    if mount_yaw:
-        seen_from = sensor.model_copy(update={"mount": sensor.mount.model_copy(update={"theta": sensor.mount.theta + mount_yaw})})
-    pairs, dets = measure(log, trajectory, map_xy, seen_from, cfg)
+    pairs, dets = measure(log, trajectory, map_xy, sensor.turned(mount_yaw), cfg)
     free = pairs[~pairs["occluded"]]
     table = fit_pd_table(free["range"].to_numpy(), free["detected"].to_numpy(), "range", cfg.pd)
     table = table.model_copy(update={"clamping": table.clamping + "; unoccluded (frame, map feature) pairs of a SLAM run"})

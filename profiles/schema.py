@@ -142,6 +142,13 @@ class SensorModel(Strict):
             return ()
         return (BeamGeometry(n_beams=self.n_beams, angle_min=self.angle_min, angle_increment=self.angle_increment),)
 
+    def turned(self, yaw: float) -> SensorModel:
+        """This sensor with its mount turned by ``yaw`` [rad] (a mount-yaw correction, ``SlamConfig.mount_yaw``);
+        itself when ``yaw`` is 0."""
+        if not yaw:
+            return self
+        return self.model_copy(update={"mount": self.mount.model_copy(update={"theta": self.mount.theta + yaw})})
+
     def angle_span(self) -> tuple[float, float] | None:
         """(lowest, highest) beam angle [rad] over every layout; None without a beam geometry."""
         spans = [g.span() for g in self.layouts()]

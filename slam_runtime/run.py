@@ -97,8 +97,8 @@ class Built:
 
 def build(log: SensorLog, profile, cfg: SlamConfig) -> Built:
     """The models, the map filter and the measurement source of a run (the factory of the settings)."""
-    sensor = log.sensor if log.sensor is not None else profile.sensor
-    mount = np.array([sensor.mount.x, sensor.mount.y, sensor.mount.theta + cfg.mount_yaw])
+    sensor = (log.sensor if log.sensor is not None else profile.sensor).turned(cfg.mount_yaw)
+    mount = np.array([sensor.mount.x, sensor.mount.y, sensor.mount.theta])
     planar = profile.detector.kind == "plane3d"
     if planar != (cfg.features == "planes"):
         raise UsageError(

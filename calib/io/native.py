@@ -126,8 +126,7 @@ class _CountMeta(_Meta):
     n: int = Field(ge=0)
 
 
-class _ReferenceMeta(_Meta):
-    n: int = Field(ge=0)
+class _ReferenceMeta(_CountMeta):
     point: Annotated[list[Annotated[float, Field(allow_inf_nan=False)]], Field(min_length=2, max_length=2)] = [0.0, 0.0]
 
 
