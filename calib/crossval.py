@@ -39,7 +39,7 @@ TABLE_COLUMNS = (
     "fold", "train", "test", "profile", "pairs_informative", "ece", "ece_if_calibrated", "ece_if_calibrated_blocks", "brier", "loglik_per_pair",
     "frames", "false_alarms_per_frame_observed", "false_alarms_per_frame_predicted", "false_alarm_relative_error",
     "false_alarm_relative_error_ci95_low", "false_alarm_relative_error_ci95_high", "clutter_chi2_p_value",
-    "clutter_dispersion", "hotelling_coverage", "frame_period_s",
+    "clutter_dispersion", "true_detections", "hotelling_coverage", "frame_period_s",
 )
 
 

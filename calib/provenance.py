@@ -52,6 +52,10 @@ def selfcal_parameters() -> type:
         slam_run: str
         iteration: int = Field(ge=0)
         prior: str
+        # --average-from: the iterations whose measurements were averaged, and each run's own figures
+        averaged_iterations: list[int] | None = Field(default=None, min_length=2)
+        clutter_rate_per_run: list[float] | None = None
+        range_sigma_per_run: list[float | None] | None = None
 
     return SelfCalibrationParameters
 

@@ -57,6 +57,7 @@ def self_calibration(
     iterations: int = 5,
     tolerance: float = 0.02,
     biases: bool = True,
+    average_from: int | None = None,
     progress=None,
 ) -> list[Iteration]:
     """Alternate SLAM and measurement.
@@ -66,6 +67,12 @@ def self_calibration(
     change(new profile, old profile) -> float. Stops after ``iterations`` runs, or
     when the measured profile changes by less than ``tolerance`` (and the steering
     offset by less than 0.5 mrad). The last iteration's measured profile is the result.
+
+    ``average_from`` K (Polyak-Ruppert averaging): from iteration K on, the next run's
+    odometry biases are the mean of those measured in iterations K..k (``Iteration.bias``
+    keeps each run's own), as ``measure`` is expected to average its profiles from K on;
+    each run's map is a random draw, so the plain iteration scatters about its fixed
+    point by the run-to-run spread and only the average settles.
     """
     history: list[Iteration] = []
     controls = frame_controls(log) if biases and log.odometry is not None and log.odometry.kind == "ackermann" else None
@@ -80,12 +87,17 @@ def self_calibration(
         if controls is not None:
             it.bias = fit_ackermann_bias(vehicle, controls, traj)
             # measured from the raw odometry: absolute values, not corrections of the last ones
+            runs = [h.bias for h in history[average_from:]] + [it.bias] if average_from is not None and k >= average_from else [it.bias]
             new_cfg = override(
-                cfg, **{"motion.ackermann.steer_offset": it.bias["steer_offset"], "motion.ackermann.speed_scale": it.bias["speed_scale"]}
+                cfg,
+                **{
+                    "motion.ackermann.steer_offset": float(np.mean([b["steer_offset"] for b in runs])),
+                    "motion.ackermann.speed_scale": float(np.mean([b["speed_scale"] for b in runs])),
+                },
             )
         it.next_config = new_cfg
         history.append(it)
-        moved = abs(it.bias["steer_offset"] - cfg.motion.ackermann.steer_offset) if it.bias else 0.0
+        moved = abs(new_cfg.motion.ackermann.steer_offset - cfg.motion.ackermann.steer_offset) if it.bias else 0.0
         steady = it.change < tolerance and moved < 5e-4
         profile, cfg = measured, new_cfg
         if steady:

@@ -203,7 +203,8 @@ def scores_table(title: str, t, first: tuple[str, ...]) -> Table:
             f"{100 * r['false_alarm_relative_error_ci95_high']:+.0f}] %",
         ]
         if cover:
-            row.append(f"{r['hotelling_coverage']:.4f}")
+            n = r.get("true_detections")
+            row.append(f"{r['hotelling_coverage']:.4f}" + (f" of {int(n)}" if n is not None and n == n else ""))
         tab.add_row(*row)
     return tab
 

@@ -25,6 +25,13 @@ def selfcal_cmd(
     ] = None,
     iterations: Annotated[int, typer.Option(help="SLAM runs at most.")] = 5,
     tolerance: Annotated[float, typer.Option(help="Stop when P_D (absolute) and noise and clutter (relative) change by less than this.")] = 0.02,
+    average_from: Annotated[
+        int | None,
+        typer.Option(
+            help="Average the measurements of the runs from this iteration on (0 = the first) and run on their average: "
+            "each run's map is a random draw, so the plain iteration scatters about its fixed point and only the average settles."
+        ),
+    ] = None,
     seed: Annotated[int, typer.Option(help="Filter seed of every run.")] = 0,
     particles: Annotated[int | None, typer.Option(help="Particles (default: the config's).")] = None,
     name: Annotated[str | None, typer.Option(help="Name of the measured profile (default: <log name>-selfcal).")] = None,
@@ -39,7 +46,7 @@ def selfcal_cmd(
     from calib.cli.slam import slam_config
     from calib.config import load_yaml_model
     from calib.progress import progress
-    from calib.selfcal import SelfCalConfig, fill_selfcal_run, profile_change, self_calibrate
+    from calib.selfcal import SelfCalConfig, fill_selfcal_run, pool_self_calibrations, profile_change, self_calibrate
     from profiles.profile import NAME_RE, SEMVER_RE
     from profiles.atomic import Output, atomic_outputs
     from profiles.store import check_new_version, looks_like_profile, resolve, write_profile_text
@@ -50,6 +57,8 @@ def selfcal_cmd(
     positive("--particles", particles)
     if seed < 0:
         raise UsageError(f"--seed: expected a non-negative integer, got {seed}")
+    if average_from is not None and not 0 <= average_from < iterations:
+        raise UsageError(f"--average-from: expected an iteration from 0 to {iterations - 1} (--iterations {iterations}), got {average_from}")
     if tolerance <= 0:
         raise UsageError(f"--tolerance: expected a positive number, got {tolerance}")
     if not SEMVER_RE.match(version):
@@ -73,14 +82,22 @@ def selfcal_cmd(
     command = typed_command("selfcal")
     scfg = SelfCalConfig()
 
+    cals = []
+
     def measure(lg, traj, map_xy, map_w, prior, k):
         c = self_calibrate(
             lg, traj, map_xy, map_w, prior, scfg, name=prof_name, version=version, run=f"iteration {k} of this self-calibration",
             iteration=k, input_refs=refs, command=command, mount_yaw=cfg.mount_yaw,
         )
-        return c.profile, c.summary
+        cals.append(c)
+        if average_from is None or k < average_from:
+            return c.profile, c.summary
+        pooled = pool_self_calibrations(cals[average_from:], scfg, iterations=list(range(average_from, k + 1)))
+        return pooled, {**c.summary, "averaged_runs": k + 1 - average_from, "averaged_false_alarms_per_frame": pooled.clutter.rate}
 
-    history = self_calibration(log, start, cfg, seed, measure, profile_change, iterations=iterations, tolerance=tolerance, progress=progress)
+    history = self_calibration(
+        log, start, cfg, seed, measure, profile_change, iterations=iterations, tolerance=tolerance, average_from=average_from, progress=progress
+    )
     final = history[-1].measured
     from slam_runtime.report import write_slam_run
 
@@ -98,6 +115,7 @@ def selfcal_cmd(
         "run folder": str(target),
         "iterations": len(history),
         "converged": bool(last.change < tolerance),
+        **({"averaged runs": len(history) - average_from} if average_from is not None and len(history) > average_from else {}),
         "last change": last.change,
         **{k: v for k, v in last.result.metrics.items() if k.startswith(("trajectory_rmse", "odometry_rmse", "ms_per_step_median"))},
         **({"steering offset [rad]": last.bias["steer_offset"], "speed scale": last.bias["speed_scale"]} if last.bias else {}),

@@ -64,7 +64,9 @@ def test_laser_time_split(tmp_path, capsys):
     t = pd.read_csv(tmp_path / "cv/folds.csv")
     # a lap calibrates the other lap of the same park: P_D is well predicted, the gate's coverage is stated
     assert len(t) == 2 and (t["ece"] < 0.05).all() and (t["hotelling_coverage"] > 0.97).all()
-    assert "coverage" in out
+    # the coverage comes with the number of held-out true detections it is a share of
+    assert (t["true_detections"] >= 50).all()
+    assert "coverage" in out and f"of {int(t['true_detections'][0])}" in out
 
 
 @pytest.mark.parametrize(

@@ -121,3 +121,60 @@ def test_selfcal_measures_against_the_map_of_the_filter_it_is_given(tmp_path, ca
     assert code == 2
     assert_one_line_error(err, "--filter: expected one of rbphd, lmb, glmb")
     assert not (tmp_path / "sc2").exists()
+
+
+def test_pooled_runs_are_the_same_detections_not_more_data(log):
+    """Averaging the iterates: n measurements of the same detections against the same map pool to the very
+    same profile with the same counts and Wilson intervals (not sqrt(n) narrower: the runs add no detections);
+    against two different maps, P_D is the pooled rate of the two runs' pairs and the clutter rate their mean."""
+    from calib.selfcal import pool_self_calibrations
+
+    truth = log.reference["ground_truth"].poses
+    cfg = SelfCalConfig(gate=0.1)
+    one = self_calibrate(log, truth, log.landmarks.xy, None, truth_profile(SIM), cfg, name="x", version="1.0.0")
+    three = pool_self_calibrations([one, one, one], cfg, iterations=[2, 3, 4])
+    for key in ("pd", "counts", "detections", "wilson_low", "wilson_high", "edges"):
+        assert getattr(three.pd, key) == pytest.approx(getattr(one.profile.pd, key))
+    assert three.clutter.rate == pytest.approx(one.profile.clutter.rate)
+    assert three.noise.range_sigma == pytest.approx(one.profile.noise.range_sigma)
+    assert three.noise.samples == one.profile.noise.samples
+    assert three.provenance.parameters["averaged_iterations"] == [2, 3, 4]
+    assert "iterations 2-4" in three.description
+    # a map that lost a fifth of its landmarks: more detections are clutter, fewer pairs
+    rng = np.random.default_rng(0)
+    keep = rng.uniform(size=log.landmarks.xy.shape[0]) > 0.2
+    other = self_calibrate(log, truth, log.landmarks.xy[keep], None, truth_profile(SIM), cfg, name="x", version="1.0.0")
+    two = pool_self_calibrations([one, other], cfg, iterations=[0, 1])
+    assert other.clutter.rate > one.clutter.rate + 0.3
+    assert two.clutter.rate == pytest.approx((one.clutter.rate + other.clutter.rate) / 2)
+    n1, n2 = one.profile.pd.counts[0], other.profile.pd.counts[0]
+    k1, k2 = one.profile.pd.detections[0], other.profile.pd.detections[0]
+    assert two.pd.pd[0] == pytest.approx((k1 + k2) / (n1 + n2))
+    assert two.pd.counts[0] == round((n1 + n2) / 2)
+
+
+def test_selfcal_average_from_writes_the_average_of_the_runs(tmp_path, capsys):
+    """`--average-from 1`: the profile written pools the measurements of iterations 1 and 2 (its provenance says
+    so, its clutter rate is the mean of the two runs' measured rates); an iteration past the last is refused."""
+    import pandas as pd
+
+    from calib.io.native import write_native
+    from profiles.store import dump_profile
+
+    lp = write_native(simulate_rfs(SIM.model_copy(update={"steps": 80}), 6), tmp_path / "sim.dlog")
+    (tmp_path / "start.yaml").write_text(dump_profile(nominal()))
+    base = ["selfcal", str(lp), "--profile", str(tmp_path / "start.yaml"), "--particles", "3", "--profiles-dir", str(tmp_path / "p")]
+    code, out, err = run(capsys, *base, "--iterations", "3", "--average-from", "1", "--tolerance", "1e-9", "--out", str(tmp_path / "sc"), "--name", "sim-avg")
+    assert code == 0, err
+    prof = yaml.safe_load((tmp_path / "sc/profile.yaml").read_text())
+    assert prof["provenance"]["parameters"]["averaged_iterations"] == [1, 2]
+    from profiles.store import load_profile_file
+
+    assert load_profile_file(tmp_path / "p/sim-avg@1.0.0.yaml").provenance.parameters["averaged_iterations"] == [1, 2]  # it loads
+    rows = pd.read_csv(tmp_path / "sc/iterations.csv")
+    assert rows["measured_averaged_runs"].tolist()[1:] == [1, 2]
+    assert prof["clutter"]["rate"] == pytest.approx(rows["measured_false_alarms_per_frame"].iloc[1:].mean())
+    code, _, err = run(capsys, *base, "--iterations", "3", "--average-from", "3", "--out", str(tmp_path / "sc2"), "--name", "sim-x")
+    assert code == 2
+    assert_one_line_error(err, "--average-from: expected an iteration from 0 to 2")
+    assert not (tmp_path / "sc2").exists()
