@@ -9,8 +9,9 @@ Run: ``python benchmarks/bench_real_filters.py [--data ../shared/data] [--filter
   ground truth, 20 particles, the optimal proposal). Scored against Vicon: trajectory RMSE, map OSPA (c = 1 m, p = 1)
   against the 15 surveyed landmarks, the map's features.
 * Victoria Park: ``benchmarks/configs/victoria_park.yaml`` (10 particles, optimal proposal) and, per filter, the
-  profile self-calibrated with that filter's own map (``benchmarks/profiles/victoria-park-selfcal@1.1.0.yaml`` for
-  RB-PHD, ``victoria-park-selfcal-lmb@1.0.0.yaml``, ``victoria-park-selfcal-glmb@1.0.0.yaml``); with
+  profile self-calibrated with that filter's own map, the measurements of several runs averaged
+  (``benchmarks/profiles/victoria-park-selfcal@1.2.0.yaml`` for RB-PHD, ``victoria-park-selfcal-lmb@1.1.0.yaml``,
+  ``victoria-park-selfcal-glmb@1.1.0.yaml``); with
   ``--vp-profiles shared`` every filter takes RB-PHD's. Scored against GPS after a rigid fit
   (there is no landmark truth), at the laser's position, the point the data set's GPS locates (``calib.io.victoria``).
 
@@ -121,9 +122,9 @@ def utias(root: Path, robots: list[int], filters: list[str], seeds: list[int], s
 
 #: Victoria Park profiles: self-calibrated with RB-PHD's map, and with each labelled filter's own map
 VP_PROFILES = {
-    "rbphd": "victoria-park-selfcal@1.1.0.yaml",
-    "lmb": "victoria-park-selfcal-lmb@1.0.0.yaml",
-    "glmb": "victoria-park-selfcal-glmb@1.0.0.yaml",
+    "rbphd": "victoria-park-selfcal@1.2.0.yaml",
+    "lmb": "victoria-park-selfcal-lmb@1.1.0.yaml",
+    "glmb": "victoria-park-selfcal-glmb@1.1.0.yaml",
 }
 
 

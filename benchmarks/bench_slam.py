@@ -106,7 +106,7 @@ def victoria_park(quick: bool) -> None:
         print(f"Victoria Park skipped: {VP} not found")
         return
     vp = read_log(VP, None, ReadOptions())
-    prof = load_profile_file(ROOT / "benchmarks/profiles/victoria-park-selfcal@1.1.0.yaml")
+    prof = load_profile_file(ROOT / "benchmarks/profiles/victoria-park-selfcal@1.2.0.yaml")
     cfg = load_yaml_model(SlamConfig, ROOT / "benchmarks/configs/victoria_park.yaml")
     for n in (10, 50, 200):
         frames = None if n == 10 and not quick else 1500

@@ -178,3 +178,30 @@ def test_selfcal_average_from_writes_the_average_of_the_runs(tmp_path, capsys):
     assert code == 2
     assert_one_line_error(err, "--average-from: expected an iteration from 0 to 2")
     assert not (tmp_path / "sc2").exists()
+
+
+def test_the_loop_averages_the_odometry_biases_with_the_profiles():
+    """With ``average_from`` the next run's steering offset and speed scale are the mean of the runs measured so far
+    (from that iteration on), while each iteration keeps its own run's measurement; before it, the run's own."""
+    from calib.sim.glmb_paper import GlmbPaperConfig, simulate_glmb_paper
+    from calib.sim.glmb_paper import truth_profile as glmb_truth
+    from slam_runtime.config import SlamConfig
+    from slam_runtime.selfcal import self_calibration
+
+    sc = GlmbPaperConfig(max_steps=800, clutter=1.0)
+    lg = simulate_glmb_paper(sc, 3)
+    cfg = SlamConfig.model_validate({"particles": 3, "filter": {"kind": "rbphd"}, "motion": {"ackermann": {"sigma_speed": 0.1, "sigma_steer": 0.035}}})
+
+    def measure(lg_, traj, xy, w, prior, k):
+        c = self_calibrate(lg_, traj, xy, w, prior, SelfCalConfig(gate=1.0, pd=SelfCalConfig().pd.model_copy(update={"min_count": 20})), name="x", version="1.0.0", iteration=k)
+        return c.profile, c.summary
+
+    hist = self_calibration(lg, glmb_truth(sc), cfg, 0, measure, profile_change, iterations=3, tolerance=1e-12, average_from=1)
+    assert len(hist) == 3
+    off = [h.bias["steer_offset"] for h in hist]
+    scale = [h.bias["speed_scale"] for h in hist]
+    used = [h.next_config.motion.ackermann for h in hist]
+    assert used[0].steer_offset == pytest.approx(off[0]) and used[0].speed_scale == pytest.approx(scale[0])
+    assert used[1].steer_offset == pytest.approx(off[1]) and used[2].steer_offset == pytest.approx((off[1] + off[2]) / 2)
+    assert used[2].speed_scale == pytest.approx((scale[1] + scale[2]) / 2)
+    assert len(set(scale)) > 1  # the runs measured different scales: the mean is not one of them by accident
