@@ -115,10 +115,22 @@ def selfcal_cmd(
         "run folder": str(target),
         "iterations": len(history),
         "converged": bool(last.change < tolerance),
-        **({"averaged runs": len(history) - average_from} if average_from is not None and len(history) > average_from else {}),
+        **(_spread(history[average_from:]) if average_from is not None and len(history) > average_from + 1 else {}),
         "last change": last.change,
         **{k: v for k, v in last.result.metrics.items() if k.startswith(("trajectory_rmse", "odometry_rmse", "ms_per_step_median"))},
         **({"steering offset [rad]": last.bias["steer_offset"], "speed scale": last.bias["speed_scale"]} if last.bias else {}),
         "P_D table": ", ".join(f"{e:g}:{v:.2f}" for e, v in zip(final.pd.edges[:-1], final.pd.pd, strict=True)),
     }
     out.print(summary_table(f"self-calibration of {log.name}", rows))
+
+
+def _spread(runs) -> dict:
+    """What the averaged runs measured one by one: the mean with its standard error (the runs' sd / sqrt(n)),
+    the precision of the average, which the change between consecutive averages (shrinking as 1/n) is not."""
+    import numpy as np
+
+    out = {"averaged runs": len(runs)}
+    for key, label in (("false_alarms_per_frame", "false alarms per frame"), ("range_sigma_m", "range noise [m]")):
+        x = np.array([it.summary[key] for it in runs], dtype=float)
+        out[f"{label}, runs' mean +- s.e."] = f"{x.mean():.4g} +- {x.std(ddof=1) / np.sqrt(x.size):.2g}"
+    return out

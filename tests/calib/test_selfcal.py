@@ -174,6 +174,7 @@ def test_selfcal_average_from_writes_the_average_of_the_runs(tmp_path, capsys):
     rows = pd.read_csv(tmp_path / "sc/iterations.csv")
     assert rows["measured_averaged_runs"].tolist()[1:] == [1, 2]
     assert prof["clutter"]["rate"] == pytest.approx(rows["measured_false_alarms_per_frame"].iloc[1:].mean())
+    assert "runs' mean +- s.e." in out
     code, _, err = run(capsys, *base, "--iterations", "3", "--average-from", "3", "--out", str(tmp_path / "sc2"), "--name", "sim-x")
     assert code == 2
     assert_one_line_error(err, "--average-from: expected an iteration from 0 to 2")
