@@ -60,11 +60,17 @@ class PdFitConfig(BaseModel):
     range_bin: float = Field(default=0.5, gt=0.0, description="bin width for a range covariate [m]")
 
 
-def fit_pd_table(values: np.ndarray, detected: np.ndarray, covariate: str, cfg: PdFitConfig) -> PdTable:
+def fit_pd_table(values: np.ndarray, detected: np.ndarray, covariate: str, cfg: PdFitConfig, runs: int = 1) -> PdTable:
     """P_D against ``n_p`` (integer bins) or ``range`` (bins of ``cfg.range_bin``), eq. 6.2.
 
     values (M,) covariate of each (landmark, scan) pair; detected (M,) bool: C(m, j).
+    ``runs``: the pairs are ``runs`` measurements of the same detections pooled (a self-calibration's
+    averaged runs, each against its own map): P_D is the pooled rate, but ``min_count`` applies per run
+    and the counts, detections and Wilson intervals are those of one run (pooled / runs), since the runs
+    add no detections; a bin with any pairs keeps a count of at least 1.
     """
+    if runs < 1:
+        raise ValueError(f"runs must be at least 1, got {runs}")
     values = np.asarray(values, dtype=np.float64)
     detected = np.asarray(detected, dtype=bool)
     if values.size == 0:
@@ -78,9 +84,9 @@ def fit_pd_table(values: np.ndarray, detected: np.ndarray, covariate: str, cfg: 
     idx = np.clip(np.searchsorted(edges, values, side="right") - 1, 0, edges.size - 2)
     n = np.bincount(idx, minlength=edges.size - 1)
     k = np.bincount(idx, weights=detected, minlength=edges.size - 1).astype(np.int64)
-    well = np.flatnonzero(n >= cfg.min_count)
+    well = np.flatnonzero(n >= cfg.min_count * runs)
     if well.size == 0:
-        raise DataError(f"no P_D bin holds {cfg.min_count} pairs; lower --min-count or calibrate on more data")
+        raise DataError(f"no P_D bin holds {cfg.min_count} pairs{' per run' if runs > 1 else ''}; lower --min-count or calibrate on more data")
     last = int(well[-1])
     if cfg.tail == "pool":
         n[last] = n[last:].sum()
@@ -90,19 +96,22 @@ def fit_pd_table(values: np.ndarray, detected: np.ndarray, covariate: str, cfg: 
     with np.errstate(invalid="ignore", divide="ignore"):
         raw = np.where(n > 0, k / n, 0.0)
     pd = np.where(raw < cfg.zero_below, 0.0, raw)
-    lo, hi = wilson(k, n)
+    lo, hi = wilson(k / runs, n / runs)  # one run's sample size, centred on the pooled rate
+    n_run = np.where(n > 0, np.maximum(np.rint(n / runs), 1), 0).astype(np.int64)
+    k_run = np.minimum(np.rint(k / runs), n_run).astype(np.int64)
     unit = "n_p" if covariate == "n_p" else "range"
+    per = f"{runs} runs of the same detections pooled, counts per run; " if runs > 1 else ""
     return PdTable(
         covariate=covariate,
         edges=edges.tolist(),
         pd=pd.tolist(),
-        counts=n.tolist(),
-        detections=k.tolist(),
+        counts=n_run.tolist(),
+        detections=k_run.tolist(),
         wilson_low=np.nan_to_num(lo, nan=0.0).tolist(),
         wilson_high=np.nan_to_num(hi, nan=1.0).tolist(),
         clamping=(
-            f"{unit} >= {edges[last]:g} uses the last well-populated bin (>= {cfg.min_count} pairs, tail={cfg.tail}); "
-            f"P_D < {cfg.zero_below:g} set to 0"
+            f"{per}{unit} >= {edges[last]:g} uses the last well-populated bin (>= {cfg.min_count} pairs{' per run' if runs > 1 else ''}, "
+            f"tail={cfg.tail}); P_D < {cfg.zero_below:g} set to 0"
         ),
     )
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 from functools import cache
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from calib import __version__
 
@@ -54,8 +54,18 @@ def selfcal_parameters() -> type:
         prior: str
         # --average-from: the iterations whose measurements were averaged, and each run's own figures
         averaged_iterations: list[int] | None = Field(default=None, min_length=2)
+        clutter_count_model_of_iteration: int | None = Field(default=None, ge=0)
         clutter_rate_per_run: list[float] | None = None
         range_sigma_per_run: list[float | None] | None = None
+
+        @model_validator(mode="after")
+        def _per_run(self):
+            n = len(self.averaged_iterations or [])
+            for key in ("clutter_rate_per_run", "range_sigma_per_run"):
+                v = getattr(self, key)
+                if v is not None and len(v) != n:
+                    raise ValueError(f"{key}: {len(v)} values for {n} averaged iterations")
+            return self
 
     return SelfCalibrationParameters
 

@@ -37,7 +37,7 @@ from scipy.optimize import linear_sum_assignment
 from calib import __version__
 from calib.calibrate import created_now
 from calib.detlevel import fit_noise
-from calib.fits import ClutterFit, PdFitConfig, clutter_params, fit_clutter, fit_pd_table, wilson
+from calib.fits import ClutterFit, PdFitConfig, clutter_params, fit_clutter, fit_pd_table
 from detectors.geometry import compose
 from detectors.logs import SensorLog
 from profiles.errors import DataError
@@ -251,33 +251,21 @@ def pool_self_calibrations(cals: list[SelfCalibration], cfg: SelfCalConfig, *, i
     iteration does not settle; their average does. The runs measure the *same* detections against
     different maps, so their pairs are not new data: P_D per bin is the pooled rate of the runs'
     unoccluded pairs (bins of ``cfg.pd`` with ``min_count`` per run), but the counts, detections and
-    Wilson intervals written are per run (the pooled counts / n), not n times narrower; the noise is
+    Wilson intervals written are per run (the pooled counts / n), not sqrt(n) times narrower; the noise is
     the robust spread of the pooled residuals with ``samples`` per run; the clutter rate is the mean of
-    the runs' rates, its count model and tests those of the last run (its shape, which moves little);
-    the occluder radius is the mean. ``iterations``: the iteration numbers of ``cals`` (provenance).
+    the runs' rates, its count model and tests those of the last run (its shape, which moves little;
+    the provenance says which run); the occluder radius is the mean. ``iterations``: the iteration
+    numbers of ``cals`` (provenance).
     """
-    if not cals:
-        raise ValueError("nothing to pool")
+    if not cals or len(iterations) != len(cals):
+        raise ValueError(f"{len(cals)} measurements to pool with {len(iterations)} iteration numbers")
     n = len(cals)
     last = cals[-1]
     if n == 1:
         return last.profile
     free = pd.concat([c.pairs[~c.pairs["occluded"]] for c in cals], ignore_index=True)
-    fit_cfg = cfg.pd.model_copy(update={"min_count": cfg.pd.min_count * n})
-    t = fit_pd_table(free["range"].to_numpy(), free["detected"].to_numpy(), "range", fit_cfg)
-    counts = np.rint(np.asarray(t.counts) / n).astype(np.int64)
-    dets_k = np.rint(np.asarray(t.detections) / n).astype(np.int64)
-    lo, hi = wilson(dets_k, counts)
-    table = t.model_copy(
-        update={
-            "counts": counts.tolist(),
-            "detections": dets_k.tolist(),
-            "wilson_low": np.nan_to_num(lo, nan=0.0).tolist(),
-            "wilson_high": np.nan_to_num(hi, nan=1.0).tolist(),
-            "clamping": t.clamping.replace(f">= {fit_cfg.min_count} pairs", f">= {cfg.pd.min_count} pairs per run")
-            + f"; unoccluded (frame, map feature) pairs of {n} SLAM runs pooled, counts per run",
-        }
-    )
+    t = fit_pd_table(free["range"].to_numpy(), free["detected"].to_numpy(), "range", cfg.pd, runs=n)
+    table = t.model_copy(update={"clamping": t.clamping + "; unoccluded (frame, map feature) pairs of SLAM runs"})
     dets = pd.concat([c.detections for c in cals], ignore_index=True)
     noise = noise_of(dets)
     if noise is not None:
@@ -304,6 +292,7 @@ def pool_self_calibrations(cals: list[SelfCalibration], cfg: SelfCalConfig, *, i
                     "parameters": {
                         **prov.parameters,
                         "averaged_iterations": list(iterations),
+                        "clutter_count_model_of_iteration": iterations[-1],
                         "clutter_rate_per_run": [c.clutter.rate for c in cals],
                         "range_sigma_per_run": [c.profile.noise.range_sigma if c.profile.noise else None for c in cals],
                     }

@@ -74,6 +74,8 @@ def self_calibration(
     each run's map is a random draw, so the plain iteration scatters about its fixed
     point by the run-to-run spread and only the average settles.
     """
+    if average_from is not None and average_from < 0:
+        raise ValueError(f"average_from must be a non-negative iteration, got {average_from}")
     history: list[Iteration] = []
     controls = frame_controls(log) if biases and log.odometry is not None and log.odometry.kind == "ackermann" else None
     for k in range(iterations):

@@ -57,8 +57,10 @@ def selfcal_cmd(
     positive("--particles", particles)
     if seed < 0:
         raise UsageError(f"--seed: expected a non-negative integer, got {seed}")
-    if average_from is not None and not 0 <= average_from < iterations:
-        raise UsageError(f"--average-from: expected an iteration from 0 to {iterations - 1} (--iterations {iterations}), got {average_from}")
+    if average_from is not None and not 0 <= average_from <= iterations - 2:
+        raise UsageError(
+            f"--average-from: expected an iteration from 0 to {iterations - 2} (--iterations {iterations}: at least two runs to average), got {average_from}"
+        )
     if tolerance <= 0:
         raise UsageError(f"--tolerance: expected a positive number, got {tolerance}")
     if not SEMVER_RE.match(version):
@@ -89,10 +91,10 @@ def selfcal_cmd(
             lg, traj, map_xy, map_w, prior, scfg, name=prof_name, version=version, run=f"iteration {k} of this self-calibration",
             iteration=k, input_refs=refs, command=command, mount_yaw=cfg.mount_yaw,
         )
-        cals.append(c)
         if average_from is None or k < average_from:
             return c.profile, c.summary
-        pooled = pool_self_calibrations(cals[average_from:], scfg, iterations=list(range(average_from, k + 1)))
+        cals.append(c)  # only the runs that are averaged are kept (their pairs and detections)
+        pooled = pool_self_calibrations(cals, scfg, iterations=list(range(average_from, k + 1)))
         return pooled, {**c.summary, "averaged_runs": k + 1 - average_from, "averaged_false_alarms_per_frame": pooled.clutter.rate}
 
     history = self_calibration(
@@ -110,15 +112,21 @@ def selfcal_cmd(
         fill_selfcal_run(log, history, run_tmp, last_run=lambda folder: write_slam_run(log, last.result, folder, settings))
         write_profile_text(final, prof_tmp)
     status = "written" if status == "write" else "replaced"
+    cfg_next = last.next_config or last.config  # the biases slam.yaml holds (averaged with --average-from)
     rows = {
         "profile": f"{final.ref} ({status}: {saved})",
         "run folder": str(target),
         "iterations": len(history),
-        "converged": bool(last.change < tolerance),
+        # with averaging the change of the average shrinks as 1/n whatever the runs do: it settles; its precision is the s.e. below
+        ("converged" if average_from is None else "average settled (moved < tolerance)"): bool(last.change < tolerance),
         **(_spread(history[average_from:]) if average_from is not None and len(history) > average_from + 1 else {}),
         "last change": last.change,
         **{k: v for k, v in last.result.metrics.items() if k.startswith(("trajectory_rmse", "odometry_rmse", "ms_per_step_median"))},
-        **({"steering offset [rad]": last.bias["steer_offset"], "speed scale": last.bias["speed_scale"]} if last.bias else {}),
+        **(
+            {"steering offset [rad]": cfg_next.motion.ackermann.steer_offset, "speed scale": cfg_next.motion.ackermann.speed_scale}
+            if last.bias
+            else {}
+        ),
         "P_D table": ", ".join(f"{e:g}:{v:.2f}" for e, v in zip(final.pd.edges[:-1], final.pd.pd, strict=True)),
     }
     out.print(summary_table(f"self-calibration of {log.name}", rows))

@@ -151,6 +151,32 @@ def test_pooled_runs_are_the_same_detections_not_more_data(log):
     k1, k2 = one.profile.pd.detections[0], other.profile.pd.detections[0]
     assert two.pd.pd[0] == pytest.approx((k1 + k2) / (n1 + n2))
     assert two.pd.counts[0] == round((n1 + n2) / 2)
+    p, lo, hi = (np.asarray(getattr(two.pd, k)) for k in ("pd", "wilson_low", "wilson_high"))
+    assert ((lo <= p) & (p <= hi)).all()  # every interval holds its pooled rate
+    with pytest.raises(ValueError, match="2 measurements to pool with 3 iteration numbers"):
+        pool_self_calibrations([one, other], cfg, iterations=[0, 1, 2])
+
+
+def test_a_pd_table_of_pooled_runs_has_one_runs_counts_and_no_empty_supported_bin():
+    """fit_pd_table(runs=n): P_D is the pooled rate; min_count applies per run; counts and Wilson intervals are one
+    run's (centred on the pooled rate); a bin holding fewer than n / 2 pooled pairs keeps a count of 1, not 0."""
+    from calib.fits import PdFitConfig, fit_pd_table, wilson
+
+    rng = np.random.default_rng(1)
+    r = np.concatenate([[2.5], rng.uniform(5, 15, 3000)])  # one pair in the first bin, then two well-filled bins
+    det = np.concatenate([[True], rng.uniform(size=3000) < 0.6])
+    cfg = PdFitConfig(min_count=100, range_bin=5.0, zero_below=0.0, tail="last")
+    one = fit_pd_table(r, det, "range", cfg)
+    three = fit_pd_table(r, det, "range", cfg, runs=3)
+    assert three.pd == pytest.approx(one.pd) and one.counts[0] == 1
+    assert three.counts[1:] == [round(c / 3) for c in one.counts[1:]]
+    lo, hi = wilson(np.array(one.detections) / 3, np.array(one.counts) / 3)
+    assert three.wilson_low == pytest.approx(lo.tolist()) and three.wilson_high == pytest.approx(hi.tolist())
+    assert all(lo_ <= p <= hi_ for lo_, p, hi_ in zip(three.wilson_low, three.pd, three.wilson_high, strict=True))
+    assert three.counts[0] == 1 and three.detections[0] <= 1  # a third of a pair is not no pair
+    assert "3 runs of the same detections pooled" in three.clamping and ">= 100 pairs per run" in three.clamping
+    with pytest.raises(Exception, match="no P_D bin holds 2000 pairs per run"):
+        fit_pd_table(r, det, "range", cfg.model_copy(update={"min_count": 2000}), runs=3)
 
 
 def test_selfcal_average_from_writes_the_average_of_the_runs(tmp_path, capsys):
@@ -175,9 +201,10 @@ def test_selfcal_average_from_writes_the_average_of_the_runs(tmp_path, capsys):
     assert rows["measured_averaged_runs"].tolist()[1:] == [1, 2]
     assert prof["clutter"]["rate"] == pytest.approx(rows["measured_false_alarms_per_frame"].iloc[1:].mean())
     assert "runs' mean +- s.e." in out
-    code, _, err = run(capsys, *base, "--iterations", "3", "--average-from", "3", "--out", str(tmp_path / "sc2"), "--name", "sim-x")
+    assert "average settled" in out
+    code, _, err = run(capsys, *base, "--iterations", "3", "--average-from", "2", "--out", str(tmp_path / "sc2"), "--name", "sim-x")
     assert code == 2
-    assert_one_line_error(err, "--average-from: expected an iteration from 0 to 2")
+    assert_one_line_error(err, "--average-from: expected an iteration from 0 to 1")
     assert not (tmp_path / "sc2").exists()
 
 
