@@ -21,7 +21,6 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.stats import chi2, poisson, rankdata
 
 from calib.clutter import dispersion_test, fit_negative_binomial, nb_pmf_sf, pearson
-
 from detectors.circle import mahalanobis2 as maha2
 from profiles.errors import DataError
 from profiles.schema import ClutterDensity, ClutterParams, CountTest, PdTable

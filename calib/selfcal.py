@@ -269,7 +269,7 @@ def pool_self_calibrations(cals: list[SelfCalibration], cfg: SelfCalConfig, *, i
     dets = pd.concat([c.detections for c in cals], ignore_index=True)
     noise = noise_of(dets)
     if noise is not None:
-        noise = noise.model_copy(update={"samples": int(round(noise.samples / n))})
+        noise = noise.model_copy(update={"samples": round(noise.samples / n)})
     rate = float(np.mean([c.clutter.rate for c in cals]))
     clutter = last.profile.clutter.model_copy(update={"rate": rate, "kappa": None})  # kappa filled in again from the rate
     radii = [c.profile.detector.occluder_radius for c in cals]

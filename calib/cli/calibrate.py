@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import shlex
 from pathlib import Path
@@ -204,7 +205,7 @@ def scores_table(title: str, t, first: tuple[str, ...]) -> Table:
         ]
         if cover:
             n = r.get("true_detections")
-            row.append(f"{r['hotelling_coverage']:.4f}" + (f" of {int(n)}" if n is not None and n == n else ""))
+            row.append(f"{r['hotelling_coverage']:.4f}" + (f" of {int(n)}" if n is not None and not math.isnan(n) else ""))
         tab.add_row(*row)
     return tab
 

@@ -44,11 +44,10 @@ def selfcal_cmd(
     odometry's steering offset against the run's own map and trajectory, run again, until nothing changes."""
     from calib.cli.calibrate import typed_command
     from calib.cli.slam import slam_config
-    from calib.config import load_yaml_model
     from calib.progress import progress
     from calib.selfcal import SelfCalConfig, fill_selfcal_run, pool_self_calibrations, profile_change, self_calibrate
-    from profiles.profile import NAME_RE, SEMVER_RE
     from profiles.atomic import Output, atomic_outputs
+    from profiles.profile import NAME_RE, SEMVER_RE
     from profiles.store import check_new_version, looks_like_profile, resolve, write_profile_text
     from slam_runtime.run import check_inputs
     from slam_runtime.selfcal import self_calibration
