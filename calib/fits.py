@@ -83,9 +83,10 @@ def fit_pd_table(values: np.ndarray, detected: np.ndarray, covariate: str, cfg: 
     idx = np.clip(np.searchsorted(edges, values, side="right") - 1, 0, edges.size - 2)
     n = np.bincount(idx, minlength=edges.size - 1)
     k = np.bincount(idx, weights=detected, minlength=edges.size - 1).astype(np.int64)
+    per_run = " per run" if runs > 1 else ""
     well = np.flatnonzero(n >= cfg.min_count * runs)
     if well.size == 0:
-        raise DataError(f"no P_D bin holds {cfg.min_count} pairs{' per run' if runs > 1 else ''}; lower --min-count or calibrate on more data")
+        raise DataError(f"no P_D bin holds {cfg.min_count} pairs{per_run}; lower --min-count or calibrate on more data")
     last = int(well[-1])
     if cfg.tail == "pool":
         n[last] = n[last:].sum()
@@ -99,7 +100,7 @@ def fit_pd_table(values: np.ndarray, detected: np.ndarray, covariate: str, cfg: 
     n_run = np.where(n > 0, np.maximum(np.rint(n / runs), 1), 0).astype(np.int64)
     k_run = np.minimum(np.rint(k / runs), n_run).astype(np.int64)
     unit = "n_p" if covariate == "n_p" else "range"
-    per = f"{runs} runs of the same detections pooled, counts per run; " if runs > 1 else ""
+    pooled = f"{runs} runs of the same detections pooled, counts per run; " if runs > 1 else ""
     return PdTable(
         covariate=covariate,
         edges=edges.tolist(),
@@ -109,7 +110,7 @@ def fit_pd_table(values: np.ndarray, detected: np.ndarray, covariate: str, cfg: 
         wilson_low=np.nan_to_num(lo, nan=0.0).tolist(),
         wilson_high=np.nan_to_num(hi, nan=1.0).tolist(),
         clamping=(
-            f"{per}{unit} >= {edges[last]:g} uses the last well-populated bin (>= {cfg.min_count} pairs{' per run' if runs > 1 else ''}, "
+            f"{pooled}{unit} >= {edges[last]:g} uses the last well-populated bin (>= {cfg.min_count} pairs{per_run}, "
             f"tail={cfg.tail}); P_D < {cfg.zero_below:g} set to 0"
         ),
     )

@@ -274,12 +274,11 @@ def pool_self_calibrations(cals: list[SelfCalibration], cfg: SelfCalConfig, *, i
     clutter = last.profile.clutter.model_copy(update={"rate": rate, "kappa": None})  # kappa filled in again from the rate
     radii = [c.profile.detector.occluder_radius for c in cals]
     occ_r = None if any(r is None for r in radii) else float(np.mean(radii))
-    span = f"{iterations[0]}-{iterations[-1]}" if len(iterations) > 1 else f"{iterations[0]}"
     prov = last.profile.provenance
     pooled = last.profile.model_copy(
         update={
             "description": (
-                f"Self-calibrated against the SLAM runs of iterations {span} of this self-calibration, their measurements averaged: "
+                f"Self-calibrated against the SLAM runs of iterations {iterations[0]}-{iterations[-1]} of this self-calibration, their measurements averaged: "
                 "P_D of unoccluded map features against range, clutter and noise measured with each run's map and trajectory as the "
                 "truth; no landmark truth was used."
             ),

@@ -89,7 +89,8 @@ def self_calibration(
         if controls is not None:
             it.bias = fit_ackermann_bias(vehicle, controls, traj)
             # measured from the raw odometry: absolute values, not corrections of the last ones
-            runs = [h.bias for h in history[average_from:]] + [it.bias] if average_from is not None and k >= average_from else [it.bias]
+            first = k if average_from is None else min(average_from, k)  # the runs whose biases are averaged: first..k
+            runs = [h.bias for h in history[first:]] + [it.bias]
             new_cfg = override(
                 cfg,
                 **{
