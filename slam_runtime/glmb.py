@@ -80,6 +80,7 @@ from slam_runtime.features import FeatureModel
 from slam_runtime.gibbs import joint_update, reduce_hypotheses
 from slam_runtime.gm import det, inv, matmul, matvec, quad, transpose
 from slam_runtime.mapfilter import MapFilter, Measurements
+from slam_runtime.proposal import pose_proposal
 
 #: bits of a label that hold the measurement index: label = (step << LABEL_BITS) + measurement
 LABEL_BITS = 20
@@ -402,42 +403,11 @@ class LabelledFilter(MapFilter):
         rows = np.arange(p)[:, None]
         sel = np.argsort(~seen, axis=1, kind="stable")[:, :js]
         in_s = seen[rows, sel]
-        mu_s, cov_s = t.mu[rows, sel], t.cov[rows, sel]
         w_s = np.where(in_s, ex[rows, sel] * np.minimum(pd[rows, sel], 1.0), 0.0)
-        zhat, hl = fm.predict_sensor(sp[:, None, :], mu_s)
-        s_pair = matmul(hl, matmul(cov_s, transpose(hl)))[:, :, None] + rz[None, None]  # (P, Js, M, dz, dz)
-        # which track explains a measurement is decided with the prior's pose uncertainty included (the
-        # marginal innovation covariance of FastSLAM 2.0's data association)
-        hx = fm.pose_jacobian(xbar[:, None, :], mu_s)  # (P, Js, dz, 3)
-        s_sel = s_pair + matmul(hx, matmul(q[:, None], transpose(hx)))[:, :, None]
-        nu = fm.innovation(z[None, None], zhat[:, :, None])
-        m2 = quad(inv(s_sel), nu)
-        dz = fm.dim_z
-        lik = np.where(m2 <= self.cfg.gate, np.exp(-0.5 * m2) / np.sqrt((2 * np.pi) ** dz * np.maximum(det(s_sel), 1e-300)), 0.0) * w_s[..., None]
-        kappa = np.exp(self._log_kappa(z, meas))
-        best = np.argmax(lik, axis=1)  # (P, M) the likeliest track of each measurement
-        lb = np.take_along_axis(lik, best[:, None, :], axis=1)[:, 0]
-        use = lb > share * (kappa[None, :] + lik.sum(axis=1))
-        n_used = use.sum(axis=1)
-        if not use.any():
-            return xbar, q, n_used
-        mu_b = mu_s[rows, best]  # (P, M, dx)
-        s_inv = np.where(use[..., None, None], inv(s_pair[rows, best, np.arange(m)[None, :]]), 0.0)
-        q_reg = q + np.eye(3) * 1e-12
-        q_inv = np.linalg.inv(q_reg)
-        x, cov = xbar.copy(), q_reg
-        for _ in range(iterations):
-            zh, _ = fm.predict(x[:, None, :], mu_b)
-            hx = fm.pose_jacobian(x[:, None, :], mu_b)  # (P, M, dz, 3)
-            r = fm.innovation(np.broadcast_to(z, zh.shape).copy(), zh)
-            dx = x - xbar
-            dx[:, 2] = np.mod(dx[:, 2] + np.pi, 2 * np.pi) - np.pi
-            r = r + (hx @ dx[:, None, :, None])[..., 0]  # iterated EKF: linearise at x, expand about xbar
-            hts = transpose(hx) @ s_inv
-            cov = np.linalg.inv(q_inv + (hts @ hx).sum(axis=1))
-            x = xbar + (cov @ (hts @ r[..., None]).sum(axis=1))[..., 0]
-            x[:, 2] = np.mod(x[:, 2] + np.pi, 2 * np.pi) - np.pi
-        return x, 0.5 * (cov + transpose(cov)), n_used
+        return pose_proposal(
+            fm, xbar, q, z, rz, self.r if meas.cov is None else None, t.mu[rows, sel], t.cov[rows, sel], w_s,
+            np.exp(self._log_kappa(z, meas)), gate=self.cfg.gate, share=share, iterations=iterations,
+        )
 
     def _begin(self, poses: np.ndarray, meas: Measurements):
         z, rz = self._noise(meas)

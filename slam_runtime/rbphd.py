@@ -36,6 +36,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from slam_runtime.features import FeatureModel
 from slam_runtime.gm import GMBatch, det, gaussian, inv, matmul, matvec, prune_merge, quad, transpose
 from slam_runtime.mapfilter import MapFilter, Measurements
+from slam_runtime.proposal import pose_proposal
 
 
 class RBPHDConfig(BaseModel):
@@ -254,48 +255,14 @@ class RBPHD(MapFilter):
         rows = np.arange(p)[:, None]
         sel = np.argsort(~seen, axis=1, kind="stable")[:, :js]
         in_s = seen[rows, sel]
-        mu_s, cov_s = gm.mu[rows, sel], gm.cov[rows, sel]
         w_s = np.where(in_s, gm.w[rows, sel] * pd[rows, sel], 0.0)
-        zhat, hl = fm.predict_sensor(sp[:, None, :], mu_s)
-        hph = matmul(hl, matmul(cov_s, transpose(hl)))
-        s_pair = hph[:, :, None] + rz[None, None]  # (P, Js, M, dz, dz)
-        nu = fm.innovation(z[None, None], zhat[:, :, None])
-        # association under the motion prior's uncertainty too (FastSLAM 2.0: Q = R + H_m P H_m^T + H_x Q_x H_x^T),
-        # or a particle whose predicted heading is a few bearing sigmas off finds no feature for its measurements
-        hx0 = fm.pose_jacobian(xbar[:, None, :], mu_s)  # (P, Js, dz, 3)
-        s_assoc = s_pair + matmul(hx0, matmul(q[:, None], transpose(hx0)))[:, :, None]
-        m2 = quad(inv(s_assoc), nu)
-        lik = np.where(m2 <= self.cfg.gate, gaussian(m2, det(s_assoc), dz), 0.0) * w_s[..., None]
         kappa = self.detection.clutter_intensity(z)
         if meas.ratio is not None:
             kappa = kappa / np.maximum(np.asarray(meas.ratio, dtype=np.float64), 1e-300)
-        best = np.argmax(lik, axis=1)  # (P, M) the likeliest feature of each measurement
-        lb = np.take_along_axis(lik, best[:, None, :], axis=1)[:, 0]
-        use = lb > share * (kappa[None, :] + lik.sum(axis=1))  # (P, M)
-        n_used = use.sum(axis=1)
-        if not use.any():
-            return xbar, q, n_used
-        rm = np.arange(p)[:, None]
-        mu_b = mu_s[rm, best]  # (P, M, dx)
-        s_b = s_pair[rm, best, np.arange(m)[None, :]]  # (P, M, dz, dz)
-        s_inv = np.where(use[..., None, None], inv(s_b), 0.0)
-        q_reg = q + np.eye(3) * 1e-12
-        q_inv = np.linalg.inv(q_reg)
-        x = xbar.copy()
-        cov = q_reg
-        for _ in range(iterations):
-            zh, _ = fm.predict(x[:, None, :], mu_b)
-            hx = fm.pose_jacobian(x[:, None, :], mu_b)  # (P, M, dz, 3)
-            r = fm.innovation(np.broadcast_to(z, zh.shape), zh)
-            dx = x - xbar
-            dx[:, 2] = np.mod(dx[:, 2] + np.pi, 2 * np.pi) - np.pi
-            r = r + (hx @ dx[:, None, :, None])[..., 0]  # iterated EKF: linearise at x, expand about xbar
-            hts = transpose(hx) @ s_inv  # (P, M, 3, dz)
-            info = q_inv + (hts @ hx).sum(axis=1)
-            cov = np.linalg.inv(info)
-            x = xbar + (cov @ (hts @ r[..., None]).sum(axis=1))[..., 0]
-            x[:, 2] = np.mod(x[:, 2] + np.pi, 2 * np.pi) - np.pi
-        return x, 0.5 * (cov + transpose(cov)), n_used
+        return pose_proposal(
+            fm, xbar, q, z, rz, self.r if meas.cov is None else None, gm.mu[rows, sel], gm.cov[rows, sel], w_s, kappa,
+            gate=self.cfg.gate, share=share, iterations=iterations,
+        )
 
     def _birth(self, sp: np.ndarray, z: np.ndarray, rz: np.ndarray, unexplained: np.ndarray | None) -> GMBatch:
         """Birth mixture for the next step from this step's measurements (eq. 3.15).

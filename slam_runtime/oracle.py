@@ -1,0 +1,348 @@
+"""The batch oracle of a simulated log: what the data allow, given the true associations.
+
+A filter's error on one simulated run mixes two things: how far the data
+themselves leave the truth (one noise draw of odometry and measurements), and
+how far the filter is from the posterior those data give. The oracle separates
+them. With every detection's true landmark known (the simulators label them)
+and the simulator's own noise, the full-SLAM posterior over every pose and
+landmark is (to first order) Gaussian; :func:`batch_oracle` finds its mode by
+Gauss-Newton on the sparse least-squares problem (odometry factors between
+consecutive poses, range-bearing factors between a pose and a landmark, the
+first pose fixed at the truth as the filters start there) and its covariance
+from the information matrix.
+
+What to read off it (``benchmarks/bench_oracle.py`` prints these):
+
+* the MAP's own error (final position, map OSPA): the floor an estimator
+  that uses the posterior's mode would reach, the associations given;
+* :func:`posterior_samples`: an RB particle filter's estimate is one particle's
+  path, and its particles share one ancestor after a few hundred resamplings,
+  so its poses behave like one *sample* of the posterior, not its mode; the
+  samples' error is what such a filter can be expected to reach. Its map is
+  not a sample but the map's conditional mean given that path, distributed
+  (to first order) N(m_MAP, Sigma_mm - H_mm^-1), H_mm the landmark block of
+  the information matrix (:func:`rb_map_samples`); :func:`map_distance` puts a
+  filter's map on that scale;
+* :func:`mahalanobis2`: the squared Mahalanobis distance of a filter's final
+  position from the MAP under the posterior covariance; for an exact
+  posterior sample it is chi-square with 2 degrees of freedom (mean 2), so a
+  mean well above 2 over runs says the filter is further from the posterior
+  than its own sampling explains.
+
+Two odometry kinds are modelled, those of the simulators: ``increment`` (pose
+increments in the vehicle frame, rfs-sim: per-axis sigma) and ``ackermann``
+(speed and steering of a rear-axle bicycle, glmb-paper: the controls are
+variables with their noise as prior, the poses follow them exactly).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.optimize import linear_sum_assignment
+from scipy.sparse.linalg import splu
+
+from detectors.geometry import compose, interpolate_poses
+from detectors.logs import SensorLog, wrap_angle
+from profiles.errors import DataError, UsageError
+
+#: the dynamics of Ackermann controls are constraints, kept to this residual scale [m, rad]
+_STIFF = 1e-5
+
+
+@dataclass
+class OracleResult:
+    stamps: np.ndarray  # (N,) the odometry stamps the poses are at [ns]
+    poses: np.ndarray  # (N, 3) MAP vehicle poses, world frame
+    landmark_ids: np.ndarray  # (L,)
+    landmarks: np.ndarray  # (L, 2) MAP landmark positions, world frame (NaN: never detected)
+    final_cov: np.ndarray  # (3, 3) posterior covariance of the last pose
+    landmark_cov: np.ndarray  # (2L', 2L') posterior covariance of the detected landmarks (x, y interleaved)
+    landmark_cov_given_path: np.ndarray  # (2L', 2L') their covariance given every pose (and control): H_mm^-1
+    detected: np.ndarray  # (L,) bool: the landmarks some detection saw
+    iterations: int
+    converged: bool  # the last Gauss-Newton step moved nothing by more than 1e-10
+    cost: float  # half the sum of squared whitened residuals at the last linearisation
+    information: sp.csc_matrix  # (V, V) J^T J there: poses (3 N), then controls (2 per row, Ackermann), then landmarks
+
+    def final_error(self, truth: np.ndarray) -> float:
+        """Distance of the MAP's last position from the true one (2,) [m]."""
+        return float(np.hypot(*(self.poses[-1, :2] - np.asarray(truth)[:2])))
+
+
+def batch_oracle(
+    log: SensorLog,
+    *,
+    odometry_sigma: tuple[float, ...],
+    range_sigma: float,
+    bearing_sigma: float,
+    iterations: int = 50,
+) -> OracleResult:
+    """The full-SLAM posterior's mode and covariance of a simulated log with labelled detections.
+
+    odometry_sigma: per odometry row, (dx, dy, dtheta) [m, m, rad] for ``increment`` odometry, (speed [m/s],
+    steering [rad]) for ``ackermann``; range_sigma [m], bearing_sigma [rad]: the measurement noise.
+    """
+    if iterations < 1:
+        raise UsageError(f"oracle: iterations must be at least 1, not {iterations}")
+    for name, v in (("range_sigma", range_sigma), ("bearing_sigma", bearing_sigma)):
+        if not (np.isfinite(v) and v > 0):
+            raise UsageError(f"oracle: {name} must be a positive number, not {v!r}")
+    if log.odometry is None or log.detections is None or log.landmarks is None:
+        raise DataError(f"{log.name}: the oracle needs odometry, detections and landmark truth")
+    lab = log.detections.descriptors.get("landmark")
+    if lab is None:
+        raise DataError(f"{log.name}: the detections carry no 'landmark' label (only simulated logs have one)")
+    ref = log.reference.get("ground_truth")
+    if ref is None:
+        raise DataError(f"{log.name}: no ground truth to fix the first pose")
+    kind = log.odometry.kind
+    if kind not in ("increment", "ackermann"):
+        raise DataError(f"{log.name}: the oracle models increment and ackermann odometry, not {kind!r}")
+    sig = np.asarray(odometry_sigma, dtype=np.float64)
+    want = 2 if kind == "ackermann" else 3
+    if sig.shape != (want,) or not np.all(np.isfinite(sig) & (sig > 0)):
+        raise UsageError(
+            f"oracle: odometry_sigma of {kind} odometry is {want} positive numbers "
+            + ("(speed, steering)" if want == 2 else "(dx, dy, dtheta)")
+            + f", not {odometry_sigma!r}"
+        )
+    stamps = np.asarray(log.odometry.stamp, dtype=np.int64)
+    n = stamps.size
+    det = log.detections
+    lab = np.asarray(lab)
+    ids = np.asarray(log.landmarks.ids)
+    keep = lab > 0
+    k_of = np.searchsorted(stamps, det.frame_stamp[det.frame[keep]])
+    if np.any(k_of >= n) or np.any(stamps[np.minimum(k_of, n - 1)] != det.frame_stamp[det.frame[keep]]):
+        raise DataError(f"{log.name}: the oracle needs a detection frame at an odometry stamp")
+    li = np.minimum(np.searchsorted(ids, lab[keep]), ids.size - 1)
+    if np.any(ids[li] != lab[keep]):
+        raise DataError(
+            f"{log.name}: detection label {int(lab[keep][ids[li] != lab[keep]][0])} is no landmark of the log's truth"
+        )
+    zr, zb = np.asarray(det.range)[keep], np.asarray(det.bearing)[keep]
+    detected = np.zeros(ids.size, dtype=bool)
+    detected[li] = True
+    col = -np.ones(ids.size, dtype=np.int64)
+    col[detected] = np.arange(int(detected.sum()))
+    lj = col[li]  # index among the detected landmarks
+    nl = int(detected.sum())
+    mount = np.array([log.sensor.mount.x, log.sensor.mount.y, log.sensor.mount.theta]) if log.sensor is not None else np.zeros(3)
+    if np.any(mount):
+        raise DataError(f"{log.name}: the oracle models a sensor at the vehicle's reference point")
+    if not ref.stamp[0] <= stamps[0] <= ref.stamp[-1]:
+        raise DataError(f"{log.name}: the ground truth does not cover the first odometry stamp")
+    start = interpolate_poses(ref.stamp, ref.poses, stamps[:1])[0]
+    odo = np.asarray(log.odometry.values, dtype=np.float64)
+
+    # initial guess: dead reckoning and each landmark from its first detection
+    x = np.zeros((n, 3))
+    x[0] = start
+    ack = kind == "ackermann"
+    if ack:
+        if log.vehicle is None or log.vehicle.encoder_offset != 0.0:
+            raise DataError(f"{log.name}: the oracle's Ackermann model is the rear-axle bicycle (encoder offset 0)")
+        wb = float(log.vehicle.wheelbase)
+        dts = np.diff(stamps) * 1e-9
+        ctrl = odo[:-1].copy()  # row k drives pose k to pose k + 1 (the last row is held past the end)
+        for k in range(n - 1):
+            x[k + 1] = _bicycle(x[k], ctrl[k], dts[k], wb)
+    else:
+        ctrl = np.zeros((0, 2))
+        for k in range(1, n):
+            x[k] = compose(x[k - 1], odo[k])
+    lm = np.zeros((nl, 2))
+    first = np.unique(lj, return_index=True)[1]  # each landmark's first detection (lj lists them in frame order)
+    a = x[k_of[first], 2] + zb[first]
+    lm[:, 0] = x[k_of[first], 0] + zr[first] * np.cos(a)
+    lm[:, 1] = x[k_of[first], 1] + zr[first] * np.sin(a)
+
+    nx, nc = 3 * n, 2 * ctrl.shape[0]
+    nv = nx + nc + 2 * nl
+    lu = h = None
+    cost = np.inf
+    it = 0
+    converged = False
+    for it in range(1, iterations + 1):
+        blocks = _Blocks()
+        if ack:
+            _ackermann_factors(blocks, x, ctrl, odo[:-1], dts, wb, sig, nx)
+        else:
+            _increment_factors(blocks, x, odo, sig)
+        _range_bearing_factors(blocks, x, lm, k_of, lj, zr, zb, range_sigma, bearing_sigma, nx + nc)
+        d0 = x[0] - start
+        d0[2] = wrap_angle(d0[2])
+        blocks.add(1e6 * d0, [(np.arange(3), np.full(3, 1e6))])  # the first pose is the true start
+        jac, res = blocks.build(nv)
+        h = (jac.T @ jac).tocsc()
+        lu = splu(h)
+        step = lu.solve(-(jac.T @ res))
+        cost = 0.5 * float(res @ res)
+        x += step[:nx].reshape(n, 3)
+        x[:, 2] = wrap_angle(x[:, 2])
+        if ack:
+            ctrl += step[nx : nx + nc].reshape(-1, 2)
+        lm += step[nx + nc :].reshape(nl, 2)
+        if np.abs(step).max() < 1e-10:
+            converged = True
+            break
+    # marginal covariances from the information matrix at the mode
+    e = np.zeros((nv, 3 + 2 * nl))
+    e[nx - 3 + np.arange(3), np.arange(3)] = 1.0
+    e[nx + nc + np.arange(2 * nl), 3 + np.arange(2 * nl)] = 1.0
+    cols = lu.solve(e)
+    final_cov = cols[nx - 3 : nx, :3]
+    lcov = cols[nx + nc :, 3:]
+    # given the path, the landmarks are independent: H_mm is block-diagonal, inverted 2x2 at a time
+    hmm = h[nx + nc :, nx + nc :].toarray()
+    given = np.zeros_like(hmm)
+    for i in range(nl):
+        b = slice(2 * i, 2 * i + 2)
+        given[b, b] = np.linalg.inv(hmm[b, b])
+    out_lm = np.full((ids.size, 2), np.nan)
+    out_lm[detected] = lm
+    return OracleResult(
+        stamps, x, ids, out_lm, 0.5 * (final_cov + final_cov.T), 0.5 * (lcov + lcov.T), given, detected, it, converged, cost, h
+    )
+
+
+def posterior_samples(res: OracleResult, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """n draws of (final position (n, 2), detected landmarks (n, L', 2)) from the Gaussian posterior's
+    marginals (each drawn on its own: the final pose and the map are not jointly drawn)."""
+    fin = rng.multivariate_normal(res.poses[-1, :2], res.final_cov[:2, :2], size=n)
+    mean = res.landmarks[res.detected].ravel()
+    ch = np.linalg.cholesky(res.landmark_cov + np.eye(mean.size) * 1e-15)
+    lms = mean + rng.standard_normal((n, mean.size)) @ ch.T
+    return fin, lms.reshape(n, -1, 2)
+
+
+def rb_map_samples(res: OracleResult, rng: np.random.Generator, n: int) -> np.ndarray:
+    """n maps (n, L', 2) as an ideal Rao-Blackwellised particle holds them: the conditional mean of the detected
+    landmarks given a path drawn from the posterior, N(m_MAP, Sigma_mm - H_mm^-1) to first order."""
+    mean = res.landmarks[res.detected].ravel()
+    c = res.landmark_cov - res.landmark_cov_given_path
+    val, vec = np.linalg.eigh(0.5 * (c + c.T))
+    root = vec * np.sqrt(np.clip(val, 0.0, None))
+    return (mean + rng.standard_normal((n, mean.size)) @ root.T).reshape(n, -1, 2)
+
+
+def map_distance(res: OracleResult, map_xy: np.ndarray, cutoff: float = 0.5) -> tuple[float, int]:
+    """How far a map (K, 2) lies from the oracle's mode: each detected landmark paired with at most one feature
+    within ``cutoff`` [m] (optimal assignment), then (m - m_MAP)^T Sigma^-1 (m - m_MAP) / dof over the paired
+    landmarks, Sigma their posterior covariance. Returns (that ratio, landmarks paired). An exact posterior
+    sample gives 1 on average; an ideal RB particle's map less (:func:`rb_map_samples`)."""
+    mode = res.landmarks[res.detected]
+    map_xy = np.asarray(map_xy, dtype=np.float64).reshape(-1, 2)
+    if map_xy.shape[0] == 0:
+        return float("nan"), 0
+    d = np.linalg.norm(map_xy[:, None, :] - mode[None, :, :], axis=2)
+    r, k = linear_sum_assignment(d)
+    ok = d[r, k] < cutoff
+    r, k = r[ok], k[ok]
+    if k.size == 0:
+        return float("nan"), 0
+    sel = np.column_stack([2 * k, 2 * k + 1]).ravel()
+    e = (map_xy[r] - mode[k]).ravel()
+    return float(e @ np.linalg.solve(res.landmark_cov[np.ix_(sel, sel)], e) / e.size), int(k.size)
+
+
+def mahalanobis2(res: OracleResult, position: np.ndarray) -> float:
+    """Squared Mahalanobis distance of an estimated last position (2,) from the MAP's, under the posterior
+    covariance: chi-square(2) for an exact posterior sample."""
+    d = np.asarray(position, dtype=np.float64)[:2] - res.poses[-1, :2]
+    return float(d @ np.linalg.solve(res.final_cov[:2, :2], d))
+
+
+# ---------------------------------------------------------------------------------------------- factors
+class _Blocks:
+    """Rows of a sparse Jacobian and the whitened residuals, added a factor type at a time."""
+
+    def __init__(self) -> None:
+        self.rows: list[np.ndarray] = []
+        self.cols: list[np.ndarray] = []
+        self.vals: list[np.ndarray] = []
+        self.res: list[np.ndarray] = []
+        self.n = 0
+
+    def add(self, r: np.ndarray, entries) -> None:
+        ri = self.n + np.arange(r.size)
+        for c, v in entries:
+            self.rows.append(ri)
+            self.cols.append(np.asarray(c))
+            self.vals.append(np.broadcast_to(np.asarray(v, dtype=np.float64), (r.size,)))
+        self.res.append(r)
+        self.n += r.size
+
+    def build(self, nv: int) -> tuple[sp.csr_matrix, np.ndarray]:
+        jac = sp.csr_matrix(
+            (np.concatenate(self.vals), (np.concatenate(self.rows), np.concatenate(self.cols))), shape=(self.n, nv)
+        )
+        return jac, np.concatenate(self.res)
+
+
+def _bicycle(x: np.ndarray, u: np.ndarray, dt: float, wb: float) -> np.ndarray:
+    v, s = u
+    return np.array([x[0] + dt * v * np.cos(x[2]), x[1] + dt * v * np.sin(x[2]), wrap_angle(x[2] + dt * v / wb * np.tan(s))])
+
+
+def _increment_factors(b: _Blocks, x: np.ndarray, odo: np.ndarray, sig: np.ndarray) -> None:
+    """relative(x_{k-1}, x_k) - odo_k, whitened by sig (3,), for k = 1..N-1."""
+    a, c = x[:-1], x[1:]
+    co, si = np.cos(a[:, 2]), np.sin(a[:, 2])
+    dx, dy = c[:, 0] - a[:, 0], c[:, 1] - a[:, 1]
+    u = odo[1:]
+    ia = 3 * np.arange(x.shape[0] - 1)
+    ib = ia + 3
+    sx, sy, st = sig
+    b.add(
+        (co * dx + si * dy - u[:, 0]) / sx,
+        [(ia, -co / sx), (ia + 1, -si / sx), (ia + 2, (-si * dx + co * dy) / sx), (ib, co / sx), (ib + 1, si / sx)],
+    )
+    b.add(
+        (-si * dx + co * dy - u[:, 1]) / sy,
+        [(ia, si / sy), (ia + 1, -co / sy), (ia + 2, (-co * dx - si * dy) / sy), (ib, -si / sy), (ib + 1, co / sy)],
+    )
+    b.add(wrap_angle(c[:, 2] - a[:, 2] - u[:, 2]) / st, [(ia + 2, -1.0 / st), (ib + 2, 1.0 / st)])
+
+
+def _ackermann_factors(b: _Blocks, x, ctrl, odo, dts, wb, sig, off) -> None:
+    """The controls' prior (logged reading - control, whitened by sig (2,)) and the bicycle dynamics as stiff
+    constraints x_{k+1} = f(x_k, u_k)."""
+    sv, ss = sig
+    k = np.arange(ctrl.shape[0])
+    ix, ic = 3 * k, off + 2 * k
+    b.add((ctrl[:, 0] - odo[:, 0]) / sv, [(ic, 1.0 / sv)])
+    b.add(wrap_angle(ctrl[:, 1] - odo[:, 1]) / ss, [(ic + 1, 1.0 / ss)])
+    th, v, s = x[:-1, 2], ctrl[:, 0], ctrl[:, 1]
+    co, si, t = np.cos(th), np.sin(th), np.tan(s)
+    f = x[:-1] + np.column_stack([dts * v * co, dts * v * si, dts * v / wb * t])
+    r = x[1:] - f
+    r[:, 2] = wrap_angle(r[:, 2])
+    e = _STIFF
+    b.add(r[:, 0] / e, [(ix + 3, 1 / e), (ix, -1 / e), (ix + 2, dts * v * si / e), (ic, -dts * co / e)])
+    b.add(r[:, 1] / e, [(ix + 4, 1 / e), (ix + 1, -1 / e), (ix + 2, -dts * v * co / e), (ic, -dts * si / e)])
+    b.add(r[:, 2] / e, [(ix + 5, 1 / e), (ix + 2, -1 / e), (ic, -dts / wb * t / e), (ic + 1, -dts * v / wb / np.cos(s) ** 2 / e)])
+
+
+def _range_bearing_factors(b: _Blocks, x, lm, k_of, lj, zr, zb, sr, sb, off) -> None:
+    q = lm[lj] - x[k_of, :2]
+    q2 = np.maximum((q**2).sum(axis=1), 1e-12)
+    r = np.sqrt(q2)
+    ip, il = 3 * k_of, off + 2 * lj
+    b.add(
+        (r - zr) / sr, [(ip, -q[:, 0] / r / sr), (ip + 1, -q[:, 1] / r / sr), (il, q[:, 0] / r / sr), (il + 1, q[:, 1] / r / sr)]
+    )
+    bb = wrap_angle(np.arctan2(q[:, 1], q[:, 0]) - x[k_of, 2] - zb)
+    b.add(
+        bb / sb,
+        [
+            (ip, q[:, 1] / q2 / sb),
+            (ip + 1, -q[:, 0] / q2 / sb),
+            (ip + 2, -1.0 / sb),
+            (il, -q[:, 1] / q2 / sb),
+            (il + 1, q[:, 0] / q2 / sb),
+        ],
+    )
