@@ -40,8 +40,7 @@ import yaml  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from calib.sim.glmb_paper import GlmbPaperConfig, simulate_glmb_paper  # noqa: E402
-from calib.sim.rfs import RfsSimConfig, simulate_rfs  # noqa: E402
+from calib.sim import glmb_paper, rfs  # noqa: E402
 from slam_runtime.metrics import ospa  # noqa: E402
 from slam_runtime.oracle import batch_oracle, mahalanobis2, map_distance, posterior_samples, rb_map_samples  # noqa: E402
 
@@ -55,20 +54,15 @@ def _ints(text: str) -> list[int]:
 
 
 def rfs_oracle(world: int):
-    cfg = RfsSimConfig()
-    log = simulate_rfs(cfg, world)
-    s = float(np.sqrt(cfg.var_odometry) * cfg.dt)
-    return log, batch_oracle(
-        log, odometry_sigma=(s, s, s), range_sigma=float(np.sqrt(cfg.var_range)), bearing_sigma=float(np.sqrt(cfg.var_bearing))
-    )
+    cfg = rfs.RfsSimConfig()
+    log = rfs.simulate_rfs(cfg, world)
+    return log, batch_oracle(log, **rfs.oracle_noise(cfg))
 
 
 def glmb_oracle(world: int):
-    cfg = GlmbPaperConfig(clutter=1.0)  # the oracle drops the clutter: the four rates share the landmark detections
-    log = simulate_glmb_paper(cfg, world)
-    return log, batch_oracle(
-        log, odometry_sigma=(cfg.sigma_v, cfg.sigma_steer), range_sigma=cfg.sigma_range, bearing_sigma=cfg.sigma_bearing
-    )
+    cfg = glmb_paper.GlmbPaperConfig(clutter=1.0)  # the oracle drops the clutter: the four rates share the landmark detections
+    log = glmb_paper.simulate_glmb_paper(cfg, world)
+    return log, batch_oracle(log, **glmb_paper.oracle_noise(cfg))
 
 
 def sweep_maps(folder: Path, world: int) -> None:
@@ -95,15 +89,16 @@ def _join(rows: list[dict], key: str, fmt: str) -> str:
 
 
 def filter_run(args) -> dict:
+    """One RB-PHD run on an rfs-sim world; the caller scores its last position against that world's oracle."""
     world, seed, particles, sets = args
     from calib.config import load_yaml_model
-    from calib.sim.rfs import truth_profile
     from slam_runtime.config import SlamConfig, override
     from slam_runtime.run import evaluate, run_slam
 
-    log, orc = rfs_oracle(world)
+    cfg_sim = rfs.RfsSimConfig()
+    log = rfs.simulate_rfs(cfg_sim, world)
     cfg = override(load_yaml_model(SlamConfig, ROOT / "benchmarks/configs/rfs_sim.yaml"), particles=particles, **sets)
-    res = run_slam(log, truth_profile(RfsSimConfig()), cfg, seed=seed)
+    res = run_slam(log, rfs.truth_profile(cfg_sim), cfg, seed=seed)
     m = evaluate(log, res, cfg=cfg)
     return {
         "world": world,
@@ -111,7 +106,7 @@ def filter_run(args) -> dict:
         "final": m["final_position_error_vs_ground_truth_m"],
         "ospa": m["map_ospa"],
         "mapped": m["landmarks_mapped"],
-        "d2": mahalanobis2(orc, res.trajectory[-1]),
+        "last": res.trajectory[-1],
         "cpu": float(res.step_cpu_ms[1:].mean()),
     }
 
@@ -129,13 +124,15 @@ def main() -> None:
     ap.add_argument("--sweep", action="append", default=[], metavar="DIR", help="a detcal slam sweep folder of glmb-paper runs")
     ap.add_argument("--sweep-world", type=int, default=1, help="the glmb-paper world seed of the --sweep logs")
     a = ap.parse_args()
-    rng = np.random.default_rng(0)
     worlds = _ints(a.worlds)
     print(f"load average: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     print("rfs-sim: the batch oracle (true associations, the simulator's noise)")
+    oracles = {}
     for w in worlds:
-        log, orc = rfs_oracle(w)
-        fin, _ = posterior_samples(orc, rng, 20000)
+        log, orc = oracles[w] = rfs_oracle(w)
+        fin, _ = posterior_samples(
+            orc, np.random.default_rng(w), 20000
+        )  # a stream per world: the same figures whatever else is asked
         err = np.hypot(*(fin - log.reference["ground_truth"].poses[-1, :2]).T)
         print(
             f"  world {w}: MAP final error {orc.final_error(log.reference['ground_truth'].poses[-1]):.4f} m, posterior sd "
@@ -145,6 +142,7 @@ def main() -> None:
         )
     for w in _ints(a.glmb_worlds):
         log, orc = glmb_oracle(w)
+        rng = np.random.default_rng(w)
         truth = log.landmarks.xy
         _, lms = posterior_samples(orc, rng, 1000)
         rb = rb_map_samples(orc, rng, 1000)
@@ -170,6 +168,8 @@ def main() -> None:
     jobs = [(w, s, a.particles, sets) for w in worlds for s in seeds]
     with ProcessPoolExecutor(max(1, a.workers)) as ex:
         rows = list(ex.map(filter_run, jobs))
+    for r in rows:
+        r["d2"] = mahalanobis2(oracles[r["world"]][1], r["last"])
     print(f"RB-PHD-SLAM, {a.particles} particles, benchmarks/configs/rfs_sim.yaml {sets or ''}")
     for w in worlds:
         rs = [r for r in rows if r["world"] == w]

@@ -253,20 +253,8 @@ class LabelledFilter(MapFilter):
         return int(self.rng.integers(0, 2**62))
 
     # ------------------------------------------------------------------ pieces of a step
-    def _noise(self, meas: Measurements) -> tuple[np.ndarray, np.ndarray]:
-        dz = self.feature.dim_z
-        z = np.asarray(meas.z, dtype=np.float64).reshape(-1, dz)
-        m = z.shape[0]
-        rz = np.broadcast_to(self.r, (m, dz, dz)) if meas.cov is None else np.asarray(meas.cov, dtype=np.float64).reshape(m, dz, dz) + self.r
-        return z, rz
-
     def _log_kappa(self, z: np.ndarray, meas: Measurements) -> np.ndarray:
-        if z.shape[0] == 0:
-            return np.zeros(0)
-        kappa = np.asarray(self.detection.clutter_intensity(z), dtype=np.float64)
-        if meas.ratio is not None:
-            kappa = kappa / np.maximum(np.asarray(meas.ratio, dtype=np.float64), 1e-300)
-        return np.log(np.maximum(kappa, 1e-300))
+        return np.log(np.maximum(self.clutter(z, meas), 1e-300))
 
     def _costs(self, sl: _Slots, sp: np.ndarray, z: np.ndarray, rz: np.ndarray, own_cov: bool, log_kappa: np.ndarray, pd, buf) -> _Costs:
         """log eta of every option of the active candidates (module docstring of :mod:`slam_runtime.gibbs`)."""
@@ -388,29 +376,19 @@ class LabelledFilter(MapFilter):
         uncertainty in its covariance), with an iterated EKF
         (re-linearised ``iterations`` times). Returns the mean (P, 3), covariance (P, 3, 3) and the number
         of measurements used (P,)."""
-        fm = self.feature
         t, ex = self._map_tracks(maps)
-        z, rz = self._noise(meas)
-        p, m = xbar.shape[0], z.shape[0]
-        if m == 0 or t.label.shape[1] == 0:
-            return xbar, q, np.zeros(p, dtype=np.int64)
-        sp = fm.sensor_pose(xbar)
-        pd, _ = self.detection.pd_features(sp, t.mu, t.cov, meas, ex)
-        seen = (pd > 0) & (ex > 0) & t.valid
-        js = int(seen.sum(axis=1).max())
-        if js == 0:
-            return xbar, q, np.zeros(p, dtype=np.int64)
-        rows = np.arange(p)[:, None]
-        sel = np.argsort(~seen, axis=1, kind="stable")[:, :js]
-        in_s = seen[rows, sel]
-        w_s = np.where(in_s, ex[rows, sel] * np.minimum(pd[rows, sel], 1.0), 0.0)
+        z, rz = self.measurements(meas)
+        if z.shape[0] == 0 or t.label.shape[1] == 0:
+            return xbar, q, np.zeros(xbar.shape[0], dtype=np.int64)
+        pd, _ = self.detection.pd_features(self.feature.sensor_pose(xbar), t.mu, t.cov, meas, ex)
+        weight = np.where((pd > 0) & t.valid, ex * np.minimum(pd, 1.0), 0.0)
         return pose_proposal(
-            fm, xbar, q, z, rz, self.r if meas.cov is None else None, t.mu[rows, sel], t.cov[rows, sel], w_s,
-            np.exp(self._log_kappa(z, meas)), gate=self.cfg.gate, share=share, iterations=iterations,
+            self.feature, xbar, q, z, rz, self.r if meas.cov is None else None, t.mu, t.cov, weight, self.clutter(z, meas),
+            gate=self.cfg.gate, share=share, iterations=iterations,
         )
 
     def _begin(self, poses: np.ndarray, meas: Measurements):
-        z, rz = self._noise(meas)
+        z, rz = self.measurements(meas)
         sp = self.feature.sensor_pose(np.asarray(poses, dtype=np.float64))
         return z, rz, sp, self._log_kappa(z, meas)
 

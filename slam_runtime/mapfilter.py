@@ -87,6 +87,28 @@ class MapFilter(ABC):
     @abstractmethod
     def empty(self, n: int) -> MapState: ...
 
+    #: (dz, dz) the filter's measurement noise floor (the feature model's, times any inflation); subclasses set it
+    r: np.ndarray
+
+    def measurements(self, meas: Measurements) -> tuple[np.ndarray, np.ndarray]:
+        """The frame's measurements z (M, dz), sensor frame, and their noise rz (M, dz, dz): the floor ``r``, plus
+        each measurement's own covariance when the source gives one."""
+        dz = self.feature.dim_z
+        z = np.asarray(meas.z, dtype=np.float64).reshape(-1, dz)
+        m = z.shape[0]
+        rz = np.broadcast_to(self.r, (m, dz, dz)) if meas.cov is None else np.asarray(meas.cov, dtype=np.float64).reshape(m, dz, dz) + self.r
+        return z, rz
+
+    def clutter(self, z: np.ndarray, meas: Measurements) -> np.ndarray:
+        """(M,) kappa(z) of each measurement: the profile's clutter intensity, divided by the descriptor likelihood
+        ratio when the source gives one (eq. 2.26 with eq. 5.6)."""
+        if z.shape[0] == 0:
+            return np.zeros(0)
+        kappa = np.asarray(self.detection.clutter_intensity(z), dtype=np.float64)
+        if meas.ratio is not None:
+            kappa = kappa / np.maximum(np.asarray(meas.ratio, dtype=np.float64), 1e-300)
+        return kappa
+
     def bind(self, rng: np.random.Generator) -> None:
         """Receive the run's generator (the particle loop calls this); filters that sample (the Gibbs
         sampler of the labelled filters) draw from it, the others ignore it."""

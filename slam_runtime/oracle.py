@@ -197,11 +197,11 @@ def batch_oracle(
     final_cov = cols[nx - 3 : nx, :3]
     lcov = cols[nx + nc :, 3:]
     # given the path, the landmarks are independent: H_mm is block-diagonal, inverted 2x2 at a time
-    hmm = h[nx + nc :, nx + nc :].toarray()
-    given = np.zeros_like(hmm)
-    for i in range(nl):
-        b = slice(2 * i, 2 * i + 2)
-        given[b, b] = np.linalg.inv(hmm[b, b])
+    hmm = h[nx + nc :, nx + nc :].toarray().reshape(nl, 2, nl, 2)
+    given = np.zeros((nl, 2, nl, 2))
+    k = np.arange(nl)
+    given[k, :, k, :] = np.linalg.inv(hmm[k, :, k, :])  # (nl, 2, 2) diagonal blocks
+    given = given.reshape(2 * nl, 2 * nl)
     out_lm = np.full((ids.size, 2), np.nan)
     out_lm[detected] = lm
     return OracleResult(

@@ -50,9 +50,9 @@ def pose_proposal(
     z: np.ndarray,
     rz: np.ndarray,
     r_const: np.ndarray | None,
-    mu_s: np.ndarray,
-    cov_s: np.ndarray,
-    w_s: np.ndarray,
+    mu: np.ndarray,
+    cov: np.ndarray,
+    weight: np.ndarray,
     kappa: np.ndarray,
     *,
     gate: float,
@@ -63,15 +63,21 @@ def pose_proposal(
 
     xbar (P, 3), q (P, 3, 3): the motion prior (vehicle poses, world frame); z (M, dz) the frame's
     measurements (sensor frame), rz (M, dz, dz) their noise; r_const (dz, dz) that noise when it is the same
-    for every measurement (else None); mu_s (P, Js, dx), cov_s (P, Js, dx, dx): the features the sensor
-    can see, world frame; w_s (P, Js): their weight times P_D (0 for a padding slot); kappa (M,) the clutter
-    intensity of each measurement (divided by its descriptor ratio, if any).
+    for every measurement (else None); mu (P, J, dx), cov (P, J, dx, dx): each particle's map features, world
+    frame; weight (P, J): their weight (or existence) times P_D, 0 for a feature the sensor cannot see or an
+    empty slot; kappa (M,) the clutter intensity of each measurement (divided by its descriptor ratio, if any).
+    Only the features of positive weight take part (gathered first, in their order).
     """
     if iterations < 1:
         raise UsageError(f"pose proposal: iterations must be at least 1, not {iterations}")
     p, m = xbar.shape[0], z.shape[0]
-    if m == 0 or mu_s.shape[1] == 0:
+    seen = weight > 0
+    js = int(seen.sum(axis=1).max()) if weight.shape[1] else 0
+    if m == 0 or js == 0:
         return xbar, q, np.zeros(p, dtype=np.int64)
+    rows = np.arange(p)[:, None]
+    sel = np.argsort(~seen, axis=1, kind="stable")[:, :js]  # (P, Js) the seen features first
+    mu_s, cov_s, w_s = mu[rows, sel], cov[rows, sel], np.where(seen[rows, sel], weight[rows, sel], 0.0)
     if type(fm) is RangeBearing and r_const is not None:  # exactly this model: a subclass may measure otherwise
         return _compiled(
             np.ascontiguousarray(xbar, dtype=np.float64),
@@ -195,7 +201,7 @@ def _compiled(xbar, q, z, r, mount, mu, cov, w, kappa, gate, share, iterations):
     norm = 1.0 / (2.0 * np.pi)
     zr = np.empty(js)
     zb = np.empty(js)
-    sp_ = np.empty((js, 3))  # S = R + H_m P H_m^T (update): s00, s01, s11
+    si = np.empty((js, 3))  # S^-1, S = R + H_m P H_m^T (the update's): i00, i01, i11
     sa = np.empty((js, 4))  # (S + H_x q H_x^T)^-1 (association): i00, i01, i11, and the density's factor
     hx = np.empty((2, 3))
     best_j = np.empty(m, np.int64)
@@ -217,7 +223,9 @@ def _compiled(xbar, q, z, r, mount, mu, cov, w, kappa, gate, share, iterations):
             s00 = a00 * h00 + a01 * h01 + r[0, 0]
             s01 = a00 * h10 + a01 * h11 + r[0, 1]
             s11 = a10 * h10 + a11 * h11 + r[1, 1]
-            sp_[j, 0], sp_[j, 1], sp_[j, 2] = s00, s01, s11
+            dd = s00 * s11 - s01 * s01
+            dd = dd if abs(dd) > 1e-300 else 1e-300
+            si[j, 0], si[j, 1], si[j, 2] = s11 / dd, -s01 / dd, s00 / dd
             # + H_x q H_x^T
             t00 = t01 = t11 = 0.0
             for u in range(3):
@@ -263,10 +271,7 @@ def _compiled(xbar, q, z, r, mount, mu, cov, w, kappa, gate, share, iterations):
             for u in range(used):
                 k, j = divmod(best_j[u], js)
                 rr, bb, _, _, _, _ = _observe(x, mount, mu[i, j, 0], mu[i, j, 1], hx)
-                s00, s01, s11 = sp_[j, 0], sp_[j, 1], sp_[j, 2]
-                dd = s00 * s11 - s01 * s01
-                dd = dd if abs(dd) > 1e-300 else 1e-300
-                i00, i01, i11 = s11 / dd, -s01 / dd, s00 / dd
+                i00, i01, i11 = si[j, 0], si[j, 1], si[j, 2]
                 r0 = z[k, 0] - rr + hx[0, 0] * d0 + hx[0, 1] * d1 + hx[0, 2] * d2
                 r1 = _wrap(z[k, 1] - bb) + hx[1, 0] * d0 + hx[1, 1] * d1 + hx[1, 2] * d2
                 for a in range(3):

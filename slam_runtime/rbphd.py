@@ -140,9 +140,8 @@ class RBPHD(MapFilter):
     def update(self, maps: PHDMaps, poses: np.ndarray, meas: Measurements) -> tuple[PHDMaps, np.ndarray]:
         cfg, fm, tm = self.cfg, self.feature, self.timers
         dz = fm.dim_z
-        z = np.asarray(meas.z, dtype=np.float64).reshape(-1, dz)
+        z, rz = self.measurements(meas)
         m = z.shape[0]
-        rz = np.broadcast_to(self.r, (m, dz, dz)) if meas.cov is None else np.asarray(meas.cov).reshape(m, dz, dz) + self.r
         sp = fm.sensor_pose(poses)
         n_map = maps.gm.shape[1]
         prior = maps.gm.concat(maps.birth)  # eq. 3.16: previous map + birth from the previous measurements
@@ -151,9 +150,7 @@ class RBPHD(MapFilter):
         with tm("pd"):
             pd, buf = self.detection.pd_features(sp, mu, cov, meas, w)
             buf[:, n_map:] = False  # the rule protects map features, not this step's birth hypotheses
-        kappa = self.detection.clutter_intensity(z) if m else np.zeros(0)
-        if meas.ratio is not None and m:
-            kappa = kappa / np.maximum(np.asarray(meas.ratio, dtype=np.float64), 1e-300)
+        kappa = self.clutter(z, meas)
         with tm("update"):
             # only the features that can be seen take part: the others keep their weight (P_D = 0)
             seen = (pd > 0) & (w > 0)
@@ -237,31 +234,14 @@ class RBPHD(MapFilter):
         uncertainty in it, R + H_m P H_m^T + H_x q H_x^T (FastSLAM 2.0, Montemerlo et al. 2003:
         the data-association covariance); the update itself uses R + H_m P H_m^T.
         Returns the mean (P, 3), covariance (P, 3, 3) and the number of measurements used (P,)."""
-        fm = self.feature
         gm = maps.gm
-        p, j = gm.shape
-        dz = fm.dim_z
-        z = np.asarray(meas.z, dtype=np.float64).reshape(-1, dz)
-        m = z.shape[0]
-        if m == 0 or j == 0:
-            return xbar, q, np.zeros(p, dtype=np.int64)
-        rz = np.broadcast_to(self.r, (m, dz, dz)) if meas.cov is None else np.asarray(meas.cov).reshape(m, dz, dz) + self.r
-        sp = fm.sensor_pose(xbar)
-        pd, _ = self.detection.pd_features(sp, gm.mu, gm.cov, meas, gm.w)
-        seen = (pd > 0) & (gm.w > 0)
-        js = int(seen.sum(axis=1).max())
-        if js == 0:
-            return xbar, q, np.zeros(p, dtype=np.int64)
-        rows = np.arange(p)[:, None]
-        sel = np.argsort(~seen, axis=1, kind="stable")[:, :js]
-        in_s = seen[rows, sel]
-        w_s = np.where(in_s, gm.w[rows, sel] * pd[rows, sel], 0.0)
-        kappa = self.detection.clutter_intensity(z)
-        if meas.ratio is not None:
-            kappa = kappa / np.maximum(np.asarray(meas.ratio, dtype=np.float64), 1e-300)
+        z, rz = self.measurements(meas)
+        if z.shape[0] == 0 or gm.shape[1] == 0:
+            return xbar, q, np.zeros(xbar.shape[0], dtype=np.int64)
+        pd, _ = self.detection.pd_features(self.feature.sensor_pose(xbar), gm.mu, gm.cov, meas, gm.w)
         return pose_proposal(
-            fm, xbar, q, z, rz, self.r if meas.cov is None else None, gm.mu[rows, sel], gm.cov[rows, sel], w_s, kappa,
-            gate=self.cfg.gate, share=share, iterations=iterations,
+            self.feature, xbar, q, z, rz, self.r if meas.cov is None else None, gm.mu, gm.cov, np.where(pd > 0, gm.w * pd, 0.0),
+            self.clutter(z, meas), gate=self.cfg.gate, share=share, iterations=iterations,
         )
 
     def _birth(self, sp: np.ndarray, z: np.ndarray, rz: np.ndarray, unexplained: np.ndarray | None) -> GMBatch:

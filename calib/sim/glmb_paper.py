@@ -165,6 +165,12 @@ def simulate_glmb_paper(cfg: GlmbPaperConfig, seed: int) -> SensorLog:
     )
 
 
+def oracle_noise(cfg: GlmbPaperConfig) -> dict:
+    """The simulator's noise as :func:`slam_runtime.oracle.batch_oracle` takes it: control (speed, steering),
+    range and bearing sigmas."""
+    return {"odometry_sigma": (cfg.sigma_v, cfg.sigma_steer), "range_sigma": cfg.sigma_range, "bearing_sigma": cfg.sigma_bearing}
+
+
 def truth_profile(cfg: GlmbPaperConfig, *, name: str | None = None, version: str = "1.0.0"):
     """The profile of the simulated detector's true statistics (P_D, clutter, noise)."""
     from calib import __version__

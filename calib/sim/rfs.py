@@ -123,6 +123,13 @@ def simulate_rfs(cfg: RfsSimConfig, seed: int) -> SensorLog:
     )
 
 
+def oracle_noise(cfg: RfsSimConfig) -> dict:
+    """The simulator's noise as :func:`slam_runtime.oracle.batch_oracle` takes it: per-step increment sigmas
+    (sqrt(var_odometry) x dt on each axis), range and bearing sigmas."""
+    s = float(np.sqrt(cfg.var_odometry) * cfg.dt)
+    return {"odometry_sigma": (s, s, s), "range_sigma": float(np.sqrt(cfg.var_range)), "bearing_sigma": float(np.sqrt(cfg.var_bearing))}
+
+
 def truth_profile(cfg: RfsSimConfig, *, name: str = "rfs-sim", version: str = "1.0.0"):
     """The profile of the simulated detector's true statistics (P_D, clutter, noise)."""
     from calib import __version__

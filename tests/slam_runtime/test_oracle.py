@@ -4,6 +4,7 @@ posterior consistent with the simulators' truth over seeded worlds (what lets it
 import numpy as np
 import pytest
 
+from calib.sim import glmb_paper, rfs
 from calib.sim.glmb_paper import GlmbPaperConfig, simulate_glmb_paper
 from calib.sim.rfs import RfsSimConfig, simulate_rfs
 from profiles.errors import DataError, UsageError
@@ -22,10 +23,10 @@ from slam_runtime.oracle import (
 
 def _rfs_oracle(cfg: RfsSimConfig, seed: int, odometry_sigma: float | None = None):
     log = simulate_rfs(cfg, seed)
-    s = np.sqrt(cfg.var_odometry) * cfg.dt if odometry_sigma is None else odometry_sigma
-    return log, batch_oracle(
-        log, odometry_sigma=(s, s, s), range_sigma=np.sqrt(cfg.var_range), bearing_sigma=np.sqrt(cfg.var_bearing)
-    )
+    noise = rfs.oracle_noise(cfg)
+    if odometry_sigma is not None:
+        noise["odometry_sigma"] = (odometry_sigma,) * 3
+    return log, batch_oracle(log, **noise)
 
 
 def _coverage(runs) -> tuple[list[float], list[float]]:
@@ -105,8 +106,7 @@ def test_the_oracles_posterior_covers_the_truth_as_it_states_glmb_paper():
 
     def solved(seed):
         log = simulate_glmb_paper(cfg, 200 + seed)
-        sig = (cfg.sigma_v, cfg.sigma_steer)
-        return log, batch_oracle(log, odometry_sigma=sig, range_sigma=cfg.sigma_range, bearing_sigma=cfg.sigma_bearing)
+        return log, batch_oracle(log, **glmb_paper.oracle_noise(cfg))
 
     d2, ratio = _coverage(solved(seed) for seed in range(10))
     assert 0.45 <= np.mean(d2) <= 3.55
