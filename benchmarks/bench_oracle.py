@@ -12,6 +12,12 @@ Run: ``python benchmarks/bench_oracle.py [--worlds 1,4-9] [--glmb-worlds 1-3] [-
 * glmb-paper also what an ideal Rao-Blackwellised particle's map gives (the map's conditional mean given a
   path drawn from the posterior): its OSPA and its normalised distance from the mode
   (``slam_runtime.oracle.map_distance``: 1 for a posterior sample).
+* glmb-paper, per clutter rate: :func:`slam_runtime.oracle.clutter_information_ratio`, the share of a
+  detection's information the false alarms leave when the association is not given (at most: the
+  innovation covariance taken as the measurement noise alone), and the oracle solved again with every
+  measurement carrying that share of its information (its noise over the ratio's square root, the
+  odometry's unchanged): how much an ideal RB particle's map OSPA grows with the clutter (over draws of the
+  data), and this world's ideal figure times that growth: what an ideal filter can be expected to reach.
 * with ``--sweep DIR`` (a ``detcal slam sweep`` folder of glmb-paper runs on world ``--sweep-world``): each
   filter's maps on the same scale, mean and median over the runs, beside their OSPA.
 * with ``--runs``: RB-PHD-SLAM with ``benchmarks/configs/rfs_sim.yaml`` (and ``--set`` overrides) on each
@@ -40,9 +46,9 @@ import yaml  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+import slam_runtime.oracle as so  # noqa: E402
 from calib.sim import glmb_paper, rfs  # noqa: E402
 from slam_runtime.metrics import ospa  # noqa: E402
-from slam_runtime.oracle import batch_oracle, mahalanobis2, map_distance, posterior_samples, rb_map_samples  # noqa: E402
 
 
 def _ints(text: str) -> list[int]:
@@ -56,13 +62,26 @@ def _ints(text: str) -> list[int]:
 def rfs_oracle(world: int):
     cfg = rfs.RfsSimConfig()
     log = rfs.simulate_rfs(cfg, world)
-    return log, batch_oracle(log, **rfs.oracle_noise(cfg))
+    return log, so.batch_oracle(log, **rfs.oracle_noise(cfg))
 
 
 def glmb_oracle(world: int):
     cfg = glmb_paper.GlmbPaperConfig(clutter=1.0)  # the oracle drops the clutter: the four rates share the landmark detections
     log = glmb_paper.simulate_glmb_paper(cfg, world)
-    return log, batch_oracle(log, **glmb_paper.oracle_noise(cfg))
+    return log, so.batch_oracle(log, **glmb_paper.oracle_noise(cfg))
+
+
+def expected_rb_ospa(orc, truth: np.ndarray, rng: np.random.Generator, n: int = 2000) -> float:
+    """Mean map OSPA (c = 0.5, p = 1) of an ideal RB particle over draws of the data: truth + the mode's error
+    N(0, Sigma_mm) + the path's N(0, Sigma_mm - H_mm^-1), the oracle's covariances (consistent: the tests check
+    the mode's normalised error is 1)."""
+    t = truth[orc.detected].ravel()
+    l1 = np.linalg.cholesky(orc.landmark_cov + np.eye(t.size) * 1e-15)
+    c = orc.landmark_cov - orc.landmark_cov_given_path
+    val, vec = np.linalg.eigh(0.5 * (c + c.T))
+    l2 = vec * np.sqrt(np.clip(val, 0.0, None))
+    e = rng.standard_normal((n, t.size)) @ l1.T + rng.standard_normal((n, t.size)) @ l2.T
+    return float(np.mean([ospa((t + x).reshape(-1, 2), truth, 0.5, 1.0) for x in e]))
 
 
 def sweep_maps(folder: Path, world: int) -> None:
@@ -74,7 +93,7 @@ def sweep_maps(folder: Path, world: int) -> None:
     for run in sorted(p for p in folder.iterdir() if (p / "map.csv").is_file()):
         kind = yaml.safe_load((run / "config.yaml").read_text())["settings"]["filter"]["kind"]
         xy = pd.read_csv(run / "map.csv")[["x", "y"]].to_numpy()
-        by.setdefault(kind, []).append((map_distance(orc, xy)[0], ospa(xy, log.landmarks.xy, 0.5, 1.0)))
+        by.setdefault(kind, []).append((so.map_distance(orc, xy)[0], ospa(xy, log.landmarks.xy, 0.5, 1.0)))
     for kind, rows in sorted(by.items()):
         d, o = np.array(rows).T
         print(
@@ -130,7 +149,7 @@ def main() -> None:
     oracles = {}
     for w in worlds:
         log, orc = oracles[w] = rfs_oracle(w)
-        fin, _ = posterior_samples(
+        fin, _ = so.posterior_samples(
             orc, np.random.default_rng(w), 20000
         )  # a stream per world: the same figures whatever else is asked
         err = np.hypot(*(fin - log.reference["ground_truth"].poses[-1, :2]).T)
@@ -144,16 +163,38 @@ def main() -> None:
         log, orc = glmb_oracle(w)
         rng = np.random.default_rng(w)
         truth = log.landmarks.xy
-        _, lms = posterior_samples(orc, rng, 1000)
-        rb = rb_map_samples(orc, rng, 1000)
+        _, lms = so.posterior_samples(orc, rng, 1000)
+        rb = so.rb_map_samples(orc, rng, 1000)
         s = np.array([ospa(x, truth, 0.5, 1.0) for x in lms])
         r = np.array([ospa(x, truth, 0.5, 1.0) for x in rb])
-        d = np.mean([map_distance(orc, x)[0] for x in rb])
+        d = np.mean([so.map_distance(orc, x)[0] for x in rb])
         print(
             f"glmb-paper world {w}: MAP map OSPA {ospa(orc.landmarks[orc.detected], truth, 0.5, 1.0):.4f} (c = 0.5, p = 1); "
             f"a posterior sample: mean {s.mean():.4f}, 90th percentile {np.percentile(s, 90):.4f}; an ideal RB particle's map: "
             f"mean {r.mean():.4f}, 90th percentile {np.percentile(r, 90):.4f}, normalised distance from the mode {d:.2f} "
             f"(a posterior sample: 1); MAP final error {orc.final_error(log.reference['ground_truth'].poses[-1]):.3f} m",
+            flush=True,
+        )
+        # what false alarms take away from an ideal filter (the oracle has none): the clutter information ratio q at each
+        # rate (the clutter intensity per (m rad) whitened by the measurement noise alone, |S|^(1/2) >= |R|^(1/2), so q is
+        # an upper bound), the oracle again with every measurement carrying q of its information (its noise over sqrt(q);
+        # the odometry's unchanged), and the ideal RB particle's map OSPA over draws of the data (truth + the mode's error,
+        # N(0, Sigma_mm), + the path's, N(0, Sigma_mm - H_mm^-1)): its growth from no clutter, applied to this world's figure
+        g = glmb_paper.GlmbPaperConfig()
+        noise = glmb_paper.oracle_noise(g)
+        base = None
+        parts = []
+        for c in (0.0, 1.0, 5.0, 10.0, 15.0):
+            dens = c / ((g.range_max - g.range_min) * 2 * np.pi) * g.sigma_range * g.sigma_bearing
+            q = so.clutter_information_ratio(g.pd, dens, np.random.default_rng(w))
+            orc_c = so.batch_oracle(log, **{**noise, "range_sigma": noise["range_sigma"] / np.sqrt(q), "bearing_sigma": noise["bearing_sigma"] / np.sqrt(q)})
+            e = expected_rb_ospa(orc_c, truth, np.random.default_rng(w))
+            base = e if base is None else base
+            if c:
+                parts.append(f"{c:g}: ratio {q:.3f}, x {e / base:.3f}, {r.mean() * e / base:.3f}")
+        print(
+            f"  under clutter (false alarms per scan: the information ratio, the ideal RB map OSPA's growth over data draws "
+            f"(no clutter: {base:.4f}), this world's ideal RB figure times it): {'; '.join(parts)}",
             flush=True,
         )
     for folder in a.sweep:
@@ -169,7 +210,7 @@ def main() -> None:
     with ProcessPoolExecutor(max(1, a.workers)) as ex:
         rows = list(ex.map(filter_run, jobs))
     for r in rows:
-        r["d2"] = mahalanobis2(oracles[r["world"]][1], r["last"])
+        r["d2"] = so.mahalanobis2(oracles[r["world"]][1], r["last"])
     print(f"RB-PHD-SLAM, {a.particles} particles, benchmarks/configs/rfs_sim.yaml {sets or ''}")
     for w in worlds:
         rs = [r for r in rows if r["world"] == w]

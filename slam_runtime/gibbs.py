@@ -28,10 +28,26 @@ hypotheses in proportion to sqrt(w) (their Algorithm 2); duplicate samples of
 one prior are counted once, and children of different priors that are the same
 labelled hypothesis (the same set of track versions) are merged by adding their
 weights. The sum of the children's weights is the normalisation constant of
-eq. 25, the particle's measurement likelihood. Every particle's chains start
-from the same seed (common random numbers), so particles whose maps and costs
-agree draw the same children and their weights differ only by what differs
-between them.
+eq. 25, the particle's measurement likelihood.
+
+Common random numbers: the uniform behind each draw is a hash of (the step's
+seed, the prior hypothesis's rank, the sample, the candidate's label), not the
+next number of a stream, so particles whose maps and costs agree draw the same
+children and their weights differ only by what differs between them, and one
+particle having a candidate more (a track the other's map lacks) does not
+shift every later draw of its chains. Labels are shared by the particles
+(a birth's label is its measurement's), so the keys line up across them.
+
+Summed births: a birth candidate that gates no measurement has two options,
+not born (1 - r_B) and born but missed (r_B (1 - P_D)), both independent of
+every other candidate. The sampler keeps it at the likelier (not born) and
+multiplies the normalisation constant by the sum of the two options' weights
+over the likelier one, exactly; the children in which such a birth exists
+undetected are not drawn. Sampled, these births (one per measurement of the
+previous scan: 15-17 of them at 15 false alarms per scan) took a share of the
+samples that changed from particle to particle, and with it the missing mass
+of each particle's normalisation constant, that is, its weight
+(``sum_idle_births: false`` samples them as before).
 
 Why compiled: the sweep is sequential by nature (each gamma_i is drawn given
 the current values of all the others, so no two draws of one chain can be
@@ -188,6 +204,24 @@ def _grow_f(a, need):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
+def _splitmix(x):  # pragma: no cover - compiled
+    x = (x + np.uint64(0x9E3779B97F4A7C15))
+    x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return x ^ (x >> np.uint64(31))
+
+
+@numba.njit(cache=True, nogil=True)
+def _keyed_uniform(seed, hyp, smp, label):  # pragma: no cover - compiled
+    """A uniform in [0, 1) that is a function of (seed, prior hypothesis rank, sample, candidate label) only."""
+    x = _splitmix(np.uint64(seed) ^ np.uint64(0x5851F42D4C957F2D))
+    x = _splitmix(x ^ np.uint64(hyp))
+    x = _splitmix(x ^ np.uint64(smp))
+    x = _splitmix(x ^ np.uint64(label))
+    return float(x >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+@numba.njit(cache=True, nogil=True)
 def _mix(h, x):  # pragma: no cover - compiled
     """One step of a polynomial hash over int64 (wrapping)."""
     return h * np.int64(1000003) + np.int64(x) + np.int64(7)
@@ -225,16 +259,18 @@ def _sample_option(e_d, e_m, e_row, gl, ng, taken, k, u01):  # pragma: no cover 
 
 
 @numba.njit(cache=True, nogil=True)
-def joint_update(seed, logw, member, act, nact, l_death, l_miss, l_det, total, prune, cap):  # pragma: no cover - compiled
+def joint_update(seed, logw, member, act, nact, l_death, l_miss, l_det, total, prune, cap, summed, cand_label):  # pragma: no cover - compiled
     """Gibbs-sampled joint prediction/update of the labelled maps of P particles.
 
-    seed: seed of the compiled generator (drawn from the run's Generator), the same for every particle
-    (common random numbers: particles whose inputs agree draw the same children);
+    seed: the step's seed (drawn from the run's Generator), the same for every particle: the uniform of each
+    draw is a function of (seed, prior hypothesis rank, sample, candidate label) (common random numbers);
     logw (P, H): normalised log weights of the prior hypotheses (-inf: empty slot);
     member (P, H, S) bool: slot s is a candidate of hypothesis h (its tracks, and the births);
     act (P, A) int64: slot of each active candidate (P_D > 0 or birth), nact (P,) how many;
     l_death, l_miss (P, A), l_det (P, A, M): log eta of the options (module docstring);
     total: samples per particle, shared among the prior hypotheses by sqrt(w);
+    summed (P, A) bool: candidates whose options are summed out instead of sampled when they gate no
+    measurement (births: module docstring); cand_label (P, A) int64: the label of each active candidate;
     prune: children of normalised weight below this are dropped (the heaviest is always kept);
     cap: at most this many children per particle (the heaviest).
 
@@ -266,12 +302,13 @@ def joint_update(seed, logw, member, act, nact, l_death, l_miss, l_det, total, p
     e_d = np.empty(A)
     e_m = np.empty(A)
     taken = np.empty(M, np.int64)
+    fixed = np.zeros(A, np.bool_)
     for p in range(P):
-        # common random numbers: every particle's chains draw the same stream, so particles whose maps and
-        # poses agree draw the same hypotheses, and their weights differ by what differs between them
-        np.random.seed(seed)
         na = nact[p]
         pos = np.full(S, -1, np.int64)
+        # the options of a summed candidate that gates nothing (death or miss, both independent of every other
+        # candidate) add a factor common to every child to the normalisation constant
+        l_summed = 0.0
         for i in range(na):
             pos[act[p, i]] = i
             c = 0
@@ -283,6 +320,12 @@ def joint_update(seed, logw, member, act, nact, l_death, l_miss, l_det, total, p
                     if l_det[p, i, j] > mx:
                         mx = l_det[p, i, j]
             ng[i] = c
+            fixed[i] = summed[p, i] and c == 0
+            if fixed[i]:
+                hi = max(l_death[p, i], l_miss[p, i])
+                if hi > -np.inf:
+                    lo = min(l_death[p, i], l_miss[p, i])
+                    l_summed += np.log1p(np.exp(lo - hi)) if lo > -np.inf else 0.0
             # the options' weights in linear scale, relative to the row's largest (no exp in the sweeps)
             e_d[i] = np.exp(l_death[p, i] - mx) if l_death[p, i] > -np.inf else 0.0
             e_m[i] = np.exp(l_miss[p, i] - mx) if l_miss[p, i] > -np.inf else 0.0
@@ -333,8 +376,8 @@ def joint_update(seed, logw, member, act, nact, l_death, l_miss, l_det, total, p
         sub_rows = np.empty(na, np.int64)
         col_of = np.full(M, -1, np.int64)
         col_meas = np.empty(M, np.int64)
-        for q in range(nl):
-            h = live[q]
+        for hq in range(nl):
+            h = live[hq]
             if alloc[h] == 0:
                 continue
             n = 0
@@ -390,7 +433,10 @@ def joint_update(seed, logw, member, act, nact, l_death, l_miss, l_det, total, p
                 if smp > 0:
                     for k in range(n):
                         i = rows[k]
-                        g = _sample_option(e_d[i], e_m[i], e_row[i], gl[i], ng[i], taken, k, np.random.random())
+                        if fixed[i]:  # stays at its likelier option (the chain's start)
+                            continue
+                        # common random numbers keyed by label (module docstring)
+                        g = _sample_option(e_d[i], e_m[i], e_row[i], gl[i], ng[i], taken, k, _keyed_uniform(seed, hq, smp, cand_label[p, i]))
                         if gamma[k] > 0:
                             taken[gamma[k] - 1] = -1
                         gamma[k] = g
@@ -473,7 +519,7 @@ def joint_update(seed, logw, member, act, nact, l_death, l_miss, l_det, total, p
             if alive[c]:
                 tot += np.exp(ch_lw[c] - mx)
         ll = mx + np.log(tot)
-        loglik[p] = ll
+        loglik[p] = ll + l_summed
         cand = np.empty(nch, np.int64)
         ncand = 0
         for c in range(nch):

@@ -34,9 +34,13 @@ One step (:meth:`GLMB.update`, eqs. 11-17):
   that were drawn, computed once per distinct (track, measurement) pair;
 * the particle's log-likelihood is the log of the normalisation constant
   (eq. 25): the sum of the unnormalised weights of all the children drawn.
-  Every particle's chains draw the same random stream in a step (common random
-  numbers), so particles whose maps and poses agree draw the same hypotheses
-  and their weights differ by what differs between them, not by sampling luck;
+  The uniforms of the draws are keyed by (step, hypothesis rank, sample,
+  candidate label), the same for every particle (common random numbers), so
+  particles whose maps and poses agree draw the same hypotheses and their
+  weights differ by what differs between them, not by sampling luck, even when
+  one holds a track the other lacks; a birth that gates no measurement is
+  summed out of the sampler (``sum_idle_births``: exact for the weight, its
+  born-but-missed children are not kept; :mod:`slam_runtime.gibbs`);
 * reduction (:func:`slam_runtime.gibbs.reduce_hypotheses`): the versions of
   one label under different association histories whose Gaussians lie within
   squared Mahalanobis distance ``merge`` (4) of each other are merged (moment
@@ -107,6 +111,11 @@ class LabelledSettings(BaseModel):
     noise_inflation: float = Field(default=1.0, ge=1.0, description="factor on the measurement noise covariance")
     landmark_noise: float = Field(default=0.0, ge=0.0, description="landmark position variance added per second [m^2/s]")
     map_threshold: float = Field(default=0.5, gt=0.0, le=1.0, description="existence probability from which a track counts as mapped (LMB)")
+    sum_idle_births: bool = Field(
+        default=True,
+        description="births that gate no measurement are summed out of the Gibbs sampler (exact for the particle weight; "
+        "their born-but-missed children are not kept); false: sampled like every candidate",
+    )
 
 
 class GLMBConfig(LabelledSettings):
@@ -231,6 +240,8 @@ class _Costs:
     l_miss: np.ndarray  # (P, A)
     l_det: np.ndarray  # (P, A, M)
     explained: np.ndarray  # (P, M) some existing track could explain the measurement (inside its gate)
+    summed: np.ndarray  # (P, A) bool: candidates whose options the sampler sums out when they gate nothing
+    label: np.ndarray  # (P, A) int64: the label of each active candidate
 
 
 class LabelledFilter(MapFilter):
@@ -296,13 +307,14 @@ class LabelledFilter(MapFilter):
             ok = gated & (pd_a > 0)[..., None]
             lq = -0.5 * m2 - 0.5 * (dz * np.log(2 * np.pi) + logdet)
             l_det = np.where(ok, l_base[..., None] + lq - log_kappa[None, None, :], -np.inf)
-        return _Costs(act.astype(np.int64), nact.astype(np.int64), l_death, l_miss, l_det, explained)
+        summed = birth_a & in_a & cfg.sum_idle_births
+        return _Costs(act.astype(np.int64), nact.astype(np.int64), l_death, l_miss, l_det, explained, summed, sl.label[rows, act].astype(np.int64))
 
     def _sample(self, logw: np.ndarray, member: np.ndarray, c: _Costs, prune: float, cap: int) -> JointResult:
         out = joint_update(
             self._seed(), np.ascontiguousarray(logw), np.ascontiguousarray(member), c.act, c.nact,
             np.ascontiguousarray(c.l_death), np.ascontiguousarray(c.l_miss), np.ascontiguousarray(c.l_det),
-            int(self.cfg.samples), float(prune), int(cap),
+            int(self.cfg.samples), float(prune), int(cap), np.ascontiguousarray(c.summed), np.ascontiguousarray(c.label),
         )
         return JointResult(*out)
 

@@ -212,3 +212,62 @@ def test_joint_lmb_update_matches_the_enumeration():
     got = {inv[int(x)]: float(r) for x, r in zip(maps.tracks.label[0], maps.r[0], strict=True) if x >= 0}
     for k, v in exist.items():
         assert got[k] == pytest.approx(v, abs=2e-3)
+
+
+# ---------------------------------------------------------------------- summed births, keyed random numbers
+FAR = np.array([2.0, 6.0])  # a birth that gates none of the three measurements (in view, 5.8 m away from them)
+
+
+def _far_birth_state(fm):
+    tr = Tracks(np.stack([MU["A"], MU["B"]])[None], np.stack([COV["A"], COV["B"]])[None], np.array([[LAB["A"], LAB["B"]]]))
+    births = Births(
+        np.stack([MU["b"], FAR])[None], np.stack([COV["b"], np.eye(2) * 0.05**2])[None], np.array([[RB, RB]]), np.array([LAB["b"], (1 << 20) + 1])
+    )
+    return GLMBMaps(tr, np.zeros((1, 1)), np.ones((1, 1, 2), dtype=bool), Tracks.empty(1, 2), np.zeros((1, 0)), births)
+
+
+def test_a_birth_that_gates_nothing_is_summed_out_exactly():
+    """Hypothesis {A, B}, a birth near the third measurement and one far from every measurement (the
+    default gate, 16). With 20,000 samples the normalisation constant is the same whether the far birth is
+    summed out or sampled (what the sampler still misses is below 1e-4 either way), and below the
+    enumeration without a gate (the gate drops the far pairs' mass). Summed out, no child holds the far
+    birth, whose two options (not born, born and missed) only scale every child alike; sampled, the
+    children in which it exists undetected are drawn too."""
+    fm = RangeBearing(R)
+    z = _meas(fm)
+    _, total = _enumerate(fm, z, [(1.0, [("A", 1.0, PS), ("B", 1.0, PS), ("b", RB, 1.0)])])
+    total *= (1.0 - RB) + RB * (1.0 - PD)  # the far birth: independent of the rest
+    out = {}
+    for summed in (True, False):
+        cfg = GLMBConfig(samples=20000, merge=0.0, release_unseen=False, prune=1e-15, max_hypotheses=100_000, survival=PS, sum_idle_births=summed)
+        mf = GLMB(fm, _det(), cfg, rng=np.random.default_rng(3))
+        maps, ll = mf.update(_far_birth_state(fm), POSE[None], Measurements(z))
+        held = (maps.tracks.label[0] == (1 << 20) + 1) & maps.member[0][np.isfinite(maps.logw[0])].any(axis=0)
+        out[summed] = ll[0], bool(held.any())
+    assert out[True][0] == pytest.approx(out[False][0], abs=1e-4)
+    assert out[True][0] < np.log(total)
+    assert not out[True][1] and out[False][1]
+
+
+def test_particles_that_agree_draw_the_same_children():
+    """Two particles at one pose with maps {A, B} and {A, B, C}, C a track in view that gates no measurement
+    (P_S 1: it can only be missed). The uniforms of the Gibbs draws are keyed by label, so C's presence
+    does not shift the other candidates' draws: both particles draw the same children, and their
+    log-likelihoods differ by C's miss, log(1 - P_D), to rounding, at 30 samples, where the sampled
+    normalisation constant still misses mass (a stream of draws shared in order would give C one of them)."""
+    fm = RangeBearing(R)
+    z = _meas(fm)
+    c = np.array([2.0, -1.5])
+    mu = np.stack([np.stack([MU["A"], MU["B"], np.zeros(2)]), np.stack([MU["A"], MU["B"], c])])
+    cov = np.stack([np.stack([COV["A"], COV["B"], np.eye(2)]), np.stack([COV["A"], COV["B"], np.eye(2) * 0.05**2])])
+    tr = Tracks(mu, cov, np.array([[LAB["A"], LAB["B"], -1], [LAB["A"], LAB["B"], 11]]))
+    member = np.array([[[True, True, False]], [[True, True, True]]])
+    births = Births(np.tile(MU["b"], (2, 1, 1)), np.tile(COV["b"], (2, 1, 1, 1)), np.full((2, 1), RB), np.array([LAB["b"]]))
+    state = GLMBMaps(tr, np.zeros((2, 1)), member, Tracks.empty(2, 2), np.zeros((2, 0)), births)
+    cfg = GLMBConfig(samples=30, merge=0.0, release_unseen=False, prune=1e-15, max_hypotheses=100_000, survival=1.0)
+    _, full = _enumerate(fm, z, [(1.0, [("A", 1.0, 1.0), ("B", 1.0, 1.0), ("b", RB, 1.0)])])
+    for seed in range(5):
+        mf = GLMB(fm, _det(), cfg, rng=np.random.default_rng(seed))
+        _, ll = mf.update(state, np.tile(POSE, (2, 1)), Measurements(z))
+        assert ll[1] - ll[0] == pytest.approx(np.log(1.0 - PD), abs=1e-12)
+        assert np.log(full) - ll[0] > 0.0  # 30 samples leave mass undrawn: the draws matter

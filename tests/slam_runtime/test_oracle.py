@@ -14,6 +14,7 @@ from slam_runtime.oracle import (
     _increment_factors,
     _range_bearing_factors,
     batch_oracle,
+    clutter_information_ratio,
     mahalanobis2,
     map_distance,
     posterior_samples,
@@ -185,3 +186,38 @@ def test_a_label_that_is_no_landmark_is_refused():
     lab[np.flatnonzero(lab > 0)[0]] = 999
     with pytest.raises(DataError, match="rfs_sim_1: detection label 999 is no landmark of the log's truth"):
         batch_oracle(log, odometry_sigma=(0.01, 0.01, 0.01), range_sigma=0.02, bearing_sigma=0.007)
+
+
+def _ratio_by_finite_differences(pd: float, density: float, rng: np.random.Generator, n: int, window: float = 10.0) -> float:
+    """An independent reference: scan by scan, the score of the scan's log-likelihood by central differences."""
+    h = 1e-4
+    total = 0.0
+    for _ in range(n):
+        z = rng.uniform(-window, window, size=(rng.poisson(density * (2 * window) ** 2), 2))
+        if rng.random() < pd:
+            z = np.vstack([z, rng.standard_normal(2)])
+
+        ll = [np.log((1 - pd) + pd / density * np.sum(np.exp(-0.5 * ((z - [x, 0.0]) ** 2).sum(axis=1)) / (2 * np.pi))) for x in (h, -h)]
+        total += ((ll[0] - ll[1]) / (2 * h)) ** 2
+    return total / n / pd
+
+
+def test_clutter_information_ratio_against_finite_differences():
+    """No clutter: all the information (exactly 1; and 1 within Monte Carlo error for a detector that never
+    misses with a vanishing clutter). Under the glmb-paper scenario's clutter (P_D 0.7; 1, 5, 15 false alarms
+    per scan over 0-3 m and the full circle, whitened by 0.3 m x 2 deg) it falls with the clutter and agrees
+    with a scan-by-scan reference that differentiates the likelihood numerically, to within 0.04 (three
+    standard errors of the reference's 8,000 scans)."""
+    assert clutter_information_ratio(0.7, 0.0, np.random.default_rng(0)) == 1.0
+    assert clutter_information_ratio(1.0, 1e-6, np.random.default_rng(0)) == pytest.approx(1.0, abs=0.02)
+    got = []
+    for c in (1.0, 5.0, 15.0):
+        dens = c / (3.0 * 2 * np.pi) * 0.3 * np.radians(2.0)
+        q = clutter_information_ratio(0.7, dens, np.random.default_rng(1))
+        assert q == pytest.approx(_ratio_by_finite_differences(0.7, dens, np.random.default_rng(2), 8000), abs=0.04)
+        got.append(q)
+    assert 1.0 > got[0] > got[1] > got[2] > 0.5
+    with pytest.raises(UsageError, match="pd must be"):
+        clutter_information_ratio(0.0, 0.1, np.random.default_rng(0))
+    with pytest.raises(UsageError, match="density must be"):
+        clutter_information_ratio(0.7, float("nan"), np.random.default_rng(0))
