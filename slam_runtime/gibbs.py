@@ -31,7 +31,7 @@ weights. The sum of the children's weights is the normalisation constant of
 eq. 25, the particle's measurement likelihood.
 
 Common random numbers: the uniform behind each draw is a hash of (the step's
-seed, the prior hypothesis's rank, the sample, the candidate's label), not the
+seed, the prior hypothesis's position, the sample, the candidate's label), not the
 next number of a stream, so particles whose maps and costs agree draw the same
 children and their weights differ only by what differs between them, and one
 particle having a candidate more (a track the other's map lacks) does not
@@ -40,10 +40,12 @@ shift every later draw of its chains. Labels are shared by the particles
 
 Summed births: a birth candidate that gates no measurement has two options,
 not born (1 - r_B) and born but missed (r_B (1 - P_D)), both independent of
-every other candidate. The sampler keeps it at the likelier (not born) and
+every other candidate. When not born is the likelier (r_B < 1 / (2 - P_D): any
+birth probability of the paper's kind), the sampler keeps it there and
 multiplies the normalisation constant by the sum of the two options' weights
-over the likelier one, exactly; the children in which such a birth exists
-undetected are not drawn. Sampled, these births (one per measurement of the
+over that one, exactly; the delta-GLMB's children in which such a birth exists
+undetected are not drawn (the LMB filter gives such a birth its exact
+existence, r_B (1 - P_D) / (1 - r_B P_D), after the draw). Sampled, these births (one per measurement of the
 previous scan: 15-17 of them at 15 false alarms per scan) took a share of the
 samples that changed from particle to particle, and with it the missing mass
 of each particle's normalisation constant, that is, its weight
@@ -263,14 +265,17 @@ def joint_update(seed, logw, member, act, nact, l_death, l_miss, l_det, total, p
     """Gibbs-sampled joint prediction/update of the labelled maps of P particles.
 
     seed: the step's seed (drawn from the run's Generator), the same for every particle: the uniform of each
-    draw is a function of (seed, prior hypothesis rank, sample, candidate label) (common random numbers);
+    draw is a function of (seed, position of the prior hypothesis among the live ones, sample, candidate
+    label) (common random numbers; the hypotheses come sorted by weight from the reduction);
     logw (P, H): normalised log weights of the prior hypotheses (-inf: empty slot);
     member (P, H, S) bool: slot s is a candidate of hypothesis h (its tracks, and the births);
     act (P, A) int64: slot of each active candidate (P_D > 0 or birth), nact (P,) how many;
     l_death, l_miss (P, A), l_det (P, A, M): log eta of the options (module docstring);
     total: samples per particle, shared among the prior hypotheses by sqrt(w);
     summed (P, A) bool: candidates whose options are summed out instead of sampled when they gate no
-    measurement (births: module docstring); cand_label (P, A) int64: the label of each active candidate;
+    measurement and absence is their likelier option (births: module docstring); the factor is added once
+    per particle, so such a candidate must be a candidate of every live prior hypothesis (births are);
+    cand_label (P, A) int64: the label of each active candidate;
     prune: children of normalised weight below this are dropped (the heaviest is always kept);
     cap: at most this many children per particle (the heaviest).
 
@@ -320,12 +325,10 @@ def joint_update(seed, logw, member, act, nact, l_death, l_miss, l_det, total, p
                     if l_det[p, i, j] > mx:
                         mx = l_det[p, i, j]
             ng[i] = c
-            fixed[i] = summed[p, i] and c == 0
-            if fixed[i]:
-                hi = max(l_death[p, i], l_miss[p, i])
-                if hi > -np.inf:
-                    lo = min(l_death[p, i], l_miss[p, i])
-                    l_summed += np.log1p(np.exp(lo - hi)) if lo > -np.inf else 0.0
+            # held at 'absent' (its chain start when absence is the likelier option), its miss summed in
+            fixed[i] = summed[p, i] and c == 0 and l_death[p, i] > -np.inf and l_death[p, i] > l_miss[p, i]
+            if fixed[i] and l_miss[p, i] > -np.inf:
+                l_summed += np.log1p(np.exp(l_miss[p, i] - l_death[p, i]))
             # the options' weights in linear scale, relative to the row's largest (no exp in the sweeps)
             e_d[i] = np.exp(l_death[p, i] - mx) if l_death[p, i] > -np.inf else 0.0
             e_m[i] = np.exp(l_miss[p, i] - mx) if l_miss[p, i] > -np.inf else 0.0
@@ -433,7 +436,7 @@ def joint_update(seed, logw, member, act, nact, l_death, l_miss, l_det, total, p
                 if smp > 0:
                     for k in range(n):
                         i = rows[k]
-                        if fixed[i]:  # stays at its likelier option (the chain's start)
+                        if fixed[i]:  # stays absent (its chain start: absence is the likelier option)
                             continue
                         # common random numbers keyed by label (module docstring)
                         g = _sample_option(e_d[i], e_m[i], e_row[i], gl[i], ng[i], taken, k, _keyed_uniform(seed, hq, smp, cand_label[p, i]))

@@ -38,9 +38,9 @@ One step (:meth:`GLMB.update`, eqs. 11-17):
   candidate label), the same for every particle (common random numbers), so
   particles whose maps and poses agree draw the same hypotheses and their
   weights differ by what differs between them, not by sampling luck, even when
-  one holds a track the other lacks; a birth that gates no measurement is
-  summed out of the sampler (``sum_idle_births``: exact for the weight, its
-  born-but-missed children are not kept; :mod:`slam_runtime.gibbs`);
+  one holds a track the other lacks; a birth that gates no measurement and is
+  likelier absent is summed out of the sampler (``sum_idle_births``: exact for
+  the weight, its born-but-missed children are not kept; :mod:`slam_runtime.gibbs`);
 * reduction (:func:`slam_runtime.gibbs.reduce_hypotheses`): the versions of
   one label under different association histories whose Gaussians lie within
   squared Mahalanobis distance ``merge`` (4) of each other are merged (moment
@@ -113,8 +113,9 @@ class LabelledSettings(BaseModel):
     map_threshold: float = Field(default=0.5, gt=0.0, le=1.0, description="existence probability from which a track counts as mapped (LMB)")
     sum_idle_births: bool = Field(
         default=True,
-        description="births that gate no measurement are summed out of the Gibbs sampler (exact for the particle weight; "
-        "their born-but-missed children are not kept); false: sampled like every candidate",
+        description="births that gate no measurement (and are likelier absent) are summed out of the Gibbs sampler (exact "
+        "for the particle weight; delta-GLMB does not keep their born-but-missed children, LMB gives them their exact "
+        "existence); false: sampled like every candidate",
     )
 
 

@@ -17,6 +17,8 @@ existence below ``prune_tracks`` are removed (the paper prunes LMB-SLAM's featur
 clutter needs: one detection lifts a 0.01 birth to about 0.02 at 15 false
 alarms per scan). The particle's log-likelihood is the log of the
 normalisation constant, the sum of the drawn associations' weights (eq. 25).
+Births that gate no measurement are summed out of the sampler
+(:mod:`slam_runtime.gibbs`) and given their exact existence afterwards.
 P_D, the buffer zone, kappa, survival and adaptive birth as in
 :mod:`slam_runtime.glmb`.
 
@@ -111,6 +113,13 @@ class LMB(LabelledFilter):
             active = np.zeros((p, s), dtype=bool)
             active[np.nonzero(in_a)[0], c.act[in_a]] = True
             r_all = np.where(active, r_new.reshape(p, s), sl.r)
+            # births the sampler held absent (summed out: they gate nothing, absence the likelier option) have their
+            # exact existence r_B (1 - P_D) / (1 - r_B P_D) and their birth density
+            idle = in_a & c.summed & ~np.isfinite(c.l_det).any(axis=2) & (c.l_death > c.l_miss)
+            hp, ha = np.nonzero(idle)
+            hs = c.act[hp, ha]
+            r_all[hp, hs] = 1.0 / (1.0 + np.exp(c.l_death[hp, ha] - c.l_miss[hp, ha]))
+            active[hp, hs] = False  # keeps its prior mean and covariance below
             mu_all = np.where(active[..., None], m_new.reshape(p, s, d), sl.mu)
             cov_all = np.where(active[..., None, None], c_new.reshape(p, s, d, d), sl.cov)
             keep = sl.valid & (r_all >= self.cfg.prune_tracks)

@@ -271,3 +271,38 @@ def test_particles_that_agree_draw_the_same_children():
         _, ll = mf.update(state, np.tile(POSE, (2, 1)), Measurements(z))
         assert ll[1] - ll[0] == pytest.approx(np.log(1.0 - PD), abs=1e-12)
         assert np.log(full) - ll[0] > 0.0  # 30 samples leave mass undrawn: the draws matter
+
+
+def test_lmb_gives_an_idle_birth_its_exact_existence():
+    """The LMB filter with the far birth summed out of the sampler: that birth's track has its exact existence
+    r_B (1 - P_D) / (1 - r_B P_D) and its birth density, as when it is sampled (to within the mass not drawn),
+    and the other labels' existences are those of the sampled update."""
+    fm = RangeBearing(R)
+    z = _meas(fm)
+    st = _far_birth_state(fm)
+    r = {}
+    for summed in (True, False):
+        cfg = LMBConfig(samples=20000, survival=PS, prune_tracks=1e-12, sum_idle_births=summed)
+        mf = LMB(fm, _det(), cfg, rng=np.random.default_rng(1))
+        maps, _ = mf.update(LMBMaps(st.tracks, np.array([[0.9, 0.4]]), st.births), POSE[None], Measurements(z))
+        r[summed] = {int(lab): (float(x), maps.tracks.mu[0, k]) for k, (lab, x) in enumerate(zip(maps.tracks.label[0], maps.r[0], strict=True)) if lab >= 0}
+    far = (1 << 20) + 1
+    assert r[True][far][0] == pytest.approx(RB * (1 - PD) / (1 - RB * PD), rel=1e-12)
+    np.testing.assert_allclose(r[True][far][1], FAR, atol=1e-12)
+    assert r[False][far][0] == pytest.approx(r[True][far][0], abs=1e-4)
+    for lab in (LAB["A"], LAB["B"], LAB["b"]):
+        assert r[True][lab][0] == pytest.approx(r[False][lab][0], abs=2e-3)
+
+
+def test_a_likely_birth_is_sampled_not_held():
+    """A far birth of probability 0.9 is likelier to exist (missed: 0.9 x 0.2) than not (0.1): it is not held
+    absent but sampled, and exists with its exact probability 0.18 / 0.28 in the delta-GLMB's children."""
+    fm = RangeBearing(R)
+    z = _meas(fm)
+    st = _far_birth_state(fm)
+    st.births.r[0, 1] = 0.9
+    cfg = GLMBConfig(samples=20000, merge=0.0, release_unseen=False, prune=1e-15, max_hypotheses=100_000, survival=PS)
+    maps, _ = GLMB(fm, _det(), cfg, rng=np.random.default_rng(3)).update(st, POSE[None], Measurements(z))
+    w = np.exp(maps.logw[0])
+    holds = maps.member[0][:, maps.tracks.label[0] == (1 << 20) + 1].any(axis=1)
+    assert w[np.isfinite(maps.logw[0]) & holds].sum() == pytest.approx(0.9 * (1 - PD) / (0.1 + 0.9 * (1 - PD)), abs=1e-3)
