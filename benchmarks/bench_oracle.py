@@ -75,13 +75,9 @@ def expected_rb_ospa(orc, truth: np.ndarray, rng: np.random.Generator, n: int = 
     """Mean map OSPA (c = 0.5, p = 1) of an ideal RB particle over draws of the data: truth + the mode's error
     N(0, Sigma_mm) + the path's N(0, Sigma_mm - H_mm^-1), the oracle's covariances (consistent: the tests check
     the mode's normalised error is 1)."""
-    t = truth[orc.detected].ravel()
-    l1 = np.linalg.cholesky(orc.landmark_cov + np.eye(t.size) * 1e-15)
-    c = orc.landmark_cov - orc.landmark_cov_given_path
-    val, vec = np.linalg.eigh(0.5 * (c + c.T))
-    l2 = vec * np.sqrt(np.clip(val, 0.0, None))
-    e = rng.standard_normal((n, t.size)) @ l1.T + rng.standard_normal((n, t.size)) @ l2.T
-    return float(np.mean([ospa((t + x).reshape(-1, 2), truth, 0.5, 1.0) for x in e]))
+    mode = orc.landmarks[orc.detected]
+    maps = truth[orc.detected] + (so.posterior_samples(orc, rng, n)[1] - mode) + (so.rb_map_samples(orc, rng, n) - mode)
+    return float(np.mean([ospa(x, truth, 0.5, 1.0) for x in maps]))
 
 
 def sweep_maps(folder: Path, world: int) -> None:

@@ -261,7 +261,7 @@ def _sample_option(e_d, e_m, e_row, gl, ng, taken, k, u01):  # pragma: no cover 
 
 
 @numba.njit(cache=True, nogil=True)
-def joint_update(seed, logw, member, act, nact, l_death, l_miss, l_det, total, prune, cap, summed, cand_label):  # pragma: no cover - compiled
+def joint_update(seed, logw, member, act, nact, l_death, l_miss, l_det, total, prune, cap, held, cand_label):  # pragma: no cover - compiled
     """Gibbs-sampled joint prediction/update of the labelled maps of P particles.
 
     seed: the step's seed (drawn from the run's Generator), the same for every particle: the uniform of each
@@ -272,9 +272,10 @@ def joint_update(seed, logw, member, act, nact, l_death, l_miss, l_det, total, p
     act (P, A) int64: slot of each active candidate (P_D > 0 or birth), nact (P,) how many;
     l_death, l_miss (P, A), l_det (P, A, M): log eta of the options (module docstring);
     total: samples per particle, shared among the prior hypotheses by sqrt(w);
-    summed (P, A) bool: candidates whose options are summed out instead of sampled when they gate no
-    measurement and absence is their likelier option (births: module docstring); the factor is added once
-    per particle, so such a candidate must be a candidate of every live prior hypothesis (births are);
+    held (P, A) bool: candidates held absent instead of sampled, their miss summed into the normalisation
+    constant (births: module docstring); the caller chooses them: each must gate no measurement, be likelier
+    absent (its chain start), and be a candidate of every live prior hypothesis (the factor is added once
+    per particle; births are);
     cand_label (P, A) int64: the label of each active candidate;
     prune: children of normalised weight below this are dropped (the heaviest is always kept);
     cap: at most this many children per particle (the heaviest).
@@ -307,12 +308,11 @@ def joint_update(seed, logw, member, act, nact, l_death, l_miss, l_det, total, p
     e_d = np.empty(A)
     e_m = np.empty(A)
     taken = np.empty(M, np.int64)
-    fixed = np.zeros(A, np.bool_)
     for p in range(P):
         na = nact[p]
         pos = np.full(S, -1, np.int64)
-        # the options of a summed candidate that gates nothing (death or miss, both independent of every other
-        # candidate) add a factor common to every child to the normalisation constant
+        # the options of a held candidate (death or miss, both independent of every other candidate) add a factor
+        # common to every child to the normalisation constant
         l_summed = 0.0
         for i in range(na):
             pos[act[p, i]] = i
@@ -325,9 +325,8 @@ def joint_update(seed, logw, member, act, nact, l_death, l_miss, l_det, total, p
                     if l_det[p, i, j] > mx:
                         mx = l_det[p, i, j]
             ng[i] = c
-            # held at 'absent' (its chain start when absence is the likelier option), its miss summed in
-            fixed[i] = summed[p, i] and c == 0 and l_death[p, i] > -np.inf and l_death[p, i] > l_miss[p, i]
-            if fixed[i] and l_miss[p, i] > -np.inf:
+            # held absent (its chain start), its miss summed in
+            if held[p, i] and l_miss[p, i] > -np.inf:
                 l_summed += np.log1p(np.exp(l_miss[p, i] - l_death[p, i]))
             # the options' weights in linear scale, relative to the row's largest (no exp in the sweeps)
             e_d[i] = np.exp(l_death[p, i] - mx) if l_death[p, i] > -np.inf else 0.0
@@ -436,7 +435,7 @@ def joint_update(seed, logw, member, act, nact, l_death, l_miss, l_det, total, p
                 if smp > 0:
                     for k in range(n):
                         i = rows[k]
-                        if fixed[i]:  # stays absent (its chain start: absence is the likelier option)
+                        if held[p, i]:  # stays absent (its chain start: absence is the likelier option)
                             continue
                         # common random numbers keyed by label (module docstring)
                         g = _sample_option(e_d[i], e_m[i], e_row[i], gl[i], ng[i], taken, k, _keyed_uniform(seed, hq, smp, cand_label[p, i]))

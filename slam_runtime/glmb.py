@@ -84,7 +84,6 @@ from slam_runtime.features import FeatureModel
 from slam_runtime.gibbs import joint_update, reduce_hypotheses
 from slam_runtime.gm import det, inv, matmul, matvec, quad, transpose
 from slam_runtime.mapfilter import MapFilter, Measurements
-from slam_runtime.proposal import pose_proposal
 
 #: bits of a label that hold the measurement index: label = (step << LABEL_BITS) + measurement
 LABEL_BITS = 20
@@ -241,7 +240,7 @@ class _Costs:
     l_miss: np.ndarray  # (P, A)
     l_det: np.ndarray  # (P, A, M)
     explained: np.ndarray  # (P, M) some existing track could explain the measurement (inside its gate)
-    summed: np.ndarray  # (P, A) bool: candidates whose options the sampler sums out when they gate nothing
+    held: np.ndarray  # (P, A) bool: idle births the sampler holds absent, their miss summed into the weight
     label: np.ndarray  # (P, A) int64: the label of each active candidate
 
 
@@ -308,14 +307,16 @@ class LabelledFilter(MapFilter):
             ok = gated & (pd_a > 0)[..., None]
             lq = -0.5 * m2 - 0.5 * (dz * np.log(2 * np.pi) + logdet)
             l_det = np.where(ok, l_base[..., None] + lq - log_kappa[None, None, :], -np.inf)
-        summed = birth_a & in_a & cfg.sum_idle_births
-        return _Costs(act.astype(np.int64), nact.astype(np.int64), l_death, l_miss, l_det, explained, summed, sl.label[rows, act].astype(np.int64))
+        # births held absent by the sampler, their miss summed in (module docstring of slam_runtime.gibbs): they gate
+        # nothing and absence is the likelier option
+        held = birth_a & in_a & ~np.isfinite(l_det).any(axis=2) & (l_death > l_miss) & cfg.sum_idle_births
+        return _Costs(act.astype(np.int64), nact.astype(np.int64), l_death, l_miss, l_det, explained, held, sl.label[rows, act].astype(np.int64))
 
     def _sample(self, logw: np.ndarray, member: np.ndarray, c: _Costs, prune: float, cap: int) -> JointResult:
         out = joint_update(
             self._seed(), np.ascontiguousarray(logw), np.ascontiguousarray(member), c.act, c.nact,
             np.ascontiguousarray(c.l_death), np.ascontiguousarray(c.l_miss), np.ascontiguousarray(c.l_det),
-            int(self.cfg.samples), float(prune), int(cap), np.ascontiguousarray(c.summed), np.ascontiguousarray(c.label),
+            int(self.cfg.samples), float(prune), int(cap), np.ascontiguousarray(c.held), np.ascontiguousarray(c.label),
         )
         return JointResult(*out)
 
@@ -390,15 +391,7 @@ class LabelledFilter(MapFilter):
         (re-linearised ``iterations`` times). Returns the mean (P, 3), covariance (P, 3, 3) and the number
         of measurements used (P,)."""
         t, ex = self._map_tracks(maps)
-        z, rz = self.measurements(meas)
-        if z.shape[0] == 0 or t.label.shape[1] == 0:
-            return xbar, q, np.zeros(xbar.shape[0], dtype=np.int64)
-        pd, _ = self.detection.pd_features(self.feature.sensor_pose(xbar), t.mu, t.cov, meas, ex)
-        weight = np.where((pd > 0) & t.valid, ex * np.minimum(pd, 1.0), 0.0)
-        return pose_proposal(
-            self.feature, xbar, q, z, rz, self.r if meas.cov is None else None, t.mu, t.cov, weight, self.clutter(z, meas),
-            gate=self.cfg.gate, share=share, iterations=iterations,
-        )
+        return self._proposal(xbar, q, meas, t.mu, t.cov, ex, t.valid, gate=self.cfg.gate, share=share, iterations=iterations)
 
     def _begin(self, poses: np.ndarray, meas: Measurements):
         z, rz = self.measurements(meas)

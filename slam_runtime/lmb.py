@@ -113,10 +113,9 @@ class LMB(LabelledFilter):
             active = np.zeros((p, s), dtype=bool)
             active[np.nonzero(in_a)[0], c.act[in_a]] = True
             r_all = np.where(active, r_new.reshape(p, s), sl.r)
-            # births the sampler held absent (summed out: they gate nothing, absence the likelier option) have their
-            # exact existence r_B (1 - P_D) / (1 - r_B P_D) and their birth density
-            idle = in_a & c.summed & ~np.isfinite(c.l_det).any(axis=2) & (c.l_death > c.l_miss)
-            hp, ha = np.nonzero(idle)
+            # births the sampler held absent (they gate nothing) have their exact existence r_B (1 - P_D) / (1 - r_B P_D)
+            # and their birth density
+            hp, ha = np.nonzero(c.held)
             hs = c.act[hp, ha]
             r_all[hp, hs] = 1.0 / (1.0 + np.exp(c.l_death[hp, ha] - c.l_miss[hp, ha]))
             active[hp, hs] = False  # keeps its prior mean and covariance below

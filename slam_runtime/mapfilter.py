@@ -29,6 +29,7 @@ from typing import Protocol
 import numpy as np
 
 from slam_runtime.features import FeatureModel
+from slam_runtime.proposal import pose_proposal
 
 
 @dataclass
@@ -108,6 +109,24 @@ class MapFilter(ABC):
         if meas.ratio is not None:
             kappa = kappa / np.maximum(np.asarray(meas.ratio, dtype=np.float64), 1e-300)
         return kappa
+
+    def _proposal(
+        self, xbar: np.ndarray, q: np.ndarray, meas: Measurements, mu: np.ndarray, cov: np.ndarray, ex: np.ndarray,
+        valid: np.ndarray | None, *, gate: float, share: float, iterations: int,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """What the filters' ``pose_proposal`` share: the features mu (P, J, dx), cov (P, J, dx, dx) of weight or
+        existence ex (P, J) (valid (P, J): the slots that hold one; None: every slot) weighted by their P_D from the
+        motion prior's poses, and the frame's measurements, noise and kappa, handed to
+        :func:`slam_runtime.proposal.pose_proposal`."""
+        z, rz = self.measurements(meas)
+        if z.shape[0] == 0 or mu.shape[1] == 0:
+            return xbar, q, np.zeros(xbar.shape[0], dtype=np.int64)
+        pd, _ = self.detection.pd_features(self.feature.sensor_pose(xbar), mu, cov, meas, ex)
+        seen = pd > 0 if valid is None else (pd > 0) & valid
+        return pose_proposal(
+            self.feature, xbar, q, z, rz, self.r if meas.cov is None else None, mu, cov, np.where(seen, ex * np.minimum(pd, 1.0), 0.0),
+            self.clutter(z, meas), gate=gate, share=share, iterations=iterations,
+        )
 
     def bind(self, rng: np.random.Generator) -> None:
         """Receive the run's generator (the particle loop calls this); filters that sample (the Gibbs

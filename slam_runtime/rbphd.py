@@ -36,7 +36,6 @@ from pydantic import BaseModel, ConfigDict, Field
 from slam_runtime.features import FeatureModel
 from slam_runtime.gm import GMBatch, det, gaussian, inv, matmul, matvec, prune_merge, quad, transpose
 from slam_runtime.mapfilter import MapFilter, Measurements
-from slam_runtime.proposal import pose_proposal
 
 
 class RBPHDConfig(BaseModel):
@@ -235,14 +234,7 @@ class RBPHD(MapFilter):
         the data-association covariance); the update itself uses R + H_m P H_m^T.
         Returns the mean (P, 3), covariance (P, 3, 3) and the number of measurements used (P,)."""
         gm = maps.gm
-        z, rz = self.measurements(meas)
-        if z.shape[0] == 0 or gm.shape[1] == 0:
-            return xbar, q, np.zeros(xbar.shape[0], dtype=np.int64)
-        pd, _ = self.detection.pd_features(self.feature.sensor_pose(xbar), gm.mu, gm.cov, meas, gm.w)
-        return pose_proposal(
-            self.feature, xbar, q, z, rz, self.r if meas.cov is None else None, gm.mu, gm.cov, np.where(pd > 0, gm.w * pd, 0.0),
-            self.clutter(z, meas), gate=self.cfg.gate, share=share, iterations=iterations,
-        )
+        return self._proposal(xbar, q, meas, gm.mu, gm.cov, gm.w, None, gate=self.cfg.gate, share=share, iterations=iterations)
 
     def _birth(self, sp: np.ndarray, z: np.ndarray, rz: np.ndarray, unexplained: np.ndarray | None) -> GMBatch:
         """Birth mixture for the next step from this step's measurements (eq. 3.15).
