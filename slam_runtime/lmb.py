@@ -115,7 +115,7 @@ class LMB(LabelledFilter):
             r_all = np.where(active, r_new.reshape(p, s), sl.r)
             # births the sampler held absent (they gate nothing) have their exact existence r_B (1 - P_D) / (1 - r_B P_D)
             # and their birth density
-            hp, ha = np.nonzero(c.held)
+            hp, ha = np.nonzero(c.idle)
             hs = c.act[hp, ha]
             r_all[hp, hs] = 1.0 / (1.0 + np.exp(c.l_death[hp, ha] - c.l_miss[hp, ha]))
             active[hp, hs] = False  # keeps its prior mean and covariance below

@@ -11,7 +11,7 @@ from scipy.stats import multivariate_normal
 from detectors.model import DetectionModel
 from profiles.schema import ClutterParams, PdTable, SensorModel
 from slam_runtime.features import RangeBearing
-from slam_runtime.gibbs import argsort_stable, hungarian
+from slam_runtime.gibbs import argsort_stable, hungarian, reduce_hypotheses
 from slam_runtime.glmb import GLMB, Births, GLMBConfig, GLMBMaps, Tracks
 from slam_runtime.lmb import LMB, LMBConfig, LMBMaps
 from slam_runtime.mapfilter import Measurements
@@ -142,7 +142,7 @@ def _filter_children(fm, z, maps) -> dict:
 
 
 def _run_glmb(fm, z, samples, state):
-    cfg = GLMBConfig(samples=samples, merge=0.0, release_unseen=False, prune=1e-15, max_hypotheses=100_000, gate=1e6, survival=PS)
+    cfg = GLMBConfig(samples=samples, merge=0.0, release_unseen=False, factor_independent=False, prune=1e-15, max_hypotheses=100_000, gate=1e6, survival=PS)
     mf = GLMB(fm, _det(), cfg, rng=np.random.default_rng(3))
     return mf.update(state, POSE[None], Measurements(z))
 
@@ -239,7 +239,7 @@ def test_a_birth_that_gates_nothing_is_summed_out_exactly():
     total *= (1.0 - RB) + RB * (1.0 - PD)  # the far birth: independent of the rest
     out = {}
     for summed in (True, False):
-        cfg = GLMBConfig(samples=20000, merge=0.0, release_unseen=False, prune=1e-15, max_hypotheses=100_000, survival=PS, sum_idle_births=summed)
+        cfg = GLMBConfig(samples=20000, merge=0.0, release_unseen=False, factor_independent=False, prune=1e-15, max_hypotheses=100_000, survival=PS, sum_idle_births=summed)
         mf = GLMB(fm, _det(), cfg, rng=np.random.default_rng(3))
         maps, ll = mf.update(_far_birth_state(fm), POSE[None], Measurements(z))
         held = (maps.tracks.label[0] == (1 << 20) + 1) & maps.member[0][np.isfinite(maps.logw[0])].any(axis=0)
@@ -264,7 +264,7 @@ def test_particles_that_agree_draw_the_same_children():
     member = np.array([[[True, True, False]], [[True, True, True]]])
     births = Births(np.tile(MU["b"], (2, 1, 1)), np.tile(COV["b"], (2, 1, 1, 1)), np.full((2, 1), RB), np.array([LAB["b"]]))
     state = GLMBMaps(tr, np.zeros((2, 1)), member, Tracks.empty(2, 2), np.zeros((2, 0)), births)
-    cfg = GLMBConfig(samples=30, merge=0.0, release_unseen=False, prune=1e-15, max_hypotheses=100_000, survival=1.0)
+    cfg = GLMBConfig(samples=30, merge=0.0, release_unseen=False, factor_independent=False, prune=1e-15, max_hypotheses=100_000, survival=1.0)
     _, full = _enumerate(fm, z, [(1.0, [("A", 1.0, 1.0), ("B", 1.0, 1.0), ("b", RB, 1.0)])])
     for seed in range(5):
         mf = GLMB(fm, _det(), cfg, rng=np.random.default_rng(seed))
@@ -301,8 +301,156 @@ def test_a_likely_birth_is_sampled_not_held():
     z = _meas(fm)
     st = _far_birth_state(fm)
     st.births.r[0, 1] = 0.9
-    cfg = GLMBConfig(samples=20000, merge=0.0, release_unseen=False, prune=1e-15, max_hypotheses=100_000, survival=PS)
+    cfg = GLMBConfig(samples=20000, merge=0.0, release_unseen=False, factor_independent=False, prune=1e-15, max_hypotheses=100_000, survival=PS)
     maps, _ = GLMB(fm, _det(), cfg, rng=np.random.default_rng(3)).update(st, POSE[None], Measurements(z))
     w = np.exp(maps.logw[0])
     holds = maps.member[0][:, maps.tracks.label[0] == (1 << 20) + 1].any(axis=1)
     assert w[np.isfinite(maps.logw[0]) & holds].sum() == pytest.approx(0.9 * (1 - PD) / (0.1 + 0.9 * (1 - PD)), abs=1e-3)
+
+
+def _reduce(mu, hyps, merge=4.0, together=0.1, cov=0.01, release=True, labels=None):
+    """One particle whose slots (labels 1..n or ``labels``, means mu (n, 2), covariance cov I) are held by the
+    hypotheses ``hyps`` [(weight, slot indices)], the slots released where ``release`` (one flag or one per slot);
+    returns reduce_hypotheses' output."""
+    n = len(mu)
+    w = np.array([h[0] for h in hyps], dtype=np.float64)
+    return reduce_hypotheses(
+        np.array([n]), np.arange(1, n + 1, dtype=np.int64) if labels is None else np.asarray(labels, dtype=np.int64),
+        np.asarray(mu, dtype=np.float64), np.tile(np.eye(2) * cov, (n, 1, 1)), np.broadcast_to(np.asarray(release, dtype=bool), (n,)).copy(),
+        np.array([len(hyps)]), np.log(w / w.sum()), np.array([len(h[1]) for h in hyps], dtype=np.int64),
+        np.array([s for h in hyps for s in h[1]], dtype=np.int64), merge, together, 1e-9, 100,
+    )
+
+
+def _release(mu, hyps, **kw):
+    """Every slot released at once: the released (labels, existence, means)."""
+    out = _reduce(mu, hyps, **kw)
+    free_count, f_label, f_r, f_mu = out[9], out[10], out[11], out[12]
+    assert free_count[0] == f_label.size
+    return f_label, f_r, f_mu
+
+
+def test_released_alternatives_of_one_landmark_leave_as_one():
+    """Two labels at the same place that no hypothesis holds together (two births of one landmark, either of which
+    the hypotheses took for it) leave the hypotheses as one Bernoulli: existence the weight of the hypotheses that
+    hold either, density their moment match under the heavier's label. Released one by one, each has less than 1/2
+    and the landmark drops out of every map estimate."""
+    a, b, c = [0.0, 0.0], [0.05, 0.0], [5.0, 5.0]
+    lab, r, mu = _release([a, b, c], [(0.6, [0, 2]), (0.35, [1, 2]), (0.05, [2])])
+    assert lab.tolist() == [1, 3]  # A (with B merged in: the lighter), C (in every hypothesis)
+    np.testing.assert_allclose(r, [0.95, 1.0], atol=1e-12)
+    np.testing.assert_allclose(mu[0], [0.35 * 0.05 / 0.95, 0.0], atol=1e-12)
+    # off: each label on its own, existence its marginal
+    lab, r, _ = _release([a, b, c], [(0.6, [0, 2]), (0.35, [1, 2]), (0.05, [2])], together=0.0)
+    np.testing.assert_allclose(sorted(r), [0.35, 0.6, 1.0], atol=1e-12)
+    # rarely together: the existence is the union (0.97), not the sum of the marginals (0.99)
+    _, r, _ = _release([a, b], [(0.6, [0]), (0.35, [1]), (0.02, [0, 1]), (0.03, [])])
+    np.testing.assert_allclose(r, [0.97], atol=1e-12)
+
+
+def test_released_labels_held_together_or_apart_stay_apart():
+    """Two labels the hypotheses hold together (two landmarks close to each other), or two far apart, are released
+    each with its own existence."""
+    a, b = [0.0, 0.0], [0.05, 0.0]
+    _, r, _ = _release([a, b], [(0.6, [0, 1]), (0.3, [0]), (0.1, [1])])
+    np.testing.assert_allclose(sorted(r), [0.7, 0.9], atol=1e-12)
+    _, r, _ = _release([a, [3.0, 0.0]], [(0.6, [0]), (0.4, [1])])  # 30 sigma apart
+    np.testing.assert_allclose(sorted(r), [0.4, 0.6], atol=1e-12)
+
+
+def test_independent_candidates_are_updated_exactly_outside_the_hypotheses():
+    """Hypothesis {A, B}, the birth near the third measurement (which no other candidate gates, default gate) and
+    the far birth of probability 0.9 (likelier present: not summed out). Factored out (``factor_independent``),
+    the two births leave the sampler: each is one released track whose existence is the share of its options in
+    which it exists and whose density is the moment match of its missed and detected versions. That is the
+    joint update sampled with both in it, to within the mass not drawn: the same normalisation constant (the
+    factored one above, by what the sampler leaves undrawn), the
+    same existence of every label (the births' summed over the hypotheses that hold them), the same means."""
+    fm = RangeBearing(R)
+    z = _meas(fm)
+    st = _far_birth_state(fm)
+    st.births.r[0, 1] = 0.9
+    got = {}
+    for factor in (True, False):
+        cfg = GLMBConfig(samples=20000, merge=0.0, release_unseen=False, factor_independent=factor, prune=1e-15, max_hypotheses=100_000, survival=PS)
+        maps, ll = GLMB(fm, _det(), cfg, rng=np.random.default_rng(3)).update(st, POSE[None], Measurements(z))
+        w = np.where(np.isfinite(maps.logw[0]), np.exp(maps.logw[0]), 0.0)
+        ex, mean = {}, {}
+        for k, lab in enumerate(maps.tracks.label[0]):
+            if lab >= 0:
+                wk = w @ maps.member[0][:, k]
+                ex[int(lab)] = ex.get(int(lab), 0.0) + wk
+                mean[int(lab)] = mean.get(int(lab), 0.0) + wk * maps.tracks.mu[0, k]
+        mean = {lab: m / ex[lab] for lab, m in mean.items()}
+        for k, lab in enumerate(maps.free.label[0]):
+            if lab >= 0:
+                ex[int(lab)], mean[int(lab)] = float(maps.free_r[0, k]), maps.free.mu[0, k]
+        got[factor] = ll[0], ex, mean, set(maps.free.label[0][maps.free.label[0] >= 0].tolist())
+    assert got[True][3] == {LAB["b"], (1 << 20) + 1} and not got[False][3]  # the births were released, or not
+    assert 0.0 <= got[True][0] - got[False][0] < 5e-4  # the sampled constant is a lower bound; factored, it misses less
+    assert got[True][1].keys() == got[False][1].keys()
+    for lab, r in got[False][1].items():
+        assert got[True][1][lab] == pytest.approx(r, abs=1e-3)
+        np.testing.assert_allclose(got[True][2][lab], got[False][2][lab], atol=1e-3)
+    assert got[True][1][(1 << 20) + 1] == pytest.approx(0.9 * (1 - PD) / (0.1 + 0.9 * (1 - PD)), rel=1e-12)  # far birth: no detection
+    # a gate that takes every measurement: both births share them with A and B and stay in the sampler
+    cfg = GLMBConfig(samples=2000, merge=0.0, release_unseen=False, prune=1e-15, max_hypotheses=100_000, survival=PS, gate=1e6)
+    maps, _ = GLMB(fm, _det(), cfg, rng=np.random.default_rng(3)).update(st, POSE[None], Measurements(z))
+    assert not (maps.free.label[0] >= 0).any()
+    assert {LAB["b"], (1 << 20) + 1} <= set(maps.tracks.label[0].tolist())
+
+
+def test_alternatives_in_the_hypotheses_become_one_track():
+    """The same two alternatives kept in the hypotheses (in view): one track under the heavier's label, moment
+    matched; the hypotheses that held either are one, of their summed weight."""
+    out = _reduce([[0.0, 0.0], [0.05, 0.0], [5.0, 5.0]], [(0.6, [0, 2]), (0.35, [1, 2]), (0.05, [2])], release=False)
+    slot_count, label, mu, hyp_count, hyp_logw, mem_count = out[1], out[2], out[3], out[5], out[6], out[7]
+    assert slot_count[0] == 2 and sorted(label.tolist()) == [1, 3] and hyp_count[0] == 2
+    np.testing.assert_allclose(np.exp(hyp_logw), [0.95, 0.05], atol=1e-12)
+    assert mem_count.tolist() == [2, 1]
+    np.testing.assert_allclose(mu[label == 1][0], [0.35 * 0.05 / 0.95, 0.0], atol=1e-12)
+    out = _reduce([[0.0, 0.0], [0.05, 0.0], [5.0, 5.0]], [(0.6, [0, 2]), (0.35, [1, 2]), (0.05, [2])], release=False, together=0.0)
+    assert out[1][0] == 3 and out[5][0] == 3  # off: three tracks, three hypotheses
+
+
+def test_alternatives_held_together_once_are_held_once():
+    """A hypothesis that held both alternatives (3 % of the weight, below the 10 % allowed) holds the merged track
+    once: the three hypotheses {A}, {B}, {A, B} become one of weight 1."""
+    out = _reduce([[0.0, 0.0], [0.05, 0.0]], [(0.6, [0]), (0.37, [1]), (0.03, [0, 1])], release=False)
+    assert out[1][0] == 1 and out[5][0] == 1 and out[7].tolist() == [1]
+    np.testing.assert_allclose(np.exp(out[6]), [1.0], atol=1e-12)
+
+
+def test_no_merge_that_would_give_a_hypothesis_one_label_twice():
+    """Label 1 has two versions 1 m apart (missed, and updated with z) that do not merge; label 2 (a birth that took
+    z) lies at the first and is held beside the second in 30 % of the weight: it is no alternative of label 1 (merged,
+    that hypothesis would hold label 1 twice)."""
+    out = _reduce([[0.0, 0.0], [1.0, 0.0], [0.05, 0.0]], [(0.5, [0]), (0.3, [1, 2]), (0.2, [1])], release=False, labels=[1, 1, 2])
+    assert sorted(out[2].tolist()) == [1, 1, 2]
+    off = np.concatenate([[0], np.cumsum(out[7])])
+    for h in range(out[5][0]):
+        held = out[2][out[8][off[h] : off[h + 1]]]
+        assert len(set(held.tolist())) == held.size
+
+
+def test_a_released_track_and_a_kept_one_do_not_merge():
+    """Alternatives merge only among released or among kept tracks: a released track beside a kept one at the same
+    place stays released on its own, the kept one in the hypotheses."""
+    out = _reduce([[0.0, 0.0], [0.05, 0.0]], [(0.6, [0]), (0.4, [1])], release=[True, False])
+    assert out[2].tolist() == [2] and out[10].tolist() == [1]
+    np.testing.assert_allclose(out[11], [0.6], atol=1e-12)
+
+
+def test_reduction_of_several_particles_keeps_each_its_own():
+    """Two particles in one call (flat offsets): each particle's alternatives merge within it, the same result as
+    reducing each alone."""
+    mu = np.array([[0.0, 0.0], [0.05, 0.0], [5.0, 5.0], [0.0, 0.0], [3.0, 0.0]])
+    lab = np.array([1, 2, 3, 1, 2], dtype=np.int64)
+    w = np.array([0.6, 0.35, 0.05, 0.7, 0.3])
+    out = reduce_hypotheses(
+        np.array([3, 2]), lab, mu, np.tile(np.eye(2) * 0.01, (5, 1, 1)), np.ones(5, dtype=bool), np.array([3, 2]), np.log(w),
+        np.array([2, 2, 1, 1, 1]), np.array([0, 2, 1, 2, 2, 0, 1]), 4.0, 0.1, 1e-9, 100,
+    )
+    assert out[9].tolist() == [2, 2]
+    np.testing.assert_allclose(out[11][:2], [0.95, 1.0], atol=1e-12)  # particle 0: A with B, C
+    np.testing.assert_allclose(out[11][2:], [0.7, 0.3], atol=1e-12)  # particle 1: 3 m apart, two tracks
