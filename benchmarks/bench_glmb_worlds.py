@@ -25,11 +25,11 @@ from multiprocessing import Pool  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
-import yaml  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.common import ints, parse_set  # noqa: E402
 from calib.config import load_yaml_model  # noqa: E402
 from calib.sim.glmb_paper import GlmbPaperConfig, simulate_glmb_paper, truth_profile  # noqa: E402
 from detectors.geometry import interpolate_poses  # noqa: E402
@@ -41,29 +41,12 @@ from slam_runtime.run import evaluate, run_slam  # noqa: E402
 CONFIG = ROOT / "benchmarks/configs/glmb_paper_optimal.yaml"
 
 
-def _ints(text: str) -> list[int]:
-    out: list[int] = []
-    for part in text.split(","):
-        lo, _, hi = part.partition("-")
-        out.extend(range(int(lo), int(hi or lo) + 1))
-    return out
-
-
-def _settings(sets: list[str]) -> dict:
-    """key=value pairs (dotted keys reach into sections), each value read as YAML."""
-    out: dict = {}
-    for item in sets:
-        key, _, value = item.partition("=")
-        out[key] = yaml.safe_load(value)
-    return out
-
-
 def one(job: tuple) -> dict:
     clutter, world, seed, kind, sets, true_poses = job
     cfg = load_yaml_model(SlamConfig, CONFIG)
     if kind != cfg.filter.kind:
         cfg = with_filter(cfg, kind)
-    cfg = override(cfg, **_settings(sets))
+    cfg = override(cfg, **dict(parse_set(x) for x in sets))
     g = GlmbPaperConfig(clutter=clutter)
     log, prof = simulate_glmb_paper(g, world), truth_profile(g)
     update = slam_loop.RBSlam.update
@@ -102,7 +85,7 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     a = ap.parse_args()
     rates = [float(c) for c in a.clutter.split(",")]
-    jobs = [(c, w, s, a.filter, a.sets, a.true_poses) for c in rates for w in _ints(a.worlds) for s in _ints(a.seeds)]
+    jobs = [(c, w, s, a.filter, a.sets, a.true_poses) for c in rates for w in ints(a.worlds) for s in ints(a.seeds)]
     with Pool(a.workers) as pool:
         out = pool.map(one, jobs, chunksize=1)
     print(f"{a.filter}, worlds {a.worlds}, filter seeds {a.seeds}, {' '.join(a.sets) or 'the config'}{', true poses' if a.true_poses else ''}")

@@ -47,16 +47,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import slam_runtime.oracle as so  # noqa: E402
+from benchmarks.common import ints, parse_set  # noqa: E402
 from calib.sim import glmb_paper, rfs  # noqa: E402
 from slam_runtime.metrics import ospa  # noqa: E402
-
-
-def _ints(text: str) -> list[int]:
-    out: list[int] = []
-    for part in filter(None, text.split(",")):
-        a, _, b = part.partition("-")
-        out += list(range(int(a), int(b) + 1)) if b else [int(a)]
-    return out
 
 
 def rfs_oracle(world: int):
@@ -139,7 +132,7 @@ def main() -> None:
     ap.add_argument("--sweep", action="append", default=[], metavar="DIR", help="a detcal slam sweep folder of glmb-paper runs")
     ap.add_argument("--sweep-world", type=int, default=1, help="the glmb-paper world seed of the --sweep logs")
     a = ap.parse_args()
-    worlds = _ints(a.worlds)
+    worlds = ints(a.worlds)
     print(f"load average: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     print("rfs-sim: the batch oracle (true associations, the simulator's noise)")
     oracles = {}
@@ -155,7 +148,7 @@ def main() -> None:
             f"above 0.05 m in {np.mean(err > 0.05):.1%}",
             flush=True,
         )
-    for w in _ints(a.glmb_worlds):
+    for w in ints(a.glmb_worlds):
         log, orc = glmb_oracle(w)
         rng = np.random.default_rng(w)
         truth = log.landmarks.xy
@@ -195,13 +188,10 @@ def main() -> None:
         )
     for folder in a.sweep:
         sweep_maps(Path(folder), a.sweep_world)
-    seeds = _ints(a.runs)
+    seeds = ints(a.runs)
     if not seeds:
         return
-    sets = {}
-    for kv in a.set:
-        k, _, v = kv.partition("=")
-        sets[k] = yaml.safe_load(v)
+    sets = dict(parse_set(kv) for kv in a.set)
     jobs = [(w, s, a.particles, sets) for w in worlds for s in seeds]
     with ProcessPoolExecutor(max(1, a.workers)) as ex:
         rows = list(ex.map(filter_run, jobs))

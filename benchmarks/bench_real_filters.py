@@ -39,13 +39,7 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-
-def _ints(text: str) -> list[int]:
-    out: list[int] = []
-    for part in text.split(","):
-        a, _, b = part.partition("-")
-        out += list(range(int(a), int(b) + 1)) if b else [int(a)]
-    return out
+from benchmarks.common import ints, parse_set  # noqa: E402
 
 
 def load() -> str:
@@ -85,15 +79,6 @@ def labelled(cfg, kind: str, survival: float | None):
     cfg = with_filter(cfg, kind)
     cfg = override(cfg, **{"filter.survival": survival}) if survival is not None and kind in ("lmb", "glmb") else cfg
     return override(cfg, **SETS) if SETS else cfg
-
-
-def parse_set(item: str) -> tuple[str, object]:
-    import yaml
-
-    key, sep, value = item.partition("=")
-    if not sep or not key:
-        raise SystemExit(f"--set {item!r}: expected key=value")
-    return key, yaml.safe_load(value)
 
 
 def utias(root: Path, robots: list[int], filters: list[str], seeds: list[int], survival: float | None) -> None:
@@ -161,12 +146,12 @@ def main() -> None:
     SETS.update(parse_set(x) for x in a.sets)
     os.environ.setdefault("SOURCE_DATE_EPOCH", "1700000000")
     filters = a.filters.split(",")
-    seeds = _ints(a.seeds)
+    seeds = ints(a.seeds)
     print(f"CPUs {os.cpu_count()}, load average {load()}" + (f"; settings {SETS}" if SETS else ""))
     ut, vp = a.data / "utias_mrclam/dataset1", a.data / "victoria_park"
     if "utias" not in a.skip:
         if ut.is_dir():
-            utias(ut, _ints(a.robots), filters, seeds, a.survival)
+            utias(ut, ints(a.robots), filters, seeds, a.survival)
         else:
             print(f"UTIAS dataset 1 not found at {ut}: skipped")
     if "vp" not in a.skip:

@@ -607,12 +607,33 @@ def joint_update(seed, logw, member, act, nact, l_death, l_miss, l_det, total, p
 
 
 @numba.njit(cache=True, nogil=True)
-def _same_label(glab, head, k, i, ng):  # pragma: no cover - compiled
-    """Group k has the label of a member of head i's group."""
-    for m in range(ng):
-        if head[m] == i and glab[m] == glab[k]:
-            return True
-    return False
+def _moments(w, mu, cov, key, n):  # pragma: no cover - compiled
+    """Moment match of the weighted Gaussians w (N,), mu (N, d), cov (N, d, d) into the n groups key (N,) names:
+    each group's summed weight (n,), mean (n, d) and covariance (n, d, d) (zero where its weight is)."""
+    d = mu.shape[1]
+    gw = np.zeros(n)
+    gmu = np.zeros((n, d))
+    gcov = np.zeros((n, d, d))
+    for k in range(w.shape[0]):
+        g = key[k]
+        gw[g] += w[k]
+        for i in range(d):
+            gmu[g, i] += w[k] * mu[k, i]
+    for g in range(n):
+        if gw[g] > 0.0:
+            for i in range(d):
+                gmu[g, i] /= gw[g]
+    for k in range(w.shape[0]):
+        g = key[k]
+        for i in range(d):
+            for j in range(d):
+                gcov[g, i, j] += w[k] * (cov[k, i, j] + (mu[k, i] - gmu[g, i]) * (mu[k, j] - gmu[g, j]))
+    for g in range(n):
+        if gw[g] > 0.0:
+            for i in range(d):
+                for j in range(d):
+                    gcov[g, i, j] /= gw[g]
+    return gw, gmu, gcov
 
 
 @numba.njit(cache=True, nogil=True)
@@ -724,30 +745,10 @@ def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, 
                     ng += 1
             a = b
         # moments of each group
-        gw = np.zeros(ng)
-        gmu = np.zeros((ng, d))
-        gcov = np.zeros((ng, d, d))
         glab = np.empty(ng, np.int64)
         for k in range(ns):
-            g = grp[k]
-            gw[g] += wv[k]
-            glab[g] = lab[k]
-            for i in range(d):
-                gmu[g, i] += wv[k] * mu[s0 + k, i]
-        for g in range(ng):
-            if gw[g] > 0.0:
-                for i in range(d):
-                    gmu[g, i] /= gw[g]
-        for k in range(ns):
-            g = grp[k]
-            for i in range(d):
-                for j in range(d):
-                    gcov[g, i, j] += wv[k] * (cov[s0 + k, i, j] + (mu[s0 + k, i] - gmu[g, i]) * (mu[s0 + k, j] - gmu[g, j]))
-        for g in range(ng):
-            if gw[g] > 0.0:
-                for i in range(d):
-                    for j in range(d):
-                        gcov[g, i, j] /= gw[g]
+            glab[grp[k]] = lab[k]
+        gw, gmu, gcov = _moments(wv, mu[s0 : s0 + ns], cov[s0 : s0 + ns], grp, ng)
         # alternatives of one landmark: groups of different labels, both released or both kept, within squared
         # Mahalanobis distance merge of the heavier, that the hypotheses hold together with at most ``together``
         # of the lighter's weight, become one group under the heavier's label (its existence: the weight of the
@@ -762,6 +763,7 @@ def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, 
             for g in range(ng):
                 key[g] = -gw[g]
             gord = argsort_stable(key[:ng])
+            inl = np.zeros(ng, np.bool_)
             for y in range(1, ng):
                 j = gord[y]
                 for x in range(y):
@@ -776,11 +778,17 @@ def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, 
                         continue
                     # held together: j beside any version of a label already in i's group (also a version
                     # too far from i to be in it), so that no hypothesis ends up with one label twice
+                    inl[:] = False
+                    for m in range(ng):
+                        if head[m] == i:
+                            for k in range(ng):
+                                if glab[k] == glab[m]:
+                                    inl[k] = True
                     both = 0.0
                     for h in range(nh):
                         if hg[h, j]:
                             for k in range(ng):
-                                if k != j and hg[h, k] and _same_label(glab, head, k, i, ng):
+                                if k != j and hg[h, k] and inl[k]:
                                     both += np.exp(hyp_logw[h0 + h])
                                     break
                     if both <= together * gw[j]:
@@ -798,20 +806,11 @@ def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, 
                     if mark[g] != h:
                         mark[g] = h
                         un[g] += w
-            mw = np.zeros(ng)
-            mm = np.zeros((ng, d))
+            mw, mm, mc = _moments(gw, gmu, gcov, head, ng)
             for g in range(ng):
-                mw[head[g]] += gw[g]
-                mm[head[g]] += gw[g] * gmu[g]
-            mc = np.zeros((ng, d, d))
-            for g in range(ng):
-                if mw[head[g]] > 0.0:
-                    dm = gmu[g] - mm[head[g]] / mw[head[g]]
-                    mc[head[g]] += gw[g] * (gcov[g] + np.outer(dm, dm))
-            for g in range(ng):
-                if head[g] == g and mw[g] > gw[g] and mw[g] > 0.0:
-                    gmu[g] = mm[g] / mw[g]
-                    gcov[g] = mc[g] / mw[g]
+                if head[g] == g and mw[g] > gw[g]:
+                    gmu[g] = mm[g]
+                    gcov[g] = mc[g]
                     gw[g] = un[g]
         # released labels: independent Bernoulli components
         nf = 0

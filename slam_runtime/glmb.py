@@ -93,7 +93,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from profiles.errors import UsageError
 from slam_runtime.features import FeatureModel
 from slam_runtime.gibbs import joint_update, reduce_hypotheses
-from slam_runtime.gm import det, inv, matmul, matvec, quad, transpose
+from slam_runtime.gm import det, inv, matmul, matvec, moment_match, quad, transpose
 from slam_runtime.mapfilter import MapFilter, Measurements
 
 #: bits of a label that hold the measurement index: label = (step << LABEL_BITS) + measurement
@@ -397,19 +397,14 @@ class LabelledFilter(MapFilter):
         hp, ha = np.nonzero(c.held & ~c.idle)
         hs = c.act[hp, ha]
         mu0, cov0, lh = sl.mu[hp, hs], sl.cov[hp, hs], c.l_held[hp, ha]
-        w_miss = np.exp(c.l_miss[hp, ha] - lh)
         q, j = np.nonzero(np.isfinite(c.l_det[hp, ha]))
-        w_det = np.exp(c.l_det[hp[q], ha[q], j] - lh[q])
-        r = w_miss + np.bincount(q, weights=w_det, minlength=hp.size)
         m_det, c_det = self._ekf(sp[hp[q]], mu0[q], cov0[q], z[j], rz[j]) if q.size else (mu0[:0], cov0[:0])
-        safe = np.maximum(r, 1e-300)[:, None]
-        d = mu0.shape[1]
-        mean = (w_miss[:, None] * mu0 + np.stack([np.bincount(q, weights=w_det * m_det[:, a], minlength=hp.size) for a in range(d)], axis=1)) / safe
-        dm0, dmd = mu0 - mean, m_det - mean[q]
-        second = w_miss[:, None, None] * (cov0 + dm0[:, :, None] * dm0[:, None, :])
-        sd = w_det[:, None, None] * (c_det + dmd[:, :, None] * dmd[:, None, :])
-        second = second + np.stack([np.bincount(q, weights=sd[:, a, b], minlength=hp.size) for a in range(d) for b in range(d)], axis=1).reshape(-1, d, d)
-        return hp, sl.label[hp, hs], np.minimum(r, 1.0), mean, second / safe[:, :, None]
+        # the versions: detected by each gated measurement, then missed (the prior)
+        r, mean, cov = moment_match(
+            np.concatenate([q, np.arange(hp.size)]), np.exp(np.concatenate([c.l_det[hp[q], ha[q], j] - lh[q], c.l_miss[hp, ha] - lh])),
+            np.concatenate([m_det, mu0]), np.concatenate([c_det, cov0]), hp.size,
+        )
+        return hp, sl.label[hp, hs], np.minimum(r, 1.0), mean, cov
 
     def _births(self, sp: np.ndarray, z: np.ndarray, rz: np.ndarray, explained: np.ndarray) -> Births:
         """Birth tracks for the next step from this step's measurements (eq. 28, adaptive birth)."""

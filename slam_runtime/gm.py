@@ -71,6 +71,19 @@ def transpose(a: np.ndarray) -> np.ndarray:
     return np.swapaxes(a, -1, -2)
 
 
+def moment_match(key: np.ndarray, w: np.ndarray, mu: np.ndarray, cov: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Moment match of the weighted Gaussians w (N,), mu (N, d), cov (N, d, d) into the n groups key (N,) names,
+    summed in index order: each group's weight (n,), mean (n, d) and covariance (n, d, d) (zero where it has no weight)."""
+    d = mu.shape[1]
+    tot = np.bincount(key, weights=w, minlength=n)
+    safe = np.where(tot > 0, tot, 1.0)
+    mean = np.stack([np.bincount(key, weights=w * mu[:, a], minlength=n) for a in range(d)], axis=-1) / safe[:, None]
+    dm = mu - mean[key]
+    second = cov + dm[:, :, None] * dm[:, None, :]
+    c = np.stack([np.bincount(key, weights=w * second[:, a, b], minlength=n) for a in range(d) for b in range(d)], axis=-1)
+    return tot, mean, c.reshape(n, d, d) / safe[:, None, None]
+
+
 def gaussian(m2: np.ndarray, detc: np.ndarray, d: int) -> np.ndarray:
     """Normal density from the squared Mahalanobis distance and the covariance determinant."""
     return np.exp(-0.5 * m2) / np.sqrt((2 * np.pi) ** d * np.maximum(detc, 1e-300))

@@ -35,6 +35,7 @@ from pydantic import Field
 
 from slam_runtime.features import FeatureModel
 from slam_runtime.glmb import Births, LabelledFilter, LabelledSettings, Tracks
+from slam_runtime.gm import moment_match
 from slam_runtime.mapfilter import Measurements
 
 
@@ -101,15 +102,7 @@ class LMB(LabelledFilter):
             hyp = np.repeat(np.arange(res.hyp_logw.size), res.mem_count)
             wslot = np.bincount(off[mp] + ms, weights=np.exp(res.hyp_logw)[hyp], minlength=sp_.size)
             # the LMB approximation: per label (source slot), existence and the moment-matched Gaussian
-            key = sp_ * s + res.slot_src
-            n = p * s
-            r_new = np.bincount(key, weights=wslot, minlength=n)
-            safe = np.where(r_new > 0, r_new, 1.0)
-            m_new = np.stack([np.bincount(key, weights=wslot * mu[:, a], minlength=n) for a in range(d)], axis=-1) / safe[:, None]
-            dm = mu - m_new[key]
-            second = cov + dm[:, :, None] * dm[:, None, :]
-            c_new = np.stack([np.bincount(key, weights=wslot * second[:, a, b], minlength=n) for a in range(d) for b in range(d)], axis=-1)
-            c_new = c_new.reshape(n, d, d) / safe[:, None, None]
+            r_new, m_new, c_new = moment_match(sp_ * s + res.slot_src, wslot, mu, cov, p * s)
             active = np.zeros((p, s), dtype=bool)
             active[np.nonzero(in_a)[0], c.act[in_a]] = True
             r_all = np.where(active, r_new.reshape(p, s), sl.r)
