@@ -1,15 +1,18 @@
 """A labelled filter's map on the held-out glmb-paper worlds, many runs per setting:
 ``python benchmarks/bench_glmb_worlds.py [--clutter 1,15] [--worlds 2,3,4,5] [--seeds 0-14] [--filter glmb]
-[--set key=value ...] [--true-poses] [--workers 2]``.
+[--set key=value ...] [--true-poses] [--clutter-draws 0-9] [--workers 2]``.
 
 Each run is ``detcal simulate glmb-paper --clutter C --seed W`` (world W) and one filter seed with the
 settings of ``benchmarks/configs/glmb_paper_optimal.yaml`` (``--set`` overrides any, e.g.
 ``--set particles=100 --set filter.samples=400``), evaluated as ``detcal slam sweep`` does (map OSPA c = 0.5,
 p = 1). World 1 is the paper-protocol table's and is left out by default, so that settings are chosen on
 other worlds. Per clutter rate it prints the mean map OSPA and its standard error, the pose RMSE, GOSPA's
-landmarks missed and false per run, the localisation error per landmark found and the mean CPU per step.
+landmarks missed and false per run, the localisation error per landmark found and the mean CPU per step, and
+with several worlds or several clutter draws each one's mean map OSPA and its standard error.
 ``--true-poses`` gives every particle the true pose at every scan (mapping only: what the map filter loses
-by itself). Same arguments, same figures; BLAS is pinned to one thread per worker.
+by itself). ``--clutter-draws`` runs each world under other draws of its false alarms (the path, controls and
+detections kept: ``simulate_glmb_paper(..., clutter_draw=D)``), to tell a world's own clutter draw from the
+filter. Same arguments, same figures; BLAS is pinned to one thread per worker.
 """
 
 from __future__ import annotations
@@ -42,13 +45,13 @@ CONFIG = ROOT / "benchmarks/configs/glmb_paper_optimal.yaml"
 
 
 def one(job: tuple) -> dict:
-    clutter, world, seed, kind, sets, true_poses = job
+    clutter, world, seed, kind, sets, true_poses, draw = job
     cfg = load_yaml_model(SlamConfig, CONFIG)
     if kind != cfg.filter.kind:
         cfg = with_filter(cfg, kind)
     cfg = override(cfg, **dict(parse_set(x) for x in sets))
     g = GlmbPaperConfig(clutter=clutter)
-    log, prof = simulate_glmb_paper(g, world), truth_profile(g)
+    log, prof = simulate_glmb_paper(g, world, draw), truth_profile(g)
     update = slam_loop.RBSlam.update
     if true_poses:
         gt = log.reference["ground_truth"]
@@ -69,7 +72,7 @@ def one(job: tuple) -> dict:
     g = gospa(res.map_xy, log.landmarks.xy, 0.5, 1.0)
     found = max(m["landmarks_true"] - g["n_missed"], 1)
     return {
-        "clutter": clutter, "ospa": m["map_ospa"], "rmse": m["trajectory_rmse_vs_ground_truth_m"], "missed": g["n_missed"],
+        "clutter": clutter, "world": world, "draw": draw, "ospa": m["map_ospa"], "rmse": m["trajectory_rmse_vs_ground_truth_m"], "missed": g["n_missed"],
         "false": g["n_false"], "loc": g["localisation"] / found, "cpu": m["cpu_ms_per_step_mean"],
     }
 
@@ -82,15 +85,20 @@ def main() -> None:
     ap.add_argument("--filter", default="glmb", choices=("glmb", "lmb", "rbphd"))
     ap.add_argument("--set", dest="sets", action="append", default=[], help="override a setting: key=value (repeatable)")
     ap.add_argument("--true-poses", action="store_true", help="every particle at the true pose (mapping only)")
+    ap.add_argument("--clutter-draws", default=None, help="other clutter streams of each world: 0-9 (default: the world's own)")
     ap.add_argument("--workers", type=int, default=2)
     a = ap.parse_args()
     rates = [float(c) for c in a.clutter.split(",")]
-    jobs = [(c, w, s, a.filter, a.sets, a.true_poses) for c in rates for w in ints(a.worlds) for s in ints(a.seeds)]
+    draws = [None] if a.clutter_draws is None else ints(a.clutter_draws)
+    jobs = [(c, w, s, a.filter, a.sets, a.true_poses, d) for c in rates for w in ints(a.worlds) for d in draws for s in ints(a.seeds)]
     with Pool(a.workers) as pool:
         out = pool.map(one, jobs, chunksize=1)
-    print(f"{a.filter}, worlds {a.worlds}, filter seeds {a.seeds}, {' '.join(a.sets) or 'the config'}{', true poses' if a.true_poses else ''}")
+    print(
+        f"{a.filter}, worlds {a.worlds}, filter seeds {a.seeds}, {' '.join(a.sets) or 'the config'}{', true poses' if a.true_poses else ''}"
+        f"{'' if a.clutter_draws is None else f', clutter draws {a.clutter_draws}'}"
+    )
     for c in rates:
-        r = {k: np.array([o[k] for o in out if o["clutter"] == c], dtype=float) for k in out[0] if k != "clutter"}
+        r = {k: np.array([o[k] for o in out if o["clutter"] == c], dtype=float) for k in out[0] if k not in ("clutter", "world", "draw")}
         n = r["ospa"].size
         se = r["ospa"].std(ddof=1) / np.sqrt(n) if n > 1 else float("nan")
         print(
@@ -99,6 +107,21 @@ def main() -> None:
             f"  localisation per landmark found {r['loc'].mean():.4f} m  CPU {r['cpu'].mean():.1f} ms/step",
             flush=True,
         )
+        worlds = ints(a.worlds)
+        if len(worlds) > 1:  # the spread between worlds: how much one world's data draw decides
+            print("    per world: " + _per(out, c, "world", worlds), flush=True)
+        if len(draws) > 1:  # the spread between clutter draws of the same worlds
+            print("    per clutter draw: " + _per(out, c, "draw", draws), flush=True)
+
+
+def _per(out: list, clutter: float, key: str, values: list) -> str:
+    """Mean map OSPA +- its standard error for each value of ``key`` (world or clutter draw)."""
+    parts = []
+    for v in values:
+        x = np.array([o["ospa"] for o in out if o["clutter"] == clutter and o[key] == v])
+        se = x.std(ddof=1) / np.sqrt(x.size) if x.size > 1 else float("nan")
+        parts.append(f"{v} {x.mean():.4f} +- {se:.4f}")
+    return ", ".join(parts)
 
 
 if __name__ == "__main__":

@@ -40,6 +40,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from detectors.logs import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, Vehicle, wrap_angle
+from profiles.errors import UsageError
 
 #: the 23 landmarks [m], world frame, 1-2 m beside the default circuit (each in range for 22-58 scans)
 LANDMARKS = [
@@ -117,9 +118,18 @@ def drive(cfg: GlmbPaperConfig) -> tuple[np.ndarray, np.ndarray]:
     return np.array(poses), np.array(cmds, dtype=np.float64).reshape(-1, 2)
 
 
-def simulate_glmb_paper(cfg: GlmbPaperConfig, seed: int) -> SensorLog:
-    """One run of the scenario as a detection-level log with truth (poses at every control step, landmarks)."""
+def simulate_glmb_paper(cfg: GlmbPaperConfig, seed: int, clutter_draw: int | None = None) -> SensorLog:
+    """One run of the scenario as a detection-level log with truth (poses at every control step, landmarks).
+
+    ``clutter_draw`` (>= 0) draws the false alarms from another stream and keeps the path, the controls and the
+    detections of ``seed``: the same world under other clutter (None: the seed's own clutter stream)."""
     rng_ctrl, rng_det, rng_clut = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(3))
+    if clutter_draw is not None:
+        if isinstance(clutter_draw, bool) or not isinstance(clutter_draw, (int, np.integer)) or clutter_draw < 0:
+            raise UsageError(f"simulate_glmb_paper: clutter_draw must be an integer >= 0 or None, not {clutter_draw!r}")
+        # the seed's child stream 3 + draw (children 0-2 are the streams above; a fourth stream added to the
+        # simulator would have to be spawned past the draws' keys, or it would share draw 0's)
+        rng_clut = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(3 + int(clutter_draw),)))
     poses, cmds = drive(cfg)
     n = cmds.shape[0]
     # logged controls: row k holds from t_k to t_k+1 (the command that moved pose k to pose k + 1)
@@ -161,7 +171,12 @@ def simulate_glmb_paper(cfg: GlmbPaperConfig, seed: int) -> SensorLog:
         landmarks=Landmarks(np.arange(1, lm.shape[0] + 1, dtype=np.int64), lm),
         detections=det,
         vehicle=Vehicle(wheelbase=cfg.wheelbase, encoder_offset=0.0),
-        source={"reader": "simulate glmb-paper", "seed": int(seed), "config": cfg.model_dump(mode="json")},
+        source={
+            "reader": "simulate glmb-paper",
+            "seed": int(seed),
+            "config": cfg.model_dump(mode="json"),
+            **({} if clutter_draw is None else {"clutter_draw": int(clutter_draw)}),
+        },
     )
 
 

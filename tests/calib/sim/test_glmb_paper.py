@@ -7,6 +7,7 @@ import yaml
 
 from calib.sim.glmb_paper import GlmbPaperConfig, simulate_glmb_paper, truth_profile
 from detectors.model import DetectionModel
+from profiles.errors import UsageError
 from tests.calib.test_cli import assert_one_line_error, run
 
 
@@ -55,6 +56,37 @@ def test_clutter_rates_share_the_path_and_the_detections(logs):
     np.testing.assert_array_equal(a.reference["ground_truth"].poses, b.reference["ground_truth"].poses)
     ta, tb = (np.asarray(x.detections.descriptors["landmark"]) > 0 for x in (a, b))
     np.testing.assert_array_equal(a.detections.range[ta], b.detections.range[tb])
+
+
+def test_other_clutter_draws_keep_the_world(logs):
+    """clutter_draw: the seed's path, controls and detections with false alarms from another stream (a
+    different stream per draw, each reproducible, none the seed's own); a negative draw is refused."""
+    own = logs[15.0]
+    cfg = GlmbPaperConfig(clutter=15.0)
+    draws = [simulate_glmb_paper(cfg, seed=5, clutter_draw=k) for k in (0, 1)]
+    true = [np.asarray(x.detections.descriptors["landmark"]) > 0 for x in (own, *draws)]
+    clutter = [x.detections.range[~t] for x, t in zip((own, *draws), true)]
+    for x, t in zip(draws, true[1:]):
+        np.testing.assert_array_equal(x.odometry.values, own.odometry.values)
+        np.testing.assert_array_equal(x.detections.range[t], own.detections.range[true[0]])
+        np.testing.assert_array_equal(x.detections.bearing[t], own.detections.bearing[true[0]])
+    # each draw its own clutter (a different count, or else different points), and the same again for the same draw
+    assert not np.array_equal(clutter[1], clutter[0]) and not np.array_equal(clutter[2], clutter[0])
+    assert not np.array_equal(clutter[1], clutter[2])
+    again = simulate_glmb_paper(cfg, seed=5, clutter_draw=1)
+    np.testing.assert_array_equal(again.detections.range, draws[1].detections.range)
+    assert abs(clutter[1].size / own.detections.n_frames - 15.0) < 0.6  # still Poisson(15) per scan
+    # not a stream the seed already uses for its controls or detections: its first draw is the clutter count
+    # of the first scan, which those streams would give as the seed's own first Poisson(15) draws
+    for k, x in zip((0, 1), draws):
+        counts = np.bincount(x.detections.frame[~(np.asarray(x.detections.descriptors["landmark"]) > 0)], minlength=x.detections.n_frames)
+        streams = [np.random.default_rng(c).poisson(15.0, counts.size) for c in np.random.SeedSequence(5).spawn(3 + k + 1)]
+        assert [np.array_equal(counts, s) for s in streams] == [False] * (3 + k) + [True]
+        assert x.source["clutter_draw"] == k
+    assert "clutter_draw" not in own.source
+    for bad in (-1, 1.5, True):
+        with pytest.raises(UsageError, match="clutter_draw"):
+            simulate_glmb_paper(cfg, seed=5, clutter_draw=bad)
 
 
 def test_truth_profile_states_the_simulators_statistics(logs):
