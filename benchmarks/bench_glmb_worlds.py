@@ -97,31 +97,30 @@ def main() -> None:
         f"{a.filter}, worlds {a.worlds}, filter seeds {a.seeds}, {' '.join(a.sets) or 'the config'}{', true poses' if a.true_poses else ''}"
         f"{'' if a.clutter_draws is None else f', clutter draws {a.clutter_draws}'}"
     )
+    worlds = ints(a.worlds)
     for c in rates:
         r = {k: np.array([o[k] for o in out if o["clutter"] == c], dtype=float) for k in out[0] if k not in ("clutter", "world", "draw")}
-        n = r["ospa"].size
-        se = r["ospa"].std(ddof=1) / np.sqrt(n) if n > 1 else float("nan")
         print(
-            f"  {c:g} false alarms per scan ({n} runs): map OSPA {r['ospa'].mean():.4f} +- {se:.4f}"
+            f"  {c:g} false alarms per scan ({r['ospa'].size} runs): map OSPA {_mean_se(r['ospa'])}"
             f"  pose RMSE {r['rmse'].mean():.3f} m  missed / false {r['missed'].mean():.2f} / {r['false'].mean():.2f}"
             f"  localisation per landmark found {r['loc'].mean():.4f} m  CPU {r['cpu'].mean():.1f} ms/step",
             flush=True,
         )
-        worlds = ints(a.worlds)
         if len(worlds) > 1:  # the spread between worlds: how much one world's data draw decides
             print("    per world: " + _per(out, c, "world", worlds), flush=True)
         if len(draws) > 1:  # the spread between clutter draws of the same worlds
             print("    per clutter draw: " + _per(out, c, "draw", draws), flush=True)
 
 
+def _mean_se(x: np.ndarray) -> str:
+    """``mean +- standard error`` of the runs x (nan for one run)."""
+    se = x.std(ddof=1) / np.sqrt(x.size) if x.size > 1 else float("nan")
+    return f"{x.mean():.4f} +- {se:.4f}"
+
+
 def _per(out: list, clutter: float, key: str, values: list) -> str:
     """Mean map OSPA +- its standard error for each value of ``key`` (world or clutter draw)."""
-    parts = []
-    for v in values:
-        x = np.array([o["ospa"] for o in out if o["clutter"] == clutter and o[key] == v])
-        se = x.std(ddof=1) / np.sqrt(x.size) if x.size > 1 else float("nan")
-        parts.append(f"{v} {x.mean():.4f} +- {se:.4f}")
-    return ", ".join(parts)
+    return ", ".join(f"{v} {_mean_se(np.array([o['ospa'] for o in out if o['clutter'] == clutter and o[key] == v]))}" for v in values)
 
 
 if __name__ == "__main__":

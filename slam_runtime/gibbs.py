@@ -756,6 +756,10 @@ def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, 
         head = np.arange(ng)
         merged = False
         if merge > 0.0 and together > 0.0 and ng > 1:
+            gtr = np.zeros(ng)  # each group's covariance trace: a cheap bound before the Mahalanobis test
+            for g in range(ng):
+                for k in range(d):
+                    gtr[g] += gcov[g, k, k]
             hg = np.zeros((nh, ng), np.bool_)
             for h in range(nh):
                 for q in range(hm0[h], hm0[h + 1]):
@@ -771,10 +775,7 @@ def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, 
                     if head[i] != i or gfree[i] != gfree[j] or glab[i] == glab[j]:
                         continue
                     dd = gmu[j] - gmu[i]
-                    tr = 0.0
-                    for k in range(d):
-                        tr += gcov[i, k, k]
-                    if np.dot(dd, dd) > merge * tr or _maha2(gcov[i], dd) > merge:
+                    if np.dot(dd, dd) > merge * gtr[i] or _maha2(gcov[i], dd) > merge:
                         continue
                     # held together: j beside any version of a label already in i's group (also a version
                     # too far from i to be in it), so that no hypothesis ends up with one label twice
