@@ -39,6 +39,8 @@ class FeatureModel(ABC):
     dim_z: int
     #: which measurement components are angles (wrapped in innovations)
     angular: tuple[int, ...] = ()
+    #: which state components are angles (wrapped when states of one feature are averaged)
+    state_angular: tuple[int, ...] = ()
 
     def __init__(self, r: np.ndarray, mount: np.ndarray | None = None) -> None:
         """r (dz, dz): the measurement noise covariance (a floor, when each measurement brings its own);

@@ -22,7 +22,10 @@ Births that gate no measurement are summed out of the sampler
 P_D, the buffer zone, kappa, survival and adaptive birth as in
 :mod:`slam_runtime.glmb`.
 
-The map estimate: the tracks of existence >= ``map_threshold``.
+The map estimate: the tracks of existence >= ``map_threshold``, placed as
+``map_estimate`` says (:mod:`slam_runtime.glmb`: by default the particle's own
+states; ``seen_mean`` each at the particles' weighted mean of its label at
+the last step it was in view).
 """
 
 from __future__ import annotations
@@ -86,6 +89,7 @@ class LMB(LabelledFilter):
         s = sl.valid.shape[1]
         with tm("pd"):
             pd, buf = self.detection.pd_features(sp, sl.mu, sl.cov, meas, sl.r)
+            self._note_seen(sl, pd)
         with tm("costs"):
             c = self._costs(sl, sp, z, rz, meas.cov is not None, log_kappa, pd, buf)
             member = np.zeros((p, 1, s), dtype=bool)
@@ -129,6 +133,9 @@ class LMB(LabelledFilter):
         self.step += 1
         return LMBMaps(tracks, r, births), res.loglik
 
+    def _map_states(self, maps: LMBMaps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return maps.tracks.mu, maps.tracks.label, maps.r
+
     def _map_tracks(self, maps: LMBMaps) -> tuple[Tracks, np.ndarray]:
         return maps.tracks, maps.r
 
@@ -140,7 +147,8 @@ class LMB(LabelledFilter):
     def labels(self, maps: LMBMaps, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Particle i's map estimate with labels: (labels (K,), states (K, dx), existence (K,)), r >= map_threshold."""
         keep = (maps.r[i] >= self.cfg.map_threshold) & maps.tracks.valid[i]
-        return maps.tracks.label[i, keep], maps.tracks.mu[i, keep], maps.r[i, keep]
+        lab = maps.tracks.label[i, keep]
+        return lab, self._placed(lab, maps.tracks.mu[i, keep]), maps.r[i, keep]
 
     def estimate(self, maps: LMBMaps, i: int) -> tuple[np.ndarray, np.ndarray]:
         _, x, r = self.labels(maps, i)

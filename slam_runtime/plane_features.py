@@ -46,6 +46,7 @@ class PlaneFeature(FeatureModel):
     dim_x = 3
     dim_z = 3
     angular = (0,)
+    state_angular = (0,)
 
     def __init__(self, r: np.ndarray, mount: np.ndarray | None = None, *, height: float = 0.0, metric_length: float = 10.0) -> None:
         super().__init__(r, mount)

@@ -267,11 +267,14 @@ def evaluate(log: SensorLog, res: SlamResult, c: float = 1.0, p: float = 1.0, cf
         if not ref.on_vehicle_point:
             out[f"reference_point_{key}_m"] = list(ref.point)
         out[f"trajectory_rmse_vs_{key}_m"] = trajectory_rmse(est, truth, align)
-        out[f"mean_trajectory_rmse_vs_{key}_m"] = trajectory_rmse(ref.at_point(interpolate_poses(res.stamps, res.mean_trajectory, at)), truth, align)
+        mean = ref.at_point(interpolate_poses(res.stamps, res.mean_trajectory, at))
+        out[f"mean_trajectory_rmse_vs_{key}_m"] = trajectory_rmse(mean, truth, align)
         out[f"odometry_rmse_vs_{key}_m"] = trajectory_rmse(dr, truth, align)
         if key == "ground_truth":  # per axis (the delta-GLMB-SLAM paper's figs. 2-4)
             rx, ry, rh = axis_rmse(est, truth)
             out[f"rmse_x_vs_{key}_m"], out[f"rmse_y_vs_{key}_m"], out[f"rmse_heading_vs_{key}_deg"] = rx, ry, float(np.degrees(rh))
+            rx, ry, rh = axis_rmse(mean, truth)  # the particles' weighted mean pose at each step
+            out[f"mean_rmse_x_vs_{key}_m"], out[f"mean_rmse_y_vs_{key}_m"], out[f"mean_rmse_heading_vs_{key}_deg"] = rx, ry, float(np.degrees(rh))
         out[f"final_position_error_vs_{key}_m"] = float(np.hypot(*(est[-1, :2] - truth[-1, :2]))) if not align else float("nan")
         out[f"points_vs_{key}"] = int(at.size)
     if log.planes is not None and res.map_xy.ndim == 2 and res.map_xy.shape[1] == 4:

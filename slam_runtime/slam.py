@@ -121,6 +121,8 @@ class RBSlam:
         self.maps, loglik = self.mf.update(self.maps, self.vehicle.pose(self.x), meas)
         self.logw, log_norm = normalise_log(self.logw + loglik + correction)
         self.log_evidence += log_norm
+        if hasattr(self.mf, "record"):  # the labelled filters' map estimate averages the particles' weighted states
+            self.mf.record(self.maps, self.logw)
         t0 = time.perf_counter()
         e = ess(self.logw)
         self._since += 1

@@ -207,6 +207,7 @@ def slam_sweep_cmd(
         t.add_column(f"{e['profile']}\n{e['filter']}, {e['pd_mode']}, {e['particles']} particles\n{e['runs']} runs", justify="right")
     shown = [
         ("trajectory RMSE [m]", "trajectory_rmse_vs_ground_truth_m"),
+        ("weighted mean pose RMSE [m]", "mean_trajectory_rmse_vs_ground_truth_m"),
         ("dead reckoning RMSE [m]", "odometry_rmse_vs_ground_truth_m"),
         ("trajectory RMSE vs GPS [m]", "trajectory_rmse_vs_gps_m"),
         ("dead reckoning vs GPS [m]", "odometry_rmse_vs_gps_m"),
