@@ -14,7 +14,7 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from profiles.errors import DataError, UsageError
 from slam_runtime.glmb import GLMBConfig
@@ -123,6 +123,14 @@ class SlamConfig(_Strict):
     resampler: Literal["systematic", "stratified", "multinomial", "residual"] = "systematic"
     resample_ess: float = Field(default=0.5, gt=0.0, le=1.0, description="resample when ESS < this x particles")
     resample_every: int = Field(default=1, ge=1, description="updates at least between two resamplings")
+    islands: int = Field(
+        default=1,
+        ge=1,
+        le=1_000,
+        description="independent particle filters the particles are split into (each resamples on its own); the estimate "
+        "averages their heaviest particles' trajectories and, with a labelled filter, maps (label by label); particles must "
+        "be a multiple of it",
+    )
     proposal: Literal["prior", "optimal"] = Field(
         default="prior", description="draw poses from the motion model, or from its Gaussian updated by the measurements the map explains"
     )
@@ -138,6 +146,12 @@ class SlamConfig(_Strict):
     motion: MotionNoise = MotionNoise()
     detection: DetectionOptions = DetectionOptions()
     metric: MetricConfig = MetricConfig()
+
+    @model_validator(mode="after")
+    def _islands_share_the_particles(self) -> SlamConfig:
+        if self.particles % self.islands:
+            raise ValueError(f"islands: {self.islands} islands cannot share {self.particles} particles equally (particles must be a multiple of islands)")
+        return self
 
 
 FILTER_KINDS = ("rbphd", "lmb", "glmb")

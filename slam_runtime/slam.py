@@ -10,6 +10,22 @@ under ``resample_ess`` x P, at most every ``resample_every`` updates; the
 history of states and parents is kept in a :class:`ParticleHistory`, so a
 resampling step costs the same at step 8,000 as at step 1.
 
+Islands (``islands`` K > 1; Verge, Dubarry, Del Moral & Moulines 2015): the P
+particles are K independent filters of P / K particles, each normalising and
+resampling its own weights (the map filter updates all particles at once as
+before). After a few hundred steps of resampling the particles of one filter
+share one history for all but the last steps, so its heaviest particle's
+trajectory and map are one draw from the smoothing posterior, with that
+draw's error; K islands give K such draws, and the estimate averages them
+with equal weights: the trajectory (:meth:`RBSlam.trajectory`, the heading's
+circular mean) and, for a labelled map filter, each label of the reference
+island's map estimate (the island of the largest evidence) at the mean of
+its state in the islands' estimates that hold it (:func:`average_states`;
+a label is one landmark in every particle). RB-PHD's map has no labels: its
+estimate is the reference island's heaviest particle's. The log evidence is
+the log of the mean of the islands' (each an unbiased estimate of p(Z_1:k)).
+``islands: 1`` is the single filter, the same bytes as before.
+
 Example (a filter that only integrates odometry)::
 
     >>> import numpy as np
@@ -32,6 +48,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from profiles.errors import UsageError
+from slam_runtime.features import wrap
 from slam_runtime.mapfilter import MapFilter, Measurements
 from slam_runtime.particles import RESAMPLERS, ParticleHistory, ess, normalise_log
 from slam_runtime.vehicle import VehicleModel
@@ -59,7 +77,10 @@ class RBSlam:
         resample_ess: float = 0.5,
         resample_every: int = 1,
         proposal: str = "prior",
+        islands: int = 1,
     ) -> None:
+        if islands < 1 or n % islands:
+            raise UsageError(f"islands: {islands} islands cannot share {n} particles equally (particles must be a multiple of islands)")
         self.vehicle = vehicle
         self.mf = mapfilter
         self.rng = rng
@@ -67,18 +88,22 @@ class RBSlam:
         self.resample_ess = resample_ess
         self.resample_every = resample_every
         self.x = vehicle.initial(np.asarray(start, dtype=np.float64), n)
-        self.logw = np.full(n, -np.log(n))
-        # log p(Z_1:k) up to the filter's constant (log of the clutter-only likelihood): the sum over steps of
-        # the log normaliser of the weights (the sequential Monte Carlo estimate of the marginal likelihood);
-        # a criterion for settings that needs no ground truth
-        self.log_evidence = 0.0
+        # islands (module docstring): particle k * m + j is particle j of island k; each island's weights are
+        # normalised on their own, and each island resamples on its own
+        self.islands, self._m = islands, n // islands
+        self._isl = [slice(k * self._m, (k + 1) * self._m) for k in range(islands)]
+        self.logw = np.full(n, -np.log(self._m))
+        # log p(Z_1:k) of each island up to the filter's constant (log of the clutter-only likelihood): the sum over
+        # steps of the log normaliser of its weights (the sequential Monte Carlo estimate of the marginal likelihood)
+        self._evidence = np.zeros(islands)
         if hasattr(mapfilter, "bind"):
             mapfilter.bind(rng)  # filters that sample draw from the run's generator
         self.maps = mapfilter.empty(n)
         self.history = ParticleHistory(self.x)
         self._pending = np.arange(n, dtype=np.int32)  # parents of the next history row
-        self._since = 0
-        self._heaviest: int | None = None  # after a resampling: a copy of the particle that was heaviest before it
+        self._since = np.zeros(islands, np.int64)
+        # per island, after a resampling: a copy of the particle that was heaviest before it (-1: none)
+        self._heaviest = np.full(islands, -1, np.int64)
         self.time = {"predict": 0.0, "resample": 0.0}
         # the optimal proposal needs a planar-pose vehicle and a map filter that offers it
         self.proposal = proposal if (vehicle.dim == 3 and hasattr(mapfilter, "pose_proposal")) else "prior"
@@ -87,6 +112,15 @@ class RBSlam:
     @property
     def n(self) -> int:
         return self.x.shape[0]
+
+    @property
+    def log_evidence(self) -> float:
+        """log p(Z_1:k) up to the filter's constant: a criterion for settings that needs no ground truth. With
+        islands, the log of the mean of the islands' estimates (each is an unbiased estimate of p(Z_1:k))."""
+        if self.islands == 1:
+            return float(self._evidence[0])
+        m = float(np.max(self._evidence))
+        return m + float(np.log(np.mean(np.exp(self._evidence - m))))
 
     def predict(self, controls: np.ndarray, dts: np.ndarray) -> None:
         """Move every particle through the control rows (R, k), each held for dts (R,) [s]."""
@@ -119,58 +153,108 @@ class RBSlam:
         self.history.append(self.x, self._pending)
         self._pending = np.arange(self.n, dtype=np.int32)
         self.maps, loglik = self.mf.update(self.maps, self.vehicle.pose(self.x), meas)
-        self.logw, log_norm = normalise_log(self.logw + loglik + correction)
-        self.log_evidence += log_norm
+        logw = self.logw + loglik + correction
+        for k, sl in enumerate(self._isl):
+            logw[sl], log_norm = normalise_log(logw[sl])
+            self._evidence[k] += log_norm
+        self.logw = logw
         if hasattr(self.mf, "record"):  # the labelled filters' map estimate averages the particles' weighted states
             self.mf.record(self.maps, self.logw)
         t0 = time.perf_counter()
-        e = ess(self.logw)
+        e = np.array([ess(self.logw[sl]) for sl in self._isl])
         self._since += 1
-        resampled = e < self.resample_ess * self.n and self._since >= self.resample_every
-        if resampled:
-            w = np.exp(self.logw)
-            idx = self.resample(w / w.sum(), self.rng)
-            # the weights are uniform after resampling: the estimate stays with the heaviest particle's first copy
-            # (systematic, stratified and residual resampling keep every particle of weight >= 1/n, as the heaviest is;
-            # a multinomial draw may lose it, and then the argmax of the uniform weights stands)
-            copies = np.flatnonzero(idx == int(np.argmax(w)))
-            self._heaviest = int(copies[0]) if copies.size else None
+        due = (e < self.resample_ess * self._m) & (self._since >= self.resample_every)
+        if due.any():
+            idx = np.arange(self.n)
+            for k in np.flatnonzero(due):
+                sl = self._isl[k]
+                w = np.exp(self.logw[sl])
+                local = self.resample(w / w.sum(), self.rng)
+                # the weights are uniform after resampling: the estimate stays with the heaviest particle's first copy
+                # (systematic, stratified and residual resampling keep every particle of weight >= 1/m, as the heaviest is;
+                # a multinomial draw may lose it, and then the argmax of the uniform weights stands)
+                copies = np.flatnonzero(local == int(np.argmax(w)))
+                self._heaviest[k] = sl.start + int(copies[0]) if copies.size else -1
+                idx[sl] = sl.start + local
+                self.logw[sl] = -np.log(self._m)
+                self._since[k] = 0
             self.x = self.x[idx]
             self.maps = self.maps.take(idx)
             self._pending = idx.astype(np.int32)
-            self.logw = np.full(self.n, -np.log(self.n))
-            self._since = 0
         dt = time.perf_counter() - t0
         self.time["resample"] += dt
-        return StepInfo(len(meas), e, bool(resampled), float(np.mean(self.mf.size(self.maps))), dt * 1e3)
+        return StepInfo(len(meas), float(e.sum()), bool(due.any()), float(np.mean(self.mf.size(self.maps))), dt * 1e3)
 
     # ------------------------------------------------------------------ estimates
+    def island_best(self, k: int) -> int:
+        """Island k's heaviest particle; right after its resampling (uniform weights, where the argmax would be its first
+        particle whatever it holds) a copy of the one that was heaviest."""
+        if self._since[k] == 0 and self._heaviest[k] >= 0:
+            return int(self._heaviest[k])
+        sl = self._isl[k]
+        return sl.start + int(np.argmax(self.logw[sl]))
+
     def best(self) -> int:
-        """The particle whose map and trajectory are the estimate: the heaviest; right after a resampling (uniform
-        weights, where the argmax would be particle 0 whatever it holds) a copy of the one that was heaviest."""
-        if self._since == 0 and self._heaviest is not None:
-            return self._heaviest
-        return int(np.argmax(self.logw))
+        """The particle whose map and trajectory are the estimate: the heaviest (of the island of the largest evidence;
+        with islands the estimate then averages every island's heaviest: :meth:`trajectory`, :meth:`map_estimate`)."""
+        return self.island_best(int(np.argmax(self._evidence)))
 
     def weights(self) -> np.ndarray:
-        w = np.exp(self.logw - self.logw.max())
-        return w / w.sum()
+        """(P,) the particles' normalised weights (islands weigh alike)."""
+        if self.islands == 1:
+            w = np.exp(self.logw - self.logw.max())
+            return w / w.sum()
+        return np.exp(self.logw) / self.islands
 
     def mean_pose(self) -> np.ndarray:
         """(3,) the particles' weighted mean planar pose (circular mean of the heading)."""
-        w = self.weights()
-        pose = self.vehicle.pose(self.x)
-        xy = w @ pose[:, :2]
-        th = np.arctan2(w @ np.sin(pose[:, 2]), w @ np.cos(pose[:, 2]))
-        return np.array([xy[0], xy[1], th])
+        return _mean_pose(self.vehicle.pose(self.x), self.weights())
 
     def trajectory(self, i: int | None = None) -> np.ndarray:
-        """(T, dim) the states of particle ``i``'s ancestors at every recorded step (default: the best)."""
+        """(T, dim) the states of particle ``i``'s ancestors at every recorded step (default: the best; with islands
+        and a planar-pose vehicle, the mean of the islands' heaviest particles' histories)."""
+        if i is None and self.islands > 1 and self.vehicle.dim == 3:
+            tr = np.stack([self.history.trajectory(int(self._pending[self.island_best(k)])) for k in range(self.islands)])
+            w = np.full(self.islands, 1.0 / self.islands)
+            return np.stack([_mean_pose(tr[:, t], w) for t in range(tr.shape[1])])
         i = self.best() if i is None else i
         return self.history.trajectory(int(self._pending[i]))
 
     def map_estimate(self, i: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        return self.mf.estimate(self.maps, self.best() if i is None else i)
+        """Particle i's map estimate (states, weights); default: the best particle's, and with islands and a labelled
+        filter each of its labels at the mean of its state in the islands' heaviest particles' estimates that hold it."""
+        if i is not None or self.islands == 1 or not hasattr(self.mf, "labels"):
+            return self.mf.estimate(self.maps, self.best() if i is None else i)
+        ref = self.best()
+        lab, x, r = self.mf.labels(self.maps, ref)
+        others = [self.mf.labels(self.maps, self.island_best(k))[:2] for k in range(self.islands)]
+        others = [o for o, k in zip(others, range(self.islands), strict=True) if self.island_best(k) != ref]
+        return average_states(self.mf.feature, lab, x, others), r
+
+
+def _mean_pose(pose: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(3,) the w-weighted mean of planar poses (P, 3), the heading's circular mean."""
+    xy = w @ pose[:, :2]
+    th = np.arctan2(w @ np.sin(pose[:, 2]), w @ np.cos(pose[:, 2]))
+    return np.array([xy[0], xy[1], th])
+
+
+def average_states(feature, label: np.ndarray, x: np.ndarray, others: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """x (K, dx) of the labels (K,), each averaged with the states of the same label in ``others`` (labels, states)
+    that hold it; the feature's angular state components averaged as differences from x, wrapped."""
+    acc, cnt = np.zeros_like(x, dtype=np.float64), np.ones(label.size)
+    ang = list(feature.state_angular)
+    for lab_o, x_o in others:
+        order = np.argsort(lab_o, kind="stable")
+        j = np.minimum(np.searchsorted(lab_o[order], label), max(lab_o.size - 1, 0))
+        hit = (lab_o[order][j] == label) if lab_o.size else np.zeros(label.size, bool)
+        d = x_o[order][j[hit]] - x[hit]
+        d[:, ang] = wrap(d[:, ang])
+        acc[hit] += d
+        cnt[hit] += 1
+    out = x + acc / cnt[:, None]
+    out[:, ang] = wrap(out[:, ang])
+    return out
 
 
 def _log_normal(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:

@@ -109,3 +109,44 @@ def test_the_estimate_stays_with_the_heaviest_particle_through_resampling(resamp
     # the next step without resampling: the argmax again (the copies of particle 3 keep the largest score)
     slam.resample_ess = 0.0
     assert not slam.update(Measurements(np.zeros((0, 2)))).resampled and slam.map_estimate()[0][0, 0] == scores[3]
+
+
+def test_islands_are_independent_filters():
+    """Two islands of four particles: each normalises and resamples its own weights, so after a resampling each
+    island holds only copies of its own particles and weighs half; the log evidence is the log of the mean of the
+    islands' (0.25 and 0.5: log 0.375); the estimate is the heaviest particle of the island with the larger
+    evidence. Particles that are not a multiple of the islands are refused."""
+    from profiles.errors import UsageError
+    from slam_runtime.slam import RBSlam
+    from slam_runtime.sources import Measurements
+    from slam_runtime.vehicle import OdometryIncrement
+
+    scores = np.log([0.7, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 1.7])
+    slam = RBSlam(OdometryIncrement(), _ScoredMaps(scores), 8, np.zeros(3), np.random.default_rng(0), islands=2)
+    info = slam.update(Measurements(np.zeros((0, 2))))
+    assert info.resampled
+    assert set(slam.maps[:4].tolist()) <= set(scores[:4].tolist()) and set(slam.maps[4:].tolist()) <= set(scores[4:].tolist())
+    assert np.all(slam._pending[:4] < 4) and np.all(slam._pending[4:] >= 4)  # the history's parents stay in the island
+    w = slam.weights()
+    assert w[:4].sum() == pytest.approx(0.5) and w[4:].sum() == pytest.approx(0.5)
+    assert slam.log_evidence == pytest.approx(np.log(0.375))
+    assert slam.maps[slam.best()] == scores[7] and slam.map_estimate()[0][0, 0] == scores[7]
+    assert slam.trajectory().shape == (2, 3)
+    with pytest.raises(UsageError, match="multiple of islands"):
+        RBSlam(OdometryIncrement(), _ScoredMaps(scores), 8, np.zeros(3), np.random.default_rng(0), islands=3)
+
+
+def test_island_maps_average_label_by_label():
+    """The islands' map estimate: the reference's labels, each at the mean of its state in the estimates that hold
+    it (label 5 in all three: (0 + 3 + 6) / 3; label 3 in two: (1 + 2) / 2; label 9, held by another island only,
+    is not in the reference's set); an angular state component averages across the wrap."""
+    from slam_runtime.features import RangeBearing
+    from slam_runtime.plane_features import PlaneFeature
+    from slam_runtime.slam import average_states
+
+    fm = RangeBearing(np.eye(2))
+    x = average_states(fm, np.array([5, 3]), np.array([[0.0, 1.0], [1.0, 1.0]]),
+                       [(np.array([9, 3, 5]), np.array([[7.0, 7.0], [2.0, 1.0], [3.0, 1.0]])), (np.array([5]), np.array([[6.0, 1.0]]))])  # fmt: skip
+    np.testing.assert_allclose(x, [[3.0, 1.0], [1.5, 1.0]])
+    x = average_states(PlaneFeature(np.eye(3)), np.array([1]), np.array([[np.pi - 0.05, 0.0, 2.0]]), [(np.array([1]), np.array([[-np.pi + 0.15, 0.0, 4.0]]))])
+    np.testing.assert_allclose(x, [[-np.pi + 0.05, 0.0, 3.0]], atol=1e-12)
