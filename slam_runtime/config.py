@@ -14,7 +14,8 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator
+from pydantic_core import PydanticCustomError
 
 from profiles.errors import DataError, UsageError
 from slam_runtime.glmb import GLMBConfig
@@ -147,11 +148,16 @@ class SlamConfig(_Strict):
     detection: DetectionOptions = DetectionOptions()
     metric: MetricConfig = MetricConfig()
 
-    @model_validator(mode="after")
-    def _islands_share_the_particles(self) -> SlamConfig:
-        if self.particles % self.islands:
-            raise ValueError(f"islands: {self.islands} islands cannot share {self.particles} particles equally (particles must be a multiple of islands)")
-        return self
+    @field_validator("islands")
+    @classmethod
+    def _islands_share_the_particles(cls, islands: int, info: ValidationInfo) -> int:
+        particles = info.data.get("particles")
+        if particles is not None and particles % islands:
+            raise PydanticCustomError(
+                "islands", "{islands} islands cannot share {particles} particles equally (particles must be a multiple of islands)",
+                {"islands": islands, "particles": particles},
+            )
+        return islands
 
 
 FILTER_KINDS = ("rbphd", "lmb", "glmb")

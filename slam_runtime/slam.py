@@ -18,11 +18,15 @@ share one history for all but the last steps, so its heaviest particle's
 trajectory and map are one draw from the smoothing posterior, with that
 draw's error; K islands give K such draws, and the estimate averages them
 with equal weights: the trajectory (:meth:`RBSlam.trajectory`, the heading's
-circular mean) and, for a labelled map filter, each label of the reference
+circular mean; a vehicle state that is not a planar pose, ECT's, is the
+reference island's) and, for a labelled map filter, each label of the reference
 island's map estimate (the island of the largest evidence) at the mean of
 its state in the islands' estimates that hold it (:func:`average_states`;
 a label is one landmark in every particle). RB-PHD's map has no labels: its
-estimate is the reference island's heaviest particle's. The log evidence is
+estimate is the reference island's heaviest particle's, as are the label
+history's states (:mod:`slam_runtime.labels` follows :meth:`RBSlam.best`).
+A step's ESS is the sum of the islands'; an island whose particles all have
+zero weight stops the run, as one filter's would. The log evidence is
 the log of the mean of the islands' (each an unbiased estimate of p(Z_1:k)).
 ``islands: 1`` is the single filter, the same bytes as before.
 
@@ -58,7 +62,7 @@ from slam_runtime.vehicle import VehicleModel
 @dataclass
 class StepInfo:
     n_measurements: int
-    ess: float
+    ess: float  # with islands: the sum of the islands' effective sample sizes
     resampled: bool
     components: float
     resample_ms: float  # time of the resampling decision and, when it happened, the resampling
@@ -155,7 +159,12 @@ class RBSlam:
         self.maps, loglik = self.mf.update(self.maps, self.vehicle.pose(self.x), meas)
         logw = self.logw + loglik + correction
         for k, sl in enumerate(self._isl):
-            logw[sl], log_norm = normalise_log(logw[sl])
+            try:
+                logw[sl], log_norm = normalise_log(logw[sl])
+            except FloatingPointError:
+                if self.islands == 1:
+                    raise
+                raise FloatingPointError(f"every particle of island {k} (of {self.islands}) has zero weight") from None
             self._evidence[k] += log_norm
         self.logw = logw
         if hasattr(self.mf, "record"):  # the labelled filters' map estimate averages the particles' weighted states

@@ -136,6 +136,53 @@ def test_islands_are_independent_filters():
         RBSlam(OdometryIncrement(), _ScoredMaps(scores), 8, np.zeros(3), np.random.default_rng(0), islands=3)
 
 
+class _GivenLikelihoods:
+    """A map filter whose map is the particle's index and whose step log-likelihoods are given, one row per step."""
+
+    name = "given"
+
+    def __init__(self, rows: list) -> None:
+        self.rows = iter(rows)
+
+    def empty(self, n: int) -> np.ndarray:
+        return np.arange(n, dtype=np.float64)
+
+    def predict(self, maps, dt):
+        return maps
+
+    def update(self, maps, poses, meas):
+        return maps, np.asarray(next(self.rows), dtype=np.float64)
+
+    def size(self, maps):
+        return np.ones(maps.shape[0])
+
+    def estimate(self, maps, i):
+        return np.array([[maps[i], 0.0]]), np.ones(1)
+
+
+def test_an_island_resamples_alone_and_the_trajectory_averages_across_the_wrap():
+    """Island 0's weights collapse (one particle takes 0.97) and island 1's stay even: island 0 alone resamples
+    (its particles become copies of particle 1, its weights uniform), island 1 keeps its particles and its
+    weights. The islands' heaviest particles head pi - 0.05 and -pi + 0.15: the trajectory's last heading is
+    their circular mean, -pi + 0.05 (a plain mean gives 0.05, the opposite way), and its position their mean."""
+    from slam_runtime.slam import RBSlam
+    from slam_runtime.sources import Measurements
+    from slam_runtime.vehicle import OdometryIncrement
+
+    step = np.log([0.01, 0.97, 0.01, 0.01, 0.2, 0.3, 0.25, 0.25])
+    slam = RBSlam(OdometryIncrement(), _GivenLikelihoods([step]), 8, np.zeros(3), np.random.default_rng(0), islands=2)
+    slam.x[:4] = [1.0, 2.0, np.pi - 0.05]
+    slam.x[4:] = [3.0, 0.0, -np.pi + 0.15]
+    info = slam.update(Measurements(np.zeros((0, 2))))
+    assert info.resampled
+    assert np.all(slam.maps[:4] == 1.0) and np.array_equal(slam.maps[4:], [4.0, 5.0, 6.0, 7.0])
+    w = slam.weights()
+    np.testing.assert_allclose(w, [0.125] * 4 + [0.1, 0.15, 0.125, 0.125])
+    assert slam.island_best(0) in range(4) and slam.island_best(1) == 5
+    last = slam.trajectory()[-1]
+    np.testing.assert_allclose(last, [2.0, 1.0, -np.pi + 0.05], atol=1e-12)
+
+
 def test_island_maps_average_label_by_label():
     """The islands' map estimate: the reference's labels, each at the mean of its state in the estimates that hold
     it (label 5 in all three: (0 + 3 + 6) / 3; label 3 in two: (1 + 2) / 2; label 9, held by another island only,
