@@ -164,15 +164,17 @@ def test_an_island_resamples_alone_and_the_trajectory_averages_across_the_wrap()
     """Island 0's weights collapse (one particle takes 0.97) and island 1's stay even: island 0 alone resamples
     (its particles become copies of particle 1, its weights uniform), island 1 keeps its particles and its
     weights. The islands' heaviest particles head pi - 0.05 and -pi + 0.15: the trajectory's last heading is
-    their circular mean, -pi + 0.05 (a plain mean gives 0.05, the opposite way), and its position their mean."""
+    their circular mean, -pi + 0.05 (a plain mean gives 0.05, the opposite way), and its position the mean of the
+    two heaviest particles' own (particles 1 and 5: x = 1 and 3)."""
     from slam_runtime.slam import RBSlam
     from slam_runtime.sources import Measurements
     from slam_runtime.vehicle import OdometryIncrement
 
     step = np.log([0.01, 0.97, 0.01, 0.01, 0.2, 0.3, 0.25, 0.25])
     slam = RBSlam(OdometryIncrement(), _GivenLikelihoods([step]), 8, np.zeros(3), np.random.default_rng(0), islands=2)
-    slam.x[:4] = [1.0, 2.0, np.pi - 0.05]
-    slam.x[4:] = [3.0, 0.0, -np.pi + 0.15]
+    # the particles' positions differ, so the trajectory must follow each heaviest particle's own ancestor
+    slam.x[:4] = [[0.0, 2.0, np.pi - 0.05], [1.0, 2.0, np.pi - 0.05], [5.0, 2.0, np.pi - 0.05], [7.0, 2.0, np.pi - 0.05]]
+    slam.x[4:] = [[9.0, 0.0, -np.pi + 0.15], [3.0, 0.0, -np.pi + 0.15], [8.0, 0.0, -np.pi + 0.15], [6.0, 0.0, -np.pi + 0.15]]
     info = slam.update(Measurements(np.zeros((0, 2))))
     assert info.resampled
     assert np.all(slam.maps[:4] == 1.0) and np.array_equal(slam.maps[4:], [4.0, 5.0, 6.0, 7.0])
