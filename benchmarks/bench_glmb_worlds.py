@@ -75,9 +75,11 @@ def one(job: tuple) -> dict:
     finally:
         slam_loop.RBSlam.update = update
     m = evaluate(log, res, 0.5, 1.0, cfg)
-    maps = {"seen_mean": res.map_xy, "best": last.placed("best")} if placing is not None else {None: res.map_xy}
-    est = maps.pop(placing)
-    other = ospa(maps.popitem()[1], log.landmarks.xy, 0.5, 1.0) if maps else float("nan")
+    est, other = res.map_xy, float("nan")
+    if placing is not None:
+        best = last.placed("best")
+        est, alt = (best, res.map_xy) if placing == "best" else (res.map_xy, best)
+        other = ospa(alt, log.landmarks.xy, 0.5, 1.0)
     g = gospa(est, log.landmarks.xy, 0.5, 1.0)
     found = max(m["landmarks_true"] - g["n_missed"], 1)
     return {

@@ -34,6 +34,32 @@ def wrap(a: np.ndarray) -> np.ndarray:
     return np.where(a <= -np.pi, a + 2 * np.pi, a)
 
 
+def mean_by_label(label: np.ndarray, x: np.ndarray, w: np.ndarray, angular: tuple[int, ...] = ()) -> tuple[np.ndarray, np.ndarray]:
+    """The w-weighted mean state of each label: (labels (U,) sorted, means (U, dx)) of states x (N, dx) with labels
+    (N,) and weights (N,). Taken as each label's first state plus the mean of the differences from it, the angular
+    components wrapped, so that angles average across the wrap; a label of total weight 0 keeps its first state."""
+    uniq, first, inv = np.unique(label, return_index=True, return_inverse=True)
+    tot = np.bincount(inv, weights=w, minlength=uniq.size)
+    ref = x[first]
+    d = x - ref[inv]
+    ang = list(angular)
+    d[:, ang] = wrap(d[:, ang])
+    # (float: bincount of no labels is an integer array)
+    acc = np.stack([np.bincount(inv, weights=w * d[:, k], minlength=uniq.size) for k in range(x.shape[1])], axis=1).astype(np.float64)
+    mean = ref + np.divide(acc, tot[:, None], out=np.zeros_like(acc), where=tot[:, None] > 0)
+    mean[:, ang] = wrap(mean[:, ang])
+    return uniq, mean
+
+
+def lookup(keys: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(index into the sorted keys, whether keys hold it) of each query."""
+    n = keys.size
+    if n == 0:
+        return np.zeros(query.shape, np.int64), np.zeros(query.shape, bool)
+    j = np.minimum(np.searchsorted(keys, query), n - 1)
+    return j, keys[j] == query
+
+
 class FeatureModel(ABC):
     dim_x: int
     dim_z: int

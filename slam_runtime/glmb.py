@@ -106,7 +106,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from profiles.errors import UsageError
-from slam_runtime.features import FeatureModel, wrap
+from slam_runtime.features import FeatureModel, lookup, mean_by_label
 from slam_runtime.gibbs import joint_update, reduce_hypotheses
 from slam_runtime.gm import det, inv, matmul, matvec, moment_match, quad, transpose
 from slam_runtime.mapfilter import MapFilter, Measurements
@@ -501,39 +501,19 @@ class LabelledFilter(MapFilter):
         with self.timers("estimate"):
             mu, label, ex = self._map_states(maps)
             pp, ss = np.nonzero((label >= 0) & (ex > 0))
-            uniq, first, inv = np.unique(label[pp, ss], return_index=True, return_inverse=True)
-            wr = np.exp(logw - np.max(logw))[pp] * ex[pp, ss]
-            tot = np.bincount(inv, weights=wr, minlength=uniq.size)
-            x = mu[pp, ss]
-            ref = x[first]
-            # differences from one of the label's states, so that angles average across the wrap (a plane's versions
-            # keep the normal's orientation they were born with: plane_features)
-            d = x - ref[inv]
-            ang = list(self.feature.state_angular)
-            d[:, ang] = wrap(d[:, ang])
-            # (float: bincount of no labels is an integer array)
-            acc = np.stack([np.bincount(inv, weights=wr * d[:, k], minlength=uniq.size) for k in range(x.shape[1])], axis=1).astype(np.float64)
-            mean = ref + np.divide(acc, tot[:, None], out=np.zeros_like(acc), where=tot[:, None] > 0)
-            mean[:, ang] = wrap(mean[:, ang])
-            j, hit = self._recorded(uniq)
+            # (a plane's versions keep the normal's orientation they were born with: plane_features)
+            uniq, mean = mean_by_label(label[pp, ss], mu[pp, ss], np.exp(logw - np.max(logw))[pp] * ex[pp, ss], self.feature.state_angular)
+            j, hit = lookup(self._rec_label, uniq)
             kept = hit & ~np.isin(uniq, self._seen)
             mean[kept] = self._rec_x[j[kept]]
             self._rec_label, self._rec_x, self._rec_step = uniq, mean, self.step
-
-    def _recorded(self, label: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(index into the record, whether the record holds it) of each label."""
-        n = self._rec_label.size
-        if n == 0:
-            return np.zeros(label.shape, np.int64), np.zeros(label.shape, bool)
-        j = np.minimum(np.searchsorted(self._rec_label, label), n - 1)
-        return j, self._rec_label[j] == label
 
     def _placed(self, label: np.ndarray, x: np.ndarray) -> np.ndarray:
         """The states of a map estimate's labels: the record's (``map_estimate: seen_mean``, when it was made for
         these maps) or the particle's own x."""
         if self.cfg.map_estimate != "seen_mean" or self._rec_step != self.step or not label.size:
             return x
-        j, hit = self._recorded(label)
+        j, hit = lookup(self._rec_label, label)
         x = x.copy()
         x[hit] = self._rec_x[j[hit]]
         return x
@@ -644,9 +624,8 @@ class GLMB(LabelledFilter):
         return np.concatenate([tr.mu, fr.mu], axis=1), np.concatenate([tr.label, fr.label], axis=1), ex
 
     def _map_tracks(self, maps: GLMBMaps) -> tuple[Tracks, np.ndarray]:
-        tr, fr = maps.tracks, maps.free
-        both = Tracks(np.concatenate([tr.mu, fr.mu], axis=1), np.concatenate([tr.cov, fr.cov], axis=1), np.concatenate([tr.label, fr.label], axis=1))
-        return both, np.concatenate([self._slot_existence(maps), maps.free_r], axis=1)
+        mu, label, ex = self._map_states(maps)
+        return Tracks(mu, np.concatenate([maps.tracks.cov, maps.free.cov], axis=1), label), ex
 
     # ------------------------------------------------------------------ estimates
     def components(self, maps: GLMBMaps, i: int) -> tuple[np.ndarray, np.ndarray]:

@@ -53,7 +53,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from profiles.errors import UsageError
-from slam_runtime.features import wrap
+from slam_runtime.features import lookup, mean_by_label
 from slam_runtime.mapfilter import MapFilter, Measurements
 from slam_runtime.particles import RESAMPLERS, ParticleHistory, ess, normalise_log
 from slam_runtime.vehicle import VehicleModel
@@ -224,6 +224,7 @@ class RBSlam:
         and a planar-pose vehicle, the mean of the islands' heaviest particles' histories)."""
         if i is None and self.islands > 1 and self.vehicle.dim == 3:
             tr = np.stack([self.history.trajectory(int(self._pending[self.island_best(k)])) for k in range(self.islands)])
+            # once per call, at the end of a run: a loop over the steps (one batched product differs in the last bit)
             w = np.full(self.islands, 1.0 / self.islands)
             return np.stack([_mean_pose(tr[:, t], w) for t in range(tr.shape[1])])
         i = self.best() if i is None else i
@@ -236,8 +237,7 @@ class RBSlam:
             return self.mf.estimate(self.maps, self.best() if i is None else i)
         ref = self.best()
         lab, x, r = self.mf.labels(self.maps, ref)
-        others = [self.mf.labels(self.maps, self.island_best(k))[:2] for k in range(self.islands)]
-        others = [o for o, k in zip(others, range(self.islands), strict=True) if self.island_best(k) != ref]
+        others = [self.mf.labels(self.maps, b)[:2] for b in map(self.island_best, range(self.islands)) if b != ref]
         return average_states(self.mf.feature, lab, x, others), r
 
 
@@ -250,20 +250,12 @@ def _mean_pose(pose: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 def average_states(feature, label: np.ndarray, x: np.ndarray, others: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
     """x (K, dx) of the labels (K,), each averaged with the states of the same label in ``others`` (labels, states)
-    that hold it; the feature's angular state components averaged as differences from x, wrapped."""
-    acc, cnt = np.zeros_like(x, dtype=np.float64), np.ones(label.size)
-    ang = list(feature.state_angular)
-    for lab_o, x_o in others:
-        order = np.argsort(lab_o, kind="stable")
-        j = np.minimum(np.searchsorted(lab_o[order], label), max(lab_o.size - 1, 0))
-        hit = (lab_o[order][j] == label) if lab_o.size else np.zeros(label.size, bool)
-        d = x_o[order][j[hit]] - x[hit]
-        d[:, ang] = wrap(d[:, ang])
-        acc[hit] += d
-        cnt[hit] += 1
-    out = x + acc / cnt[:, None]
-    out[:, ang] = wrap(out[:, ang])
-    return out
+    that hold it, with equal weights (:func:`slam_runtime.features.mean_by_label`: angular components about x)."""
+    uniq, mean = mean_by_label(
+        np.concatenate([label, *(o[0] for o in others)]), np.concatenate([x, *(o[1] for o in others)]),
+        np.ones(label.size + sum(o[0].size for o in others)), feature.state_angular,
+    )
+    return mean[lookup(uniq, label)[0]]
 
 
 def _log_normal(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
