@@ -37,6 +37,8 @@ children and their weights differ only by what differs between them, and one
 particle having a candidate more (a track the other's map lacks) does not
 shift every later draw of its chains. Labels are shared by the particles
 (a birth's label is its measurement's), so the keys line up across them.
+The seed is per particle: one filter gives all its particles the same; islands
+(independent filters) give each island its own, so their draws are independent.
 
 Held candidates: a candidate that is a candidate of every prior hypothesis
 with the same options (a birth, a released track) and independent of every
@@ -272,12 +274,13 @@ def _sample_option(e_d, e_m, e_row, gl, ng, taken, k, u01):  # pragma: no cover 
 
 
 @numba.njit(cache=True, nogil=True)
-def joint_update(seed, logw, member, act, nact, l_death, l_miss, l_det, total, prune, cap, held, l_held, cand_label):  # pragma: no cover - compiled
+def joint_update(seeds, logw, member, act, nact, l_death, l_miss, l_det, total, prune, cap, held, l_held, cand_label):  # pragma: no cover - compiled
     """Gibbs-sampled joint prediction/update of the labelled maps of P particles.
 
-    seed: the step's seed (drawn from the run's Generator), the same for every particle: the uniform of each
-    draw is a function of (seed, position of the prior hypothesis among the live ones, sample, candidate
-    label) (common random numbers; the hypotheses come sorted by weight from the reduction);
+    seeds (P,) int64: the step's seed of each particle (drawn from the run's Generator), the same for every particle
+    of one filter (an island): the uniform of each draw is a function of (seed, position of the prior hypothesis
+    among the live ones, sample, candidate label) (common random numbers; the hypotheses come sorted by weight from
+    the reduction);
     logw (P, H): normalised log weights of the prior hypotheses (-inf: empty slot);
     member (P, H, S) bool: slot s is a candidate of hypothesis h (its tracks, and the births);
     act (P, A) int64: slot of each active candidate (P_D > 0 or birth), nact (P,) how many;
@@ -447,7 +450,7 @@ def joint_update(seed, logw, member, act, nact, l_death, l_miss, l_det, total, p
                     for k in range(n):
                         i = rows[k]
                         # common random numbers keyed by label (module docstring)
-                        g = _sample_option(e_d[i], e_m[i], e_row[i], gl[i], ng[i], taken, k, _keyed_uniform(seed, hq, smp, cand_label[p, i]))
+                        g = _sample_option(e_d[i], e_m[i], e_row[i], gl[i], ng[i], taken, k, _keyed_uniform(seeds[p], hq, smp, cand_label[p, i]))
                         if gamma[k] > 0:
                             taken[gamma[k] - 1] = -1
                         gamma[k] = g

@@ -35,7 +35,8 @@ One step (:meth:`GLMB.update`, eqs. 11-17):
 * the particle's log-likelihood is the log of the normalisation constant
   (eq. 25): the sum of the unnormalised weights of all the children drawn.
   The uniforms of the draws are keyed by (step, hypothesis rank, sample,
-  candidate label), the same for every particle (common random numbers), so
+  candidate label), the same for every particle of a filter (common random
+  numbers; islands each have their own step seeds, so they draw independently), so
   particles whose maps and poses agree draw the same hypotheses and their
   weights differ by what differs between them, not by sampling luck, even when
   one holds a track the other lacks; a birth that gates no measurement and is
@@ -299,7 +300,7 @@ class LabelledFilter(MapFilter):
         super().__init__(feature, detection)
         self.cfg = cfg
         self.r = feature.r * cfg.noise_inflation
-        self.rng = rng
+        self.rng, self.groups = rng, 1
         self.step = 0
         # the map estimate's positions (map_estimate: seen_mean): per label, sorted, the particles' weighted mean
         # state at the last step the sensor could see it; made by record() at step _rec_step
@@ -308,14 +309,20 @@ class LabelledFilter(MapFilter):
         self._rec_x = np.zeros((0, feature.dim_x))
         self._rec_step = -1
 
-    def bind(self, rng: np.random.Generator) -> None:
-        """Use the run's generator for the Gibbs sampler (the particle loop calls this)."""
-        self.rng = rng
+    def bind(self, rng: np.random.Generator, groups: int = 1) -> None:
+        """Use the run's generator for the Gibbs sampler (the particle loop calls this); the particles come in
+        ``groups`` equal contiguous groups (islands), each drawing with its own step seed."""
+        self.rng, self.groups = rng, groups
 
-    def _seed(self) -> int:
+    def _seeds(self, p: int) -> np.ndarray:
+        """(p,) each particle's seed of this step: one per group (island), drawn from the run's generator."""
         if self.rng is None:
             raise UsageError(f"the {self.name} map filter needs a random generator: pass rng= or let the particle loop bind one")
-        return int(self.rng.integers(0, 2**62))
+        if self.groups == 1:
+            return np.full(p, self.rng.integers(0, 2**62), np.int64)
+        if p % self.groups:
+            raise UsageError(f"the {self.name} map filter's {p} particles do not split into {self.groups} islands")
+        return np.repeat(self.rng.integers(0, 2**62, size=self.groups), p // self.groups)
 
     # ------------------------------------------------------------------ pieces of a step
     def _log_kappa(self, z: np.ndarray, meas: Measurements) -> np.ndarray:
@@ -388,7 +395,7 @@ class LabelledFilter(MapFilter):
 
     def _sample(self, logw: np.ndarray, member: np.ndarray, c: _Costs, prune: float, cap: int) -> JointResult:
         out = joint_update(
-            self._seed(), np.ascontiguousarray(logw), np.ascontiguousarray(member), c.act, c.nact,
+            self._seeds(logw.shape[0]), np.ascontiguousarray(logw), np.ascontiguousarray(member), c.act, c.nact,
             np.ascontiguousarray(c.l_death), np.ascontiguousarray(c.l_miss), np.ascontiguousarray(c.l_det),
             int(self.cfg.samples), float(prune), int(cap), np.ascontiguousarray(c.held), np.ascontiguousarray(c.l_held), np.ascontiguousarray(c.label),
         )

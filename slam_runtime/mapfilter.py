@@ -128,9 +128,10 @@ class MapFilter(ABC):
             self.clutter(z, meas), gate=gate, share=share, iterations=iterations,
         )
 
-    def bind(self, rng: np.random.Generator) -> None:
+    def bind(self, rng: np.random.Generator, groups: int = 1) -> None:
         """Receive the run's generator (the particle loop calls this); filters that sample (the Gibbs
-        sampler of the labelled filters) draw from it, the others ignore it."""
+        sampler of the labelled filters) draw from it, the others ignore it. ``groups``: the particles come in
+        this many equal contiguous islands, independent filters whose draws must not be shared."""
 
     def predict(self, maps: MapState, dt: float) -> MapState:
         return maps

@@ -101,7 +101,7 @@ class RBSlam:
         # steps of the log normaliser of its weights (the sequential Monte Carlo estimate of the marginal likelihood)
         self._evidence = np.zeros(islands)
         if hasattr(mapfilter, "bind"):
-            mapfilter.bind(rng)  # filters that sample draw from the run's generator
+            mapfilter.bind(rng, islands)  # filters that sample draw from the run's generator, each island its own draws
         self.maps = mapfilter.empty(n)
         self.history = ParticleHistory(self.x)
         self._pending = np.arange(n, dtype=np.int32)  # parents of the next history row
