@@ -318,8 +318,6 @@ class LabelledFilter(MapFilter):
         """(p,) each particle's seed of this step: one per group (island), drawn from the run's generator."""
         if self.rng is None:
             raise UsageError(f"the {self.name} map filter needs a random generator: pass rng= or let the particle loop bind one")
-        if self.groups == 1:
-            return np.full(p, self.rng.integers(0, 2**62), np.int64)
         if p % self.groups:
             raise UsageError(f"the {self.name} map filter's {p} particles do not split into {self.groups} islands")
         return np.repeat(self.rng.integers(0, 2**62, size=self.groups), p // self.groups)
