@@ -199,3 +199,26 @@ def test_island_maps_average_label_by_label():
     np.testing.assert_allclose(x, [[3.0, 1.0], [1.5, 1.0]])
     x = average_states(PlaneFeature(np.eye(3)), np.array([1]), np.array([[np.pi - 0.05, 0.0, 2.0]]), [(np.array([1]), np.array([[-np.pi + 0.15, 0.0, 4.0]]))])
     np.testing.assert_allclose(x, [[-np.pi + 0.05, 0.0, 3.0]], atol=1e-12)
+
+
+def test_each_island_counts_its_own_updates_since_it_resampled():
+    """resample_every = 2 with two islands: at step 2 island 0's weights collapse and it resamples alone; at step 3
+    both collapse, and only island 1 (three updates since it last resampled, against island 0's one) resamples.
+    A count shared by the islands, reset whenever any island resamples, would hold island 1 back at step 3."""
+    from slam_runtime.slam import RBSlam
+    from slam_runtime.sources import Measurements
+    from slam_runtime.vehicle import OdometryIncrement
+
+    even = np.zeros(8)
+    collapse = np.log([0.01, 0.97, 0.01, 0.01, 0.01, 0.01, 0.97, 0.01])
+    first = np.concatenate([collapse[:4], even[4:]])
+    slam = RBSlam(OdometryIncrement(), _GivenLikelihoods([even, first, collapse]), 8, np.zeros(3), np.random.default_rng(0),
+                  resample_every=2, islands=2)  # fmt: skip
+    assert not slam.update(Measurements(np.zeros((0, 2)))).resampled  # even weights
+    assert slam.update(Measurements(np.zeros((0, 2)))).resampled
+    assert np.all(slam.maps[:4] == 1.0) and np.array_equal(slam.maps[4:], [4.0, 5.0, 6.0, 7.0])
+    assert slam.update(Measurements(np.zeros((0, 2)))).resampled
+    assert np.all(slam.maps[:4] == 1.0) and np.all(slam.maps[4:] == 6.0)
+    # island 0 collapsed but was not due: its weights carry the collapse (particle 1 of its four copies heaviest)
+    w = slam.weights()
+    assert w[1] == pytest.approx(0.5 * 0.97) and np.allclose(w[4:], 0.125)
