@@ -15,8 +15,9 @@ particles are K independent filters of P / K particles, each normalising and
 resampling its own weights (the map filter updates all particles at once as
 before, told the islands by ``bind`` so that a sampling map filter draws each
 island's Gibbs uniforms from its own step seed: the islands' draws are
-independent, common random numbers hold within an island). After a few hundred steps of resampling the particles of one filter
-share one history for all but the last steps, so its heaviest particle's
+independent, common random numbers hold within an island). After a few
+hundred steps of resampling the particles of one filter share one history
+for all but the last steps, so its heaviest particle's
 trajectory and map are one draw from the smoothing posterior, with that
 draw's error; K islands give K such draws, and the estimate averages them
 with equal weights: the trajectory (:meth:`RBSlam.trajectory`, the heading's

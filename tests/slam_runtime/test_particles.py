@@ -3,7 +3,18 @@
 import numpy as np
 import pytest
 
+from profiles.errors import UsageError
+from slam_runtime.features import RangeBearing
 from slam_runtime.particles import RESAMPLERS, ParticleHistory, ess, normalise_log, systematic
+from slam_runtime.plane_features import PlaneFeature
+from slam_runtime.slam import RBSlam, average_states
+from slam_runtime.sources import Measurements
+from slam_runtime.vehicle import OdometryIncrement
+
+
+def _nothing() -> Measurements:
+    """A scan without measurements (the map filters of these tests take their likelihoods from elsewhere)."""
+    return Measurements(np.zeros((0, 2)))
 
 
 @pytest.mark.parametrize("name", sorted(RESAMPLERS))
@@ -93,22 +104,18 @@ class _ScoredMaps:
 def test_the_estimate_stays_with_the_heaviest_particle_through_resampling(resampler):
     """After a resampling every weight is 1/n; the estimate must still be the particle that was heaviest (the
     argmax of uniform weights would be particle 0, whatever it holds)."""
-    from slam_runtime.slam import RBSlam
-    from slam_runtime.sources import Measurements
-    from slam_runtime.vehicle import OdometryIncrement
-
     # weights 0.3 and 0.6 for particles 0 and 3 (ESS 2.2 of 8: resampled); particle 0 keeps copies, so the
     # first particle after resampling is one of its copies, not the heaviest's
     scores = np.log([0.3, 0.01, 0.01, 0.6, 0.02, 0.02, 0.02, 0.02])
     slam = RBSlam(OdometryIncrement(), _ScoredMaps(scores), 8, np.zeros(3), np.random.default_rng(0), resampler=resampler)
-    info = slam.update(Measurements(np.zeros((0, 2))))
+    info = slam.update(_nothing())
     assert info.resampled and np.allclose(slam.weights(), 1 / 8)
     assert slam.maps[0] == scores[0]  # the argmax of the uniform weights would give particle 0's map
     assert slam.map_estimate()[0][0, 0] == scores[3]
     assert slam.maps[slam.best()] == scores[3] and slam.trajectory().shape == (2, 3)
     # the next step without resampling: the argmax again (the copies of particle 3 keep the largest score)
     slam.resample_ess = 0.0
-    assert not slam.update(Measurements(np.zeros((0, 2)))).resampled and slam.map_estimate()[0][0, 0] == scores[3]
+    assert not slam.update(_nothing()).resampled and slam.map_estimate()[0][0, 0] == scores[3]
 
 
 def test_islands_are_independent_filters():
@@ -116,14 +123,9 @@ def test_islands_are_independent_filters():
     island holds only copies of its own particles and weighs half; the log evidence is the log of the mean of the
     islands' (0.25 and 0.5: log 0.375); the estimate is the heaviest particle of the island with the larger
     evidence. Particles that are not a multiple of the islands are refused."""
-    from profiles.errors import UsageError
-    from slam_runtime.slam import RBSlam
-    from slam_runtime.sources import Measurements
-    from slam_runtime.vehicle import OdometryIncrement
-
     scores = np.log([0.7, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 1.7])
     slam = RBSlam(OdometryIncrement(), _ScoredMaps(scores), 8, np.zeros(3), np.random.default_rng(0), islands=2)
-    info = slam.update(Measurements(np.zeros((0, 2))))
+    info = slam.update(_nothing())
     assert info.resampled
     assert set(slam.maps[:4].tolist()) <= set(scores[:4].tolist()) and set(slam.maps[4:].tolist()) <= set(scores[4:].tolist())
     assert np.all(slam._pending[:4] < 4) and np.all(slam._pending[4:] >= 4)  # the history's parents stay in the island
@@ -166,16 +168,12 @@ def test_an_island_resamples_alone_and_the_trajectory_averages_across_the_wrap()
     weights. The islands' heaviest particles head pi - 0.05 and -pi + 0.15: the trajectory's last heading is
     their circular mean, -pi + 0.05 (a plain mean gives 0.05, the opposite way), and its position the mean of the
     two heaviest particles' own (particles 1 and 5: x = 1 and 3)."""
-    from slam_runtime.slam import RBSlam
-    from slam_runtime.sources import Measurements
-    from slam_runtime.vehicle import OdometryIncrement
-
     step = np.log([0.01, 0.97, 0.01, 0.01, 0.2, 0.3, 0.25, 0.25])
     slam = RBSlam(OdometryIncrement(), _GivenLikelihoods([step]), 8, np.zeros(3), np.random.default_rng(0), islands=2)
     # the particles' positions differ, so the trajectory must follow each heaviest particle's own ancestor
     slam.x[:4] = [[0.0, 2.0, np.pi - 0.05], [1.0, 2.0, np.pi - 0.05], [5.0, 2.0, np.pi - 0.05], [7.0, 2.0, np.pi - 0.05]]
     slam.x[4:] = [[9.0, 0.0, -np.pi + 0.15], [3.0, 0.0, -np.pi + 0.15], [8.0, 0.0, -np.pi + 0.15], [6.0, 0.0, -np.pi + 0.15]]
-    info = slam.update(Measurements(np.zeros((0, 2))))
+    info = slam.update(_nothing())
     assert info.resampled
     assert np.all(slam.maps[:4] == 1.0) and np.array_equal(slam.maps[4:], [4.0, 5.0, 6.0, 7.0])
     w = slam.weights()
@@ -189,10 +187,6 @@ def test_island_maps_average_label_by_label():
     """The islands' map estimate: the reference's labels, each at the mean of its state in the estimates that hold
     it (label 5 in all three: (0 + 3 + 6) / 3; label 3 in two: (1 + 2) / 2; label 9, held by another island only,
     is not in the reference's set); an angular state component averages across the wrap."""
-    from slam_runtime.features import RangeBearing
-    from slam_runtime.plane_features import PlaneFeature
-    from slam_runtime.slam import average_states
-
     fm = RangeBearing(np.eye(2))
     x = average_states(fm, np.array([5, 3]), np.array([[0.0, 1.0], [1.0, 1.0]]),
                        [(np.array([9, 3, 5]), np.array([[7.0, 7.0], [2.0, 1.0], [3.0, 1.0]])), (np.array([5]), np.array([[6.0, 1.0]]))])  # fmt: skip
@@ -205,19 +199,15 @@ def test_each_island_counts_its_own_updates_since_it_resampled():
     """resample_every = 2 with two islands: at step 2 island 0's weights collapse and it resamples alone; at step 3
     both collapse, and only island 1 (three updates since it last resampled, against island 0's one) resamples.
     A count shared by the islands, reset whenever any island resamples, would hold island 1 back at step 3."""
-    from slam_runtime.slam import RBSlam
-    from slam_runtime.sources import Measurements
-    from slam_runtime.vehicle import OdometryIncrement
-
     even = np.zeros(8)
     collapse = np.log([0.01, 0.97, 0.01, 0.01, 0.01, 0.01, 0.97, 0.01])
     first = np.concatenate([collapse[:4], even[4:]])
     slam = RBSlam(OdometryIncrement(), _GivenLikelihoods([even, first, collapse]), 8, np.zeros(3), np.random.default_rng(0),
                   resample_every=2, islands=2)  # fmt: skip
-    assert not slam.update(Measurements(np.zeros((0, 2)))).resampled  # even weights
-    assert slam.update(Measurements(np.zeros((0, 2)))).resampled
+    assert not slam.update(_nothing()).resampled  # even weights
+    assert slam.update(_nothing()).resampled
     assert np.all(slam.maps[:4] == 1.0) and np.array_equal(slam.maps[4:], [4.0, 5.0, 6.0, 7.0])
-    assert slam.update(Measurements(np.zeros((0, 2)))).resampled
+    assert slam.update(_nothing()).resampled
     assert np.all(slam.maps[:4] == 1.0) and np.all(slam.maps[4:] == 6.0)
     # island 0 collapsed but was not due: its weights carry the collapse (particle 1 of its four copies heaviest)
     w = slam.weights()
