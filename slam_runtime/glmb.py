@@ -19,7 +19,9 @@ One step (:meth:`GLMB.update`, eqs. 11-17):
 * P_D and the buffer zone come from the detection model
   (:meth:`detectors.model.DetectionModel.pd_features`), kappa(z) from its
   clutter intensity (divided by the descriptor likelihood ratio when there is
-  one, eq. 2.26 with 5.6 of the thesis);
+  one, eq. 2.26 with 5.6 of the thesis); with ``learn_pd`` (off by default)
+  each label's P_D is the model's times a factor learned from the label's
+  detections and misses (:mod:`slam_runtime.pd_factor`);
 * survival (eqs. 7-8, 14): P_S = ``survival`` for a track in the field of
   view (P_D > 0), ``survival_outside`` (1) out of it, so a mapped landmark
   stays in the map when it leaves the view; the paper takes 0.95 in view, the
@@ -111,6 +113,7 @@ from slam_runtime.features import FeatureModel, lookup, mean_by_label
 from slam_runtime.gibbs import joint_update, reduce_hypotheses
 from slam_runtime.gm import det, inv, matmul, matvec, moment_match, quad, transpose
 from slam_runtime.mapfilter import MapFilter, Measurements
+from slam_runtime.pd_factor import KEY_BITS, LabelFactors, beta_update, mean_factor, prior_ab
 
 #: bits of a label that hold the measurement index: label = (step << LABEL_BITS) + measurement
 LABEL_BITS = 20
@@ -142,6 +145,17 @@ class LabelledSettings(BaseModel):
         description="where the map estimate puts its features: best, at the state the particle that gives the estimate holds "
         "(the paper's); seen_mean, each label at the particles' weighted mean of its state at the last step the sensor could "
         "see it (a filtering estimate: it misses what a later loop closure tells). The set of features is the particle's either way",
+    )
+    learn_pd: bool = Field(
+        default=False,
+        description="each track learns a factor on the detection model's P_D from its detections and misses "
+        "(Beta density; slam_runtime.pd_factor)",
+    )
+    pd_prior_mean: float = Field(
+        default=0.95, gt=0.0, lt=1.0, description="learn_pd: the prior mean of a new track's factor on P_D"
+    )
+    pd_prior_strength: float = Field(
+        default=20.0, gt=0.0, description="learn_pd: the prior's weight, in detections and misses (a + b)"
     )
     sum_idle_births: bool = Field(
         default=True,
@@ -226,7 +240,7 @@ class GLMBMaps:
     """The delta-GLMB maps of P particles: the tracks of the hypotheses (P, T), the hypotheses' normalised
     log weights logw (P, H) (-inf for an empty slot) and track sets member (P, H, T) bool; the released
     tracks (independent Bernoulli components) free (P, F) with existence free_r (P, F); the births of
-    the next step."""
+    the next step; with ``learn_pd`` each label's factor on P_D (:mod:`slam_runtime.pd_factor`; None without)."""
 
     tracks: Tracks
     logw: np.ndarray
@@ -234,9 +248,13 @@ class GLMBMaps:
     free: Tracks
     free_r: np.ndarray
     births: Births
+    pd: LabelFactors | None = None
 
     def take(self, idx: np.ndarray) -> GLMBMaps:
-        return GLMBMaps(self.tracks.take(idx), self.logw[idx], self.member[idx], self.free.take(idx), self.free_r[idx], self.births.take(idx))
+        return GLMBMaps(
+            self.tracks.take(idx), self.logw[idx], self.member[idx], self.free.take(idx), self.free_r[idx], self.births.take(idx),
+            None if self.pd is None else self.pd.take(idx),
+        )
 
 
 @dataclass
@@ -488,7 +506,14 @@ class LabelledFilter(MapFilter):
         (re-linearised ``iterations`` times). Returns the mean (P, 3), covariance (P, 3, 3) and the number
         of measurements used (P,)."""
         t, ex = self._map_tracks(maps)
-        return self._proposal(xbar, q, meas, t.mu, t.cov, ex, t.valid, gate=self.cfg.gate, share=share, iterations=iterations)
+        return self._proposal(
+            xbar, q, meas, t.mu, t.cov, ex, t.valid,
+            gate=self.cfg.gate, share=share, iterations=iterations, pd_factor=self._pd_factor(maps),
+        )
+
+    def _pd_factor(self, maps) -> np.ndarray | None:
+        """(P, J) each track's learned factor on P_D, in the order of :meth:`_map_tracks` (None: not learned)."""
+        return None
 
     # ------------------------------------------------------------------ the map estimate's positions
     def _note_seen(self, sl: _Slots, pd: np.ndarray) -> None:
@@ -539,7 +564,57 @@ class GLMB(LabelledFilter):
 
     def empty(self, n: int) -> GLMBMaps:
         d = self.feature.dim_x
-        return GLMBMaps(Tracks.empty(n, d), np.zeros((n, 1)), np.zeros((n, 1, 0), dtype=bool), Tracks.empty(n, d), np.zeros((n, 0)), Births.empty(n, d))
+        return GLMBMaps(
+            Tracks.empty(n, d), np.zeros((n, 1)), np.zeros((n, 1, 0), dtype=bool),
+            Tracks.empty(n, d), np.zeros((n, 0)), Births.empty(n, d),
+            LabelFactors.empty(n) if self.cfg.learn_pd else None,
+        )
+
+    def _factors(self, maps: GLMBMaps) -> LabelFactors:
+        return maps.pd if maps.pd is not None else LabelFactors.empty(maps.logw.shape[0])
+
+    def _pd_factor(self, maps: GLMBMaps) -> np.ndarray | None:
+        """(P, T + F) the mean factor on P_D of each track's label, tracks then released ones (None without learn_pd)."""
+        if not self.cfg.learn_pd:
+            return None
+        label = np.concatenate([maps.tracks.label, maps.free.label], axis=1)
+        return mean_factor(self._factors(maps).get(label, prior_ab(self.cfg)))
+
+    def _learn(self, sl: _Slots, ab: np.ndarray, pd_model: np.ndarray, buf: np.ndarray, res: JointResult, c: _Costs):
+        """Each label's factor on P_D after this step (:mod:`slam_runtime.pd_factor`): (particle (K,), label (K,),
+        density (K, 2)) of every label that was a candidate, from the summed weights of the hypotheses that hold its
+        detected and its missed versions (a candidate updated outside the sampler: its options' shares)."""
+        sp_, _ = res.slot_particle()
+        off = np.concatenate([[0], np.cumsum(res.slot_count)[:-1]])
+        mp, _, ms = res.memberships()
+        hyp = np.repeat(np.arange(res.hyp_logw.size), res.mem_count)
+        wslot = np.bincount(off[mp] + ms, weights=np.exp(res.hyp_logw)[hyp], minlength=sp_.size)
+        det = res.slot_a > 0
+        hp, ha = np.nonzero(c.held & ~c.idle)
+        l_det = c.l_det[hp, ha] - c.l_held[hp, ha][:, None]
+        w_det_h = np.exp(l_det).sum(axis=1) if l_det.shape[1] else np.zeros(hp.size)
+        pp = np.concatenate([sp_, hp])
+        ss = np.concatenate([res.slot_src, c.act[hp, ha]])
+        keys = (pp.astype(np.int64) << KEY_BITS) + sl.label[pp, ss]
+        uniq, first, inv = np.unique(keys, return_index=True, return_inverse=True)
+        w_det = np.bincount(inv, weights=np.concatenate([wslot * det, w_det_h]), minlength=uniq.size)
+        w_miss_h = np.exp(c.l_miss[hp, ha] - c.l_held[hp, ha])
+        w_miss = np.bincount(inv, weights=np.concatenate([wslot * ~det, w_miss_h]), minlength=uniq.size)
+        # a miss in the buffer zone, or where the sensor could not see, tells nothing
+        pd_miss = np.where(sl.valid & ~(buf & ~sl.birth), np.minimum(pd_model, 1.0 - 1e-9), 0.0)
+        fp, fs = pp[first], ss[first]
+        return fp, sl.label[fp, fs], beta_update(ab[fp, fs], pd_miss[fp, fs], w_det, w_miss)
+
+    def _store(self, old: LabelFactors, learned, tracks: Tracks, free: Tracks) -> LabelFactors:
+        """The factors of the labels the new tracks and released tracks hold: this step's where learned, else the old."""
+        p = tracks.label.shape[0]
+        label = np.concatenate([tracks.label, free.label], axis=1)
+        nan = np.full(2, np.nan)
+        ab = LabelFactors.build(p, *learned).get(label, nan)
+        miss = np.isnan(ab[..., 0])
+        ab[miss] = old.get(label, prior_ab(self.cfg))[miss]
+        pp, kk = np.nonzero(label >= 0)
+        return LabelFactors.build(p, pp, label[pp, kk], ab[pp, kk])
 
     def size(self, maps: GLMBMaps) -> np.ndarray:
         """(P,) tracks per particle (versions in the hypotheses and released ones)."""
@@ -563,6 +638,10 @@ class GLMB(LabelledFilter):
             ex = np.concatenate([self._slot_existence(maps), maps.free_r, maps.births.r], axis=1)
             pd, buf = self.detection.pd_features(sp, sl.mu, sl.cov, meas, ex)
             self._note_seen(sl, pd)
+            pd_model, ab = pd, None
+            if cfg.learn_pd:
+                ab = self._factors(maps).get(sl.label, prior_ab(cfg))
+                pd = pd * mean_factor(ab)
         with tm("costs"):
             shared = np.concatenate([np.zeros((p, t), dtype=bool), fr.valid, np.ones((p, s - t - f), dtype=bool)], axis=1)
             c = self._costs(sl, sp, z, rz, meas.cov is not None, log_kappa, pd, buf, shared if cfg.factor_independent else None)
@@ -613,9 +692,12 @@ class GLMB(LabelledFilter):
             free = self._pad_tracks(p, d, fp, fk, *(a[ok][order] for a in f_all[:3]))
             free_r = np.zeros(free.label.shape)
             free_r[fp, fk] = f_all[3][ok][order]
+            factors = None
+            if ab is not None:
+                factors = self._store(self._factors(maps), self._learn(sl, ab, pd_model, buf, res, c), tracks, free)
         births = self._births(sp, z, rz, c.explained)
         self.step += 1
-        return GLMBMaps(tracks, logw, member, free, free_r, births), res.loglik
+        return GLMBMaps(tracks, logw, member, free, free_r, births, factors), res.loglik
 
     @staticmethod
     def _slot_existence(maps: GLMBMaps) -> np.ndarray:

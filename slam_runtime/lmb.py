@@ -22,6 +22,8 @@ Births that gate no measurement are summed out of the sampler
 P_D, the buffer zone, kappa, survival and adaptive birth as in
 :mod:`slam_runtime.glmb`.
 
+P_D learned per track (``learn_pd``): :mod:`slam_runtime.pd_factor`, per track.
+
 The map estimate: the tracks of existence >= ``map_threshold``, placed as
 ``map_estimate`` says (:mod:`slam_runtime.glmb`: by default the particle's own
 states; ``seen_mean`` each at the particles' weighted mean of its label at
@@ -40,6 +42,7 @@ from slam_runtime.features import FeatureModel
 from slam_runtime.glmb import Births, LabelledFilter, LabelledSettings, Tracks
 from slam_runtime.gm import moment_match
 from slam_runtime.mapfilter import Measurements
+from slam_runtime.pd_factor import beta_update, mean_factor, prior_ab
 
 
 class LMBConfig(LabelledSettings):
@@ -51,14 +54,16 @@ class LMBConfig(LabelledSettings):
 
 @dataclass
 class LMBMaps:
-    """The LMB maps of P particles: tracks (P, T), existence r (P, T) (0 for an empty slot), the births of the next step."""
+    """The LMB maps of P particles: tracks (P, T), existence r (P, T) (0 for an empty slot), the births of the next step;
+    with ``learn_pd`` each track's Beta density of its factor on P_D, pd_ab (P, T, 2) = (a, b) (None without)."""
 
     tracks: Tracks
     r: np.ndarray
     births: Births
+    pd_ab: np.ndarray | None = None
 
     def take(self, idx: np.ndarray) -> LMBMaps:
-        return LMBMaps(self.tracks.take(idx), self.r[idx], self.births.take(idx))
+        return LMBMaps(self.tracks.take(idx), self.r[idx], self.births.take(idx), None if self.pd_ab is None else self.pd_ab[idx])
 
 
 class LMB(LabelledFilter):
@@ -71,7 +76,25 @@ class LMB(LabelledFilter):
 
     def empty(self, n: int) -> LMBMaps:
         d = self.feature.dim_x
-        return LMBMaps(Tracks.empty(n, d), np.zeros((n, 0)), Births.empty(n, d))
+        return LMBMaps(
+            Tracks.empty(n, d), np.zeros((n, 0)), Births.empty(n, d), np.zeros((n, 0, 2)) if self.cfg.learn_pd else None
+        )
+
+    def _slot_ab(self, maps: LMBMaps) -> np.ndarray | None:
+        """(P, T + B, 2) the tracks' Beta densities then the births' prior (None without learn_pd)."""
+        if not self.cfg.learn_pd:
+            return None
+        p, t = maps.tracks.label.shape
+        prior = prior_ab(self.cfg)
+        ab = maps.pd_ab if maps.pd_ab is not None and maps.pd_ab.shape[:2] == (p, t) else np.broadcast_to(prior, (p, t, 2))
+        return np.concatenate([ab, np.broadcast_to(prior, (p, maps.births.label.size, 2))], axis=1)
+
+    def _pd_factor(self, maps: LMBMaps) -> np.ndarray | None:
+        """(P, T) the mean factor on P_D of each track (None without learn_pd)."""
+        ab = self._slot_ab(maps)
+        if ab is None:
+            return None
+        return mean_factor(ab[:, : maps.tracks.label.shape[1]])
 
     def size(self, maps: LMBMaps) -> np.ndarray:
         return maps.tracks.valid.sum(axis=1)
@@ -87,10 +110,14 @@ class LMB(LabelledFilter):
         d = self.feature.dim_x
         sl = self._slots(maps.tracks, maps.r, maps.births)
         s = sl.valid.shape[1]
+        ab = self._slot_ab(maps)
         with tm("pd"):
             pd, buf = self.detection.pd_features(sp, sl.mu, sl.cov, meas, sl.r)
             self._note_seen(sl, pd)
         with tm("costs"):
+            pd_model = pd
+            if ab is not None:
+                pd = pd * mean_factor(ab)
             c = self._costs(sl, sp, z, rz, meas.cov is not None, log_kappa, pd, buf)
             member = np.zeros((p, 1, s), dtype=bool)
             in_a = np.arange(c.act.shape[1])[None, :] < c.nact[:, None]
@@ -115,6 +142,17 @@ class LMB(LabelledFilter):
             hp, ha = np.nonzero(c.idle)
             hs = c.act[hp, ha]
             r_all[hp, hs] = 1.0 / (1.0 + np.exp(c.l_death[hp, ha] - c.l_miss[hp, ha]))
+            if ab is not None:
+                # each label's factor on P_D, from its detected and missed versions' weights (an idle birth: missed)
+                det = res.slot_a > 0
+                key = sp_ * s + res.slot_src
+                w_det = np.bincount(key, weights=wslot * det, minlength=p * s).reshape(p, s)
+                w_miss = np.bincount(key, weights=wslot * ~det, minlength=p * s).reshape(p, s)
+                w_det, w_miss = np.where(active, w_det, 0.0), np.where(active, w_miss, 0.0)
+                w_det[hp, hs], w_miss[hp, hs] = 0.0, 1.0
+                # a miss in the buffer zone tells nothing
+                pd_miss = np.where(sl.valid & ~(buf & ~sl.birth), np.minimum(pd_model, 1.0 - 1e-9), 0.0)
+                ab = beta_update(ab, pd_miss, w_det, w_miss)
             active[hp, hs] = False  # keeps its prior mean and covariance below
             mu_all = np.where(active[..., None], m_new.reshape(p, s, d), sl.mu)
             cov_all = np.where(active[..., None, None], c_new.reshape(p, s, d, d), sl.cov)
@@ -129,9 +167,10 @@ class LMB(LabelledFilter):
                 np.where(held, sl.label[rows, order], -1),
             )
             r = np.where(held, r_all[rows, order], 0.0)
+            pd_ab = None if ab is None else np.where(held[..., None], ab[rows, order], prior_ab(self.cfg))
         births = self._births(sp, z, rz, c.explained)
         self.step += 1
-        return LMBMaps(tracks, r, births), res.loglik
+        return LMBMaps(tracks, r, births, pd_ab), res.loglik
 
     def _map_states(self, maps: LMBMaps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return maps.tracks.mu, maps.tracks.label, maps.r

@@ -112,16 +112,18 @@ class MapFilter(ABC):
 
     def _proposal(
         self, xbar: np.ndarray, q: np.ndarray, meas: Measurements, mu: np.ndarray, cov: np.ndarray, ex: np.ndarray,
-        valid: np.ndarray | None, *, gate: float, share: float, iterations: int,
+        valid: np.ndarray | None, *, gate: float, share: float, iterations: int, pd_factor: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """What the filters' ``pose_proposal`` share: the features mu (P, J, dx), cov (P, J, dx, dx) of weight or
         existence ex (P, J) (valid (P, J): the slots that hold one; None: every slot) weighted by their P_D from the
-        motion prior's poses, and the frame's measurements, noise and kappa, handed to
-        :func:`slam_runtime.proposal.pose_proposal`."""
+        motion prior's poses (times pd_factor (P, J) where given: a track's learned factor on P_D), and the frame's
+        measurements, noise and kappa, handed to :func:`slam_runtime.proposal.pose_proposal`."""
         z, rz = self.measurements(meas)
         if z.shape[0] == 0 or mu.shape[1] == 0:
             return xbar, q, np.zeros(xbar.shape[0], dtype=np.int64)
         pd, _ = self.detection.pd_features(self.feature.sensor_pose(xbar), mu, cov, meas, ex)
+        if pd_factor is not None:
+            pd = pd * pd_factor
         seen = pd > 0 if valid is None else (pd > 0) & valid
         return pose_proposal(
             self.feature, xbar, q, z, rz, self.r if meas.cov is None else None, mu, cov, np.where(seen, ex * np.minimum(pd, 1.0), 0.0),
