@@ -180,3 +180,21 @@ def test_a_run_with_the_true_p_d_learns_factors_near_one_and_repeats_its_bytes(k
     assert mean_factor(ab).mean() > 0.85, mean_factor(ab)
     d = np.linalg.norm(runs[0].map_xy[:, None] - log.landmarks.xy[None], axis=2)
     assert np.median(d.min(axis=1)) < 0.3
+
+
+def test_label_factors_store_one_density_per_particle_and_label():
+    """delta-GLMB's store: one entry per (particle, label), the first given; a label a particle does not hold (or an
+    empty slot) reads as the prior; resampling takes whole rows."""
+    from slam_runtime.pd_factor import LabelFactors
+
+    store = LabelFactors.build(
+        3, np.array([0, 0, 2, 0]), np.array([7, 5, 7, 7]), np.array([[1.0, 1.0], [2.0, 1.0], [3.0, 1.0], [9.0, 9.0]])
+    )
+    prior = np.array([19.0, 1.0])
+    got = store.get(np.array([[7, 5, -1], [7, 5, 7], [5, 7, 8]]), prior)
+    np.testing.assert_array_equal(got[0], [[1.0, 1.0], [2.0, 1.0], prior])
+    np.testing.assert_array_equal(got[1], [prior, prior, prior])
+    np.testing.assert_array_equal(got[2], [prior, [3.0, 1.0], prior])
+    np.testing.assert_array_equal(
+        store.take(np.array([2, 2, 0])).get(np.array([[7], [7], [5]]), prior), [[[3.0, 1.0]], [[3.0, 1.0]], [[2.0, 1.0]]]
+    )
