@@ -86,7 +86,7 @@ class LMB(LabelledFilter):
             return None
         p, t = maps.tracks.label.shape
         prior = prior_ab(self.cfg)
-        ab = maps.pd_ab if maps.pd_ab is not None and maps.pd_ab.shape[:2] == (p, t) else np.broadcast_to(prior, (p, t, 2))
+        ab = maps.pd_ab if maps.pd_ab is not None else np.broadcast_to(prior, (p, t, 2))  # maps made without learn_pd
         return np.concatenate([ab, np.broadcast_to(prior, (p, maps.births.label.size, 2))], axis=1)
 
     def _pd_factor(self, maps: LMBMaps) -> np.ndarray | None:
