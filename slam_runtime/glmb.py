@@ -113,7 +113,7 @@ from slam_runtime.features import FeatureModel, lookup, mean_by_label
 from slam_runtime.gibbs import joint_update, reduce_hypotheses
 from slam_runtime.gm import det, inv, matmul, matvec, moment_match, quad, transpose
 from slam_runtime.mapfilter import MapFilter, Measurements
-from slam_runtime.pd_factor import KEY_BITS, LabelFactors, beta_update, mean_factor, prior_ab
+from slam_runtime.pd_factor import LabelFactors, beta_update, mean_factor, prior_ab, store_key
 
 #: bits of a label that hold the measurement index: label = (step << LABEL_BITS) + measurement
 LABEL_BITS = 20
@@ -277,6 +277,13 @@ class JointResult:
         start = np.concatenate([[0], np.cumsum(self.slot_count)[:-1]])
         return p, np.arange(p.size) - start[p]
 
+    def slot_weights(self) -> np.ndarray:
+        """(sum slot_count,) the summed weight of the children (hypotheses) that hold each new slot."""
+        off = np.concatenate([[0], np.cumsum(self.slot_count)[:-1]])
+        mp, _, ms = self.memberships()
+        hyp = np.repeat(np.arange(self.hyp_logw.size), self.mem_count)
+        return np.bincount(off[mp] + ms, weights=np.exp(self.hyp_logw)[hyp], minlength=int(self.slot_count.sum()))
+
     def memberships(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(particle, hypothesis index within the particle, slot index within the particle) of every membership."""
         hp = np.repeat(np.arange(self.hyp_count.size), self.hyp_count)
@@ -429,6 +436,12 @@ class LabelledFilter(MapFilter):
             jj = res.slot_a[upd] - 1
             mu[upd], cov[upd] = self._ekf(sp[sp_[upd]], mu[upd], cov[upd], z[jj], rz[jj])
         return sp_, sk, mu, cov, label
+
+    @staticmethod
+    def _miss_pd(sl: _Slots, pd_model: np.ndarray, buf: np.ndarray) -> np.ndarray:
+        """(P, S) the model's P_D that a miss of each slot weighs, for learning its factor: 0 in the buffer zone (thesis
+        eq. 3.21: a miss there tells nothing, as in the costs) and for an empty slot."""
+        return np.where(sl.valid & ~(buf & ~sl.birth), np.minimum(pd_model, 1.0 - 1e-9), 0.0)
 
     def _ekf(self, sp: np.ndarray, m0: np.ndarray, c0: np.ndarray, z: np.ndarray, rz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """EKF updates (eqs. 17, 30) of the Gaussians (m0, c0) (N, dx), (N, dx, dx) seen from sensor poses sp with
@@ -585,23 +598,18 @@ class GLMB(LabelledFilter):
         density (K, 2)) of every label that was a candidate, from the summed weights of the hypotheses that hold its
         detected and its missed versions (a candidate updated outside the sampler: its options' shares)."""
         sp_, _ = res.slot_particle()
-        off = np.concatenate([[0], np.cumsum(res.slot_count)[:-1]])
-        mp, _, ms = res.memberships()
-        hyp = np.repeat(np.arange(res.hyp_logw.size), res.mem_count)
-        wslot = np.bincount(off[mp] + ms, weights=np.exp(res.hyp_logw)[hyp], minlength=sp_.size)
+        wslot = res.slot_weights()
         det = res.slot_a > 0
         hp, ha = np.nonzero(c.held & ~c.idle)
         l_det = c.l_det[hp, ha] - c.l_held[hp, ha][:, None]
         w_det_h = np.exp(l_det).sum(axis=1) if l_det.shape[1] else np.zeros(hp.size)
         pp = np.concatenate([sp_, hp])
         ss = np.concatenate([res.slot_src, c.act[hp, ha]])
-        keys = (pp.astype(np.int64) << KEY_BITS) + sl.label[pp, ss]
-        uniq, first, inv = np.unique(keys, return_index=True, return_inverse=True)
+        uniq, first, inv = np.unique(store_key(pp, sl.label[pp, ss]), return_index=True, return_inverse=True)
         w_det = np.bincount(inv, weights=np.concatenate([wslot * det, w_det_h]), minlength=uniq.size)
         w_miss_h = np.exp(c.l_miss[hp, ha] - c.l_held[hp, ha])
         w_miss = np.bincount(inv, weights=np.concatenate([wslot * ~det, w_miss_h]), minlength=uniq.size)
-        # a miss in the buffer zone, or where the sensor could not see, tells nothing
-        pd_miss = np.where(sl.valid & ~(buf & ~sl.birth), np.minimum(pd_model, 1.0 - 1e-9), 0.0)
+        pd_miss = self._miss_pd(sl, pd_model, buf)  # (and where the sensor could not see, pd_model is 0)
         fp, fs = pp[first], ss[first]
         return fp, sl.label[fp, fs], beta_update(ab[fp, fs], pd_miss[fp, fs], w_det, w_miss)
 

@@ -80,21 +80,22 @@ class LMB(LabelledFilter):
             Tracks.empty(n, d), np.zeros((n, 0)), Births.empty(n, d), np.zeros((n, 0, 2)) if self.cfg.learn_pd else None
         )
 
+    def _track_ab(self, maps: LMBMaps) -> np.ndarray:
+        """(P, T, 2) the tracks' Beta densities (the prior for maps made without learn_pd)."""
+        if maps.pd_ab is not None:
+            return maps.pd_ab
+        return np.broadcast_to(prior_ab(self.cfg), maps.tracks.label.shape + (2,))
+
     def _slot_ab(self, maps: LMBMaps) -> np.ndarray | None:
         """(P, T + B, 2) the tracks' Beta densities then the births' prior (None without learn_pd)."""
         if not self.cfg.learn_pd:
             return None
-        p, t = maps.tracks.label.shape
-        prior = prior_ab(self.cfg)
-        ab = maps.pd_ab if maps.pd_ab is not None else np.broadcast_to(prior, (p, t, 2))  # maps made without learn_pd
-        return np.concatenate([ab, np.broadcast_to(prior, (p, maps.births.label.size, 2))], axis=1)
+        births = np.broadcast_to(prior_ab(self.cfg), (maps.r.shape[0], maps.births.label.size, 2))
+        return np.concatenate([self._track_ab(maps), births], axis=1)
 
     def _pd_factor(self, maps: LMBMaps) -> np.ndarray | None:
         """(P, T) the mean factor on P_D of each track (None without learn_pd)."""
-        ab = self._slot_ab(maps)
-        if ab is None:
-            return None
-        return mean_factor(ab[:, : maps.tracks.label.shape[1]])
+        return mean_factor(self._track_ab(maps)) if self.cfg.learn_pd else None
 
     def size(self, maps: LMBMaps) -> np.ndarray:
         return maps.tracks.valid.sum(axis=1)
@@ -127,11 +128,7 @@ class LMB(LabelledFilter):
             res = self._sample(np.zeros((p, 1)), member, c, 0.0, 1 << 30)
         with tm("update"):
             sp_, _, mu, cov, _ = self._updated(sl, sp, z, rz, res)
-            # weight of every new slot: the summed weight of the children that hold it
-            off = np.concatenate([[0], np.cumsum(res.slot_count)[:-1]])
-            mp, _, ms = res.memberships()
-            hyp = np.repeat(np.arange(res.hyp_logw.size), res.mem_count)
-            wslot = np.bincount(off[mp] + ms, weights=np.exp(res.hyp_logw)[hyp], minlength=sp_.size)
+            wslot = res.slot_weights()
             # the LMB approximation: per label (source slot), existence and the moment-matched Gaussian
             r_new, m_new, c_new = moment_match(sp_ * s + res.slot_src, wslot, mu, cov, p * s)
             active = np.zeros((p, s), dtype=bool)
@@ -150,9 +147,7 @@ class LMB(LabelledFilter):
                 w_miss = np.bincount(key, weights=wslot * ~det, minlength=p * s).reshape(p, s)
                 w_det, w_miss = np.where(active, w_det, 0.0), np.where(active, w_miss, 0.0)
                 w_det[hp, hs], w_miss[hp, hs] = 0.0, 1.0
-                # a miss in the buffer zone tells nothing
-                pd_miss = np.where(sl.valid & ~(buf & ~sl.birth), np.minimum(pd_model, 1.0 - 1e-9), 0.0)
-                ab = beta_update(ab, pd_miss, w_det, w_miss)
+                ab = beta_update(ab, self._miss_pd(sl, pd_model, buf), w_det, w_miss)
             active[hp, hs] = False  # keeps its prior mean and covariance below
             mu_all = np.where(active[..., None], m_new.reshape(p, s, d), sl.mu)
             cov_all = np.where(active[..., None, None], c_new.reshape(p, s, d, d), sl.cov)

@@ -30,8 +30,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from slam_runtime.features import lookup
+
 #: bits of a store key that hold the label (key = particle << KEY_BITS + label)
 KEY_BITS = 42
+
+
+def store_key(particle: np.ndarray, label: np.ndarray) -> np.ndarray:
+    """One int64 key per (particle, label): ordered by particle, then label."""
+    return (np.asarray(particle, dtype=np.int64) << KEY_BITS) + label
 
 
 def prior_ab(cfg) -> np.ndarray:
@@ -70,7 +77,10 @@ def mean_factor(ab: np.ndarray) -> np.ndarray:
 
 @dataclass
 class LabelFactors:
-    """Each particle's labels and their Beta densities, padded: label (P, L) int64 (-1: empty), ab (P, L, 2)."""
+    """Each particle's labels and their Beta densities, padded: label (P, L) int64 (-1: empty), ab (P, L, 2).
+
+    Each row holds its labels in ascending order from slot 0 (:meth:`build` makes them so; :meth:`take` moves
+    whole rows), so the valid entries read row by row are in :func:`store_key` order without a sort."""
 
     label: np.ndarray
     ab: np.ndarray
@@ -82,29 +92,20 @@ class LabelFactors:
     def take(self, idx: np.ndarray) -> LabelFactors:
         return LabelFactors(self.label[idx], self.ab[idx])
 
-    def _keys(self) -> tuple[np.ndarray, np.ndarray]:
-        pp, ll = np.nonzero(self.label >= 0)
-        keys = (pp.astype(np.int64) << KEY_BITS) + self.label[pp, ll]
-        order = np.argsort(keys, kind="stable")
-        return keys[order], self.ab[pp, ll][order]
-
     def get(self, label: np.ndarray, prior: np.ndarray) -> np.ndarray:
         """(P, S, 2) the densities of the labels (P, S) of each particle; the prior for a label it does not hold."""
-        keys, ab = self._keys()
-        q = (np.arange(label.shape[0], dtype=np.int64)[:, None] << KEY_BITS) + np.maximum(label, 0)
+        pp, ll = np.nonzero(self.label >= 0)
+        j, hit = lookup(store_key(pp, self.label[pp, ll]), store_key(np.arange(label.shape[0])[:, None], label))
+        hit &= label >= 0
         out = np.broadcast_to(prior, label.shape + (2,)).copy()
-        if keys.size:
-            j = np.minimum(np.searchsorted(keys, q), keys.size - 1)
-            hit = (keys[j] == q) & (label >= 0)
-            out[hit] = ab[j[hit]]
+        out[hit] = self.ab[pp[j[hit]], ll[j[hit]]]
         return out
 
     @staticmethod
     def build(p: int, particle: np.ndarray, label: np.ndarray, ab: np.ndarray) -> LabelFactors:
         """The store of the (particle (N,), label (N,), density (N, 2)) given, one entry per distinct (particle, label)
         (the first given)."""
-        keys = (particle.astype(np.int64) << KEY_BITS) + label
-        _, first = np.unique(keys, return_index=True)
+        _, first = np.unique(store_key(particle, label), return_index=True)
         pp, ll, aa = particle[first], label[first], ab[first]
         cnt = np.bincount(pp, minlength=p)
         k = np.arange(pp.size) - np.concatenate([[0], np.cumsum(cnt)[:-1]])[pp]

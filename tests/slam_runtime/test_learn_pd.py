@@ -11,6 +11,7 @@ from slam_runtime.glmb import GLMB, GLMBConfig
 from slam_runtime.lmb import LMB, LMBConfig
 from slam_runtime.mapfilter import Measurements
 from slam_runtime.pd_factor import beta_update, mean_factor, prior_ab
+from tests.slam_runtime.test_glmb import _Last
 
 SENSOR = SensorModel(kind="camera", fov=np.pi, range_max=20.0)
 FILTERS = [(GLMB, GLMBConfig), (LMB, LMBConfig)]
@@ -134,16 +135,6 @@ def test_learn_pd_off_carries_nothing(cls, cfg_cls):
     mf = cls(RangeBearing(np.diag([0.1**2, 0.01**2])), det, cfg_cls(), rng=np.random.default_rng(0))
     maps, _ = mf.update(mf.empty(2), np.zeros((2, 3)), Measurements(np.array([[5.0, 0.1]])))
     assert getattr(maps, "pd_ab" if cls is LMB else "pd") is None and mf._pd_factor(maps) is None
-
-
-class _Last:
-    """Hook: keeps the particle loop of the run."""
-
-    name = "last"
-
-    def __call__(self, k, slam) -> float:
-        self.slam = slam
-        return 0.0
 
 
 @pytest.mark.parametrize("kind", ["glmb", "lmb"])
