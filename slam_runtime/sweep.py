@@ -19,6 +19,9 @@ The sweep folder is a container whose every entry is whole::
     failed.yaml     the runs that failed in the last attempt, with their errors (gone once none did)
     runs.csv        one row per run: the labels and every metric but the timings
     summary.csv     mean and standard deviation of those metrics per setting
+    paired.csv      settings that differ in one label (filter, P_D mode, particles, profile), compared run
+                    by run on the same log and seed: the mean difference of every metric, its
+                    standard error and how often the first is lower (only when two settings differ so)
     timings.csv     per run: filter ms per step (wall, CPU) and the task's seconds, host, peak memory
 
 * The folder is created with its plan in one step (built beside, renamed in).
@@ -62,7 +65,10 @@ FORMAT_VERSION = 1
 LABELS = ("log", "profile", "filter", "pd_mode", "particles", "seed")
 #: Metrics that are timings: they go to timings.csv, never to runs.csv or summary.csv.
 TIMING_KEYS = ("ms_per_step_mean", "ms_per_step_median", "cpu_ms_per_step_mean")
-TABLES = ("runs.csv", "summary.csv", "timings.csv")
+TABLES = ("runs.csv", "summary.csv", "paired.csv", "timings.csv")
+#: The labels paired.csv compares settings by: two runs that differ in one of them and agree in every other label
+#: (the same log and seed) are a pair.
+COMPARED = ("filter", "pd_mode", "particles", "profile")
 
 
 @dataclass
@@ -253,6 +259,7 @@ class SweepOutcome:
     failed: list[Failure]
     rows: list[dict] = field(default_factory=list)  # runs.csv (empty unless every run is done)
     summary: list[dict] = field(default_factory=list)
+    paired: list[dict] = field(default_factory=list)  # paired.csv (:func:`paired`)
     timings: list[dict] = field(default_factory=list)
 
     @property
@@ -317,8 +324,13 @@ def run_sweep(
         failed_file.unlink()
     outcome.rows, outcome.timings = tables(folder, jobs)
     outcome.summary = summarise(outcome.rows, by, LABELS)
+    outcome.paired = paired(outcome.rows)
     for name, rows in (("runs.csv", outcome.rows), ("summary.csv", outcome.summary), ("timings.csv", outcome.timings)):
         _write_text(folder / name, pd.DataFrame(rows).to_csv(index=False, float_format="%.6g"))
+    if outcome.paired:
+        _write_text(folder / "paired.csv", pd.DataFrame(outcome.paired).to_csv(index=False, float_format="%.6g"))
+    elif (folder / "paired.csv").exists():  # a table of an earlier attempt's plan cannot be left behind
+        (folder / "paired.csv").unlink()
     return outcome
 
 
@@ -350,4 +362,53 @@ def summarise(rows: list[dict], by: tuple[str, ...], labels: tuple[str, ...] = (
             entry[f"{k}_mean"] = float(vals.mean())
             entry[f"{k}_std"] = float(vals.std(ddof=1)) if vals.size > 1 else 0.0
         out.append(entry)
+    return out
+
+
+def _metric_keys(rows: list[dict], labels: tuple[str, ...]) -> list[str]:
+    """The numeric metrics of runs.csv rows, in the first row's order (a metric some row lacks is left out)."""
+    keys = [k for k, v in rows[0].items() if k not in labels and isinstance(v, int | float) and not isinstance(v, bool)]
+    return [k for k in keys if all(k in r for r in rows)]
+
+
+def paired(rows: list[dict], compared: tuple[str, ...] = COMPARED, labels: tuple[str, ...] = LABELS) -> list[dict]:
+    """Paired differences between the settings of a sweep (paired.csv).
+
+    For every label of ``compared`` that takes two or more values, every two of its values a, b (in the order
+    of the rows, the plan's) and every combination of the other labels' values: the runs of a and of b that
+    agree in every other label (the same log and seed) are pairs. Per metric (one row each): the number of
+    pairs with both values finite, the mean of a - b, its standard error (the differences' standard deviation
+    over sqrt(pairs); 0 for one pair) and the pairs in which a is lower. A pair's runs share the log's data and the seed, so
+    pairing takes out what a log or a seed does to both (in a sweep over worlds, most of the spread), and a mean
+    difference beyond two standard errors is one the sweep shows. Empty when no label of ``compared`` varies."""
+    if not rows:
+        return []
+    metrics = _metric_keys(rows, labels)
+    out = []
+    for lab in compared:
+        values = list(dict.fromkeys(r.get(lab) for r in rows))
+        if len(values) < 2:
+            continue
+        rest = [k for k in labels if k != lab]
+        by_key: dict[tuple, dict] = {}
+        for r in rows:
+            by_key.setdefault(tuple(r.get(k) for k in rest), {})[r.get(lab)] = r
+        fixed = [k for k in compared if k != lab]
+        for ia, a in enumerate(values):
+            for b in values[ia + 1 :]:
+                groups: dict[tuple, list[tuple[dict, dict]]] = {}
+                for key, runs in by_key.items():
+                    if a in runs and b in runs:
+                        ctx = dict(zip(rest, key, strict=True))
+                        groups.setdefault(tuple(ctx[k] for k in fixed), []).append((runs[a], runs[b]))
+                for ctx, pairs in groups.items():
+                    head = {"varies": lab, "a": a, "b": b, **{k: v for k, v in zip(fixed, ctx, strict=True)}}
+                    for m in metrics:
+                        d = np.array([ra[m] - rb[m] for ra, rb in pairs], dtype=np.float64)
+                        d = d[np.isfinite(d)]
+                        if not d.size:
+                            continue
+                        se = float(d.std(ddof=1) / np.sqrt(d.size)) if d.size > 1 else 0.0
+                        out.append({**head, "metric": m, "pairs": int(d.size), "mean_difference": float(d.mean()), "standard_error": se,
+                                    "a_lower": int((d < 0).sum())})  # fmt: skip
     return out

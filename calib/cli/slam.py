@@ -92,6 +92,41 @@ def slam_run_cmd(
     out.print(summary_table(f"{res.filter}-SLAM on {log.name} with {prof.ref} -> {target}", shown))
 
 
+#: the metrics of the sweep's paired table (metric, heading): those the runs have are shown
+PAIRED_SHOWN = (
+    ("map_ospa", "map OSPA"),
+    ("trajectory_rmse_vs_ground_truth_m", "trajectory RMSE [m]"),
+    ("trajectory_rmse_vs_gps_m", "trajectory RMSE vs GPS [m]"),
+)
+
+
+def paired_table(rows: list[dict]) -> Table:
+    """The sweep's paired differences (paired.csv, :func:`slam_runtime.sweep.paired`) of the metrics of
+    PAIRED_SHOWN: one row per comparison, each cell the mean difference a - b +- its standard error and the
+    pairs in which a is lower."""
+    from slam_runtime.sweep import COMPARED
+
+    present = [(k, head) for k, head in PAIRED_SHOWN if any(r["metric"] == k for r in rows)]
+    t = Table(title="paired by log and seed: a - b, mean ± standard error (pairs in which a is lower)")
+    for c in ("a - b", "the other settings", "pairs"):
+        t.add_column(c, justify="right" if c == "pairs" else "left")
+    for _, head in present:
+        t.add_column(head, justify="right")
+    comps: dict[tuple, dict] = {}
+    for r in rows:
+        key = (r["varies"], r["a"], r["b"], *(r.get(k) for k in COMPARED if k != r["varies"]))
+        comps.setdefault(key, {})[r["metric"]] = r
+    for by_metric in comps.values():
+        r0 = next(iter(by_metric.values()))
+        ctx = ", ".join(f"{k} {r0[k]}" for k in COMPARED if k != r0["varies"])
+        cells = [
+            "" if (r := by_metric.get(k)) is None else f"{r['mean_difference']:+.3f} ± {r['standard_error']:.3f} ({r['a_lower']}/{r['pairs']})"
+            for k, _ in present
+        ]
+        t.add_row(f"{r0['varies']}: {r0['a']} - {r0['b']}", ctx, str(max(r["pairs"] for r in by_metric.values())), *cells)
+    return t
+
+
 def seed_list(text: str) -> list[int]:
     """`5` -> 0..4; `1,3,7` or `1-5` -> those seeds."""
     try:
@@ -130,7 +165,7 @@ def slam_sweep_cmd(
     frames: Annotated[int | None, typer.Option(help="Only the first N frames of each log.")] = None,
     workers: WorkersOpt = None,
     scheduler: SchedulerOpt = None,
-    out_dir: Annotated[Path, typer.Option("--out", help="Sweep folder: one run folder per run, runs.csv, summary.csv, timings.csv.")] = Path("runs/sweep"),
+    out_dir: Annotated[Path, typer.Option("--out", help="Sweep folder: one run folder per run, runs.csv, summary.csv, paired.csv, timings.csv.")] = Path("runs/sweep"),
     force: Annotated[bool, typer.Option(help="Start the sweep folder anew (without it, the same command resumes an unfinished sweep).")] = False,
 ) -> None:
     """Monte Carlo sweep: every log x profile x filter x P_D mode x particle count x seed, on Dask workers.
@@ -222,6 +257,8 @@ def slam_sweep_cmd(
             t.add_row(label, *(f"{e[key + '_mean']:.3f} ± {e[key + '_std']:.3f}" for e in summary))
     ms = {}
     for row, tim in zip(res.rows, res.timings, strict=True):
-        ms.setdefault(tuple(row[k] for k in ("profile", "pd_mode", "particles")), []).append(tim["ms_per_step_mean"])
-    t.add_row("ms per step", *(f"{np.mean(v):.1f}" for v in ms.values()))
+        ms.setdefault(tuple(row[k] for k in ("profile", "filter", "pd_mode", "particles")), []).append(tim["ms_per_step_mean"])
+    t.add_row("ms per step", *(f"{np.mean(ms[tuple(e[k] for k in ('profile', 'filter', 'pd_mode', 'particles'))]):.1f}" for e in summary))
     out.print(t)
+    if res.paired:
+        out.print(paired_table(res.paired))

@@ -96,6 +96,14 @@ def test_slam_sweep_tabulates_runs(tmp_path, capsys, park_log):
     summary = list(csv.DictReader((tmp_path / "sw/summary.csv").read_text().splitlines()))
     assert len(summary) == 2 and all(s["runs"] == "2" for s in summary)
     assert len([p for p in (tmp_path / "sw").iterdir() if p.is_dir()]) == 4
+    # the P_D modes compared run by run: calibrated - constant on the same log and seed
+    pairs = [r for r in csv.DictReader((tmp_path / "sw/paired.csv").read_text().splitlines()) if r["metric"] == "map_ospa"]
+    ospa = {(r["pd_mode"], r["seed"]): float(r["map_ospa"]) for r in runs}
+    diff = [ospa["profile", s] - ospa["constant", s] for s in ("0", "1")]
+    assert len(pairs) == 1 and (pairs[0]["varies"], pairs[0]["a"], pairs[0]["b"], pairs[0]["pairs"]) == ("pd_mode", "profile", "constant", "2")
+    assert float(pairs[0]["mean_difference"]) == pytest.approx(sum(diff) / 2, abs=1e-5)
+    assert int(pairs[0]["a_lower"]) == sum(d < 0 for d in diff)
+    assert "paired by log and seed" in out and "pd_mode:" in out
     code, _, err = run(capsys, "slam", "sweep", str(park_log), "--profile", "sim-park-laser", "--pd-mode", "fixed", "--out", str(tmp_path / "s2"))
     assert code == 2
     assert_one_line_error(err, "--pd-mode: expected one of profile, constant")

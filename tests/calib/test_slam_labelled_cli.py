@@ -52,7 +52,7 @@ def test_labelled_run_folder_is_reproducible(tmp_path, capsys, paper):
 
 def test_sweep_over_filters(tmp_path, capsys, paper):
     out = tmp_path / "sw"
-    code, _, err = run(
+    code, text, err = run(
         capsys, "slam", "sweep", str(paper / "log.dlog"), "--profile", str(paper / "profile.yaml"), "--filter", "lmb", "--filter", "glmb",
         "--pd-mode", "profile", "--particles", "3", "--seeds", "1", "--frames", "30", "--workers", "0", "--out", str(out),
     )  # fmt: skip
@@ -61,6 +61,11 @@ def test_sweep_over_filters(tmp_path, capsys, paper):
     assert sorted((r["filter"], r["seed"]) for r in rows) == [("glmb", "0"), ("lmb", "0")]
     summary = list(csv.DictReader((out / "summary.csv").read_text().splitlines()))
     assert sorted(r["filter"] for r in summary) == ["glmb", "lmb"]
+    pairs = list(csv.DictReader((out / "paired.csv").read_text().splitlines()))
+    assert pairs and all((r["varies"], r["a"], r["b"], r["pairs"]) == ("filter", "lmb", "glmb", "1") for r in pairs)
+    # the timing row has a cell per filter (it was one, for both, under the first)
+    ms = next(line for line in text.splitlines() if "ms per step" in line)
+    assert len([c for c in ms.split("│") if c.strip()]) == 3
     assert sum(1 for p in out.iterdir() if p.is_dir() and (p / "labels.csv").exists()) == 2
     code, _, err = run(capsys, "slam", "sweep", str(paper / "log.dlog"), "--profile", str(paper / "profile.yaml"), "--filter", "ekf", "--out", str(tmp_path / "x"))
     assert code == 2
