@@ -173,7 +173,10 @@ def slam_sweep_cmd(
     Each run's folder is moved into the sweep folder as soon as the run ends; a
     failed run is named (log, seed) and the others go on; the same command again
     does only the runs that are missing. runs.csv and summary.csv are the same
-    bytes whatever the number of workers.
+    bytes whatever the number of workers. Settings that differ in one label (two
+    P_D modes, filters, particle counts or profiles) are compared run by run on
+    the same log and seed in paired.csv (mean difference, standard error, pairs
+    in which the first is lower).
     """
     from calib.engine import InProcess, LogSource, check_options, open_engine
     from calib.progress import progress
