@@ -391,8 +391,8 @@ def paired(rows: list[dict], compared: tuple[str, ...] = COMPARED, labels: tuple
             continue
         rest = [k for k in labels if k != lab]
         by_key: dict[tuple, dict] = {}
-        for r in rows:
-            by_key.setdefault(tuple(r.get(k) for k in rest), {})[r.get(lab)] = r
+        for r in rows:  # (two logs of one name are two runs with the same labels: paired in turn, not overwritten)
+            by_key.setdefault(tuple(r.get(k) for k in rest), {}).setdefault(r.get(lab), []).append(r)
         fixed = [k for k in compared if k != lab]
         for ia, a in enumerate(values):
             for b in values[ia + 1 :]:
@@ -400,7 +400,7 @@ def paired(rows: list[dict], compared: tuple[str, ...] = COMPARED, labels: tuple
                 for key, runs in by_key.items():
                     if a in runs and b in runs:
                         ctx = dict(zip(rest, key, strict=True))
-                        groups.setdefault(tuple(ctx[k] for k in fixed), []).append((runs[a], runs[b]))
+                        groups.setdefault(tuple(ctx[k] for k in fixed), []).extend(zip(runs[a], runs[b], strict=False))
                 for ctx, pairs in groups.items():
                     head = {"varies": lab, "a": a, "b": b, **{k: v for k, v in zip(fixed, ctx, strict=True)}}
                     for m in metrics:

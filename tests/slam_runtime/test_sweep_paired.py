@@ -53,3 +53,13 @@ def test_no_pairs_when_nothing_varies():
     rows = [r for r in _rows() if r["filter"] == "glmb" and r["pd_mode"] == "profile"]
     assert paired(rows) == []
     assert paired([]) == []
+
+
+def test_two_logs_of_one_name_are_both_paired():
+    """Logs are labelled by name: two logs that share one give runs with the same labels, each paired in turn."""
+    rows = _rows()
+    for r in rows:
+        r["log"] = "same"
+    out = [r for r in paired(rows) if r["varies"] == "pd_mode" and r["metric"] == "map_ospa"]
+    assert [r["pairs"] for r in out] == [6, 6]
+    assert out[0]["mean_difference"] == pytest.approx(-0.02, abs=1e-12)
