@@ -103,9 +103,8 @@ class DetectionModel:
             sensor=sensor if sensor is not None else profile.sensor,
             hotelling=profile.hotelling,
             noise=profile.noise,
-            k_sigma=profile.detector.k_sigma,
             buffer_samples=profile.detector.buffer_samples,
-            **{"occluder_radius": profile.detector.occluder_radius, **options},
+            **{"occluder_radius": profile.detector.occluder_radius, "k_sigma": profile.detector.k_sigma, **options},
         )
 
     @property

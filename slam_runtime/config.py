@@ -101,6 +101,12 @@ class DetectionOptions(_Strict):
     descriptor_likelihood: bool = Field(
         default=True, description="weigh each detection by g_x(d) / g_FA(d) of its descriptors (eqs. 2.26, 5.6) when the profile has a Hotelling model"
     )
+    occlusion_sigmas: float | None = Field(
+        default=None,
+        gt=0.0,
+        description="n_p profiles: a return occludes a map feature when it is shorter than the feature's surface by more than "
+        "this many range sigmas (default: the profile's k_sigma, the tolerance its P_D table was measured with)",
+    )
     occlusion: bool = Field(
         default=True, description="detection-level profiles with an occluder radius: features hidden behind a nearer mapped one have P_D 0"
     )
@@ -244,6 +250,7 @@ def detection_model(profile, opts: DetectionOptions, sensor=None):
         landmark_radius=opts.landmark_radius,
         phase_average=opts.phase_average,
         **({} if opts.occlusion else {"occluder_radius": None}),
+        **({} if opts.occlusion_sigmas is None else {"k_sigma": opts.occlusion_sigmas}),
     )
 
 

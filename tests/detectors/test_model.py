@@ -139,3 +139,24 @@ def test_pd_points_of_a_range_bearing_grid_keep_the_edge_cells_value_in_the_band
     pd, buf = g.pd_points(np.zeros((1, 3)), mu, np.tile(np.eye(2) * 1e-6, (1, 4, 1, 1)))
     np.testing.assert_allclose(pd[0], [0.3, 0.4, 0.4, 0.0])
     np.testing.assert_array_equal(buf[0], [False, False, True, False])
+
+
+def test_the_occlusion_tolerance_at_run_time():
+    """detection.occlusion_sigmas replaces the profile's k_sigma in the filter's ray tracer (default: the profile's).
+    A landmark 4 m ahead whose beams return 5 range sigmas short of its surface (a bush's front, say, before a
+    trunk-sized circle): occluded with the calibration's 3 sigmas (P_D 0), seen with 6."""
+    from profiles.store import resolve
+    from slam_runtime.config import DetectionOptions, detection_model
+
+    prof = resolve("sim-park-laser@1.0.0")
+    m3 = detection_model(prof, DetectionOptions(buffer_zone=False))
+    m6 = detection_model(prof, DetectionOptions(buffer_zone=False, occlusion_sigmas=6.0))
+    assert m3.k_sigma == prof.detector.k_sigma == 3.0 and m6.k_sigma == 6.0
+    sig = float(prof.sensor.range_sigma)
+    scan = np.full(prof.sensor.n_beams, np.nan)
+    ang = prof.sensor.angles()
+    ahead = np.abs(ang) < 0.2
+    scan[ahead] = 4.0 - 0.3 - 5 * sig  # the surface of a 0.3 m circle at 4 m, less 5 sigmas
+    pd3, _ = m3.pd_landmarks(np.zeros(3), scan, np.array([[4.0, 0.0]]), 0.3)
+    pd6, _ = m6.pd_landmarks(np.zeros(3), scan, np.array([[4.0, 0.0]]), 0.3)
+    assert pd3[0] == 0.0 and pd6[0] > 0.9
