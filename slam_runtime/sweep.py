@@ -365,6 +365,11 @@ def summarise(rows: list[dict], by: tuple[str, ...], labels: tuple[str, ...] = (
     return out
 
 
+def _number(v) -> float:
+    """A metric's value as a float; NaN for one a run does not have (None)."""
+    return float(v) if isinstance(v, int | float) else float("nan")
+
+
 def _metric_keys(rows: list[dict], labels: tuple[str, ...]) -> list[str]:
     """The numeric metrics of runs.csv rows, in the first row's order (a metric some row lacks is left out)."""
     keys = [k for k, v in rows[0].items() if k not in labels and isinstance(v, int | float) and not isinstance(v, bool)]
@@ -378,9 +383,8 @@ def paired(rows: list[dict], compared: tuple[str, ...] = COMPARED, labels: tuple
     of the rows, the plan's) and every combination of the other labels' values: the runs of a and of b that
     agree in every other label (the same log and seed) are pairs. Per metric (one row each): the number of
     pairs with both values finite, the mean of a - b, its standard error (the differences' standard deviation
-    over sqrt(pairs); 0 for one pair) and the pairs in which a is lower. A pair's runs share the log's data and the seed, so
-    pairing takes out what a log or a seed does to both (in a sweep over worlds, most of the spread), and a mean
-    difference beyond two standard errors is one the sweep shows. Empty when no label of ``compared`` varies."""
+    over sqrt(pairs); 0 for one pair) and the pairs in which a is lower. A pair's runs share the log's data and
+    the seed, so what a log does to both settings cancels. Empty when no label of ``compared`` varies."""
     if not rows:
         return []
     metrics = _metric_keys(rows, labels)
@@ -404,7 +408,7 @@ def paired(rows: list[dict], compared: tuple[str, ...] = COMPARED, labels: tuple
                 for ctx, pairs in groups.items():
                     head = {"varies": lab, "a": a, "b": b, **{k: v for k, v in zip(fixed, ctx, strict=True)}}
                     for m in metrics:
-                        d = np.array([ra[m] - rb[m] for ra, rb in pairs], dtype=np.float64)
+                        d = np.array([_number(ra[m]) - _number(rb[m]) for ra, rb in pairs], dtype=np.float64)
                         d = d[np.isfinite(d)]
                         if not d.size:
                             continue

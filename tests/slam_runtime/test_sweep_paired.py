@@ -41,12 +41,13 @@ def test_paired_differences_of_each_label_that_varies():
     assert all(r["mean_difference"] == 0.0 and r["standard_error"] == 0.0 and r["a_lower"] == 0 for r in same)
 
 
-def test_only_runs_with_a_partner_are_paired_and_nan_is_left_out():
+def test_only_runs_with_a_partner_are_paired_and_missing_values_are_left_out():
     rows = _rows()
     rows = [r for r in rows if not (r["filter"] == "lmb" and r["seed"] == 2)]  # glmb's seed-2 runs lose their partner
     rows[0]["map_ospa"] = float("nan")  # log a, glmb, profile, seed 0
+    rows[1]["map_ospa"] = None  # log a, glmb, profile, seed 1: a metric the run does not have
     out = [r for r in paired(rows) if r["varies"] == "filter" and r["metric"] == "map_ospa"]
-    assert [(r["pd_mode"], r["pairs"]) for r in out] == [("profile", 3), ("constant", 4)]
+    assert [(r["pd_mode"], r["pairs"]) for r in out] == [("profile", 2), ("constant", 4)]
 
 
 def test_no_pairs_when_nothing_varies():
