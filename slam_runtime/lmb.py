@@ -130,7 +130,8 @@ class LMB(LabelledFilter):
             sp_, _, mu, cov, _ = self._updated(sl, sp, z, rz, res)
             wslot = res.slot_weights()
             # the LMB approximation: per label (source slot), existence and the moment-matched Gaussian
-            r_new, m_new, c_new = moment_match(sp_ * s + res.slot_src, wslot, mu, cov, p * s)
+            key = sp_ * s + res.slot_src  # each new slot's source slot, over all particles
+            r_new, m_new, c_new = moment_match(key, wslot, mu, cov, p * s)
             active = np.zeros((p, s), dtype=bool)
             active[np.nonzero(in_a)[0], c.act[in_a]] = True
             r_all = np.where(active, r_new.reshape(p, s), sl.r)
@@ -142,7 +143,6 @@ class LMB(LabelledFilter):
             if ab is not None:
                 # each label's factor on P_D, from its detected and missed versions' weights (an idle birth: missed)
                 det = res.slot_a > 0
-                key = sp_ * s + res.slot_src
                 w_det = np.bincount(key, weights=wslot * det, minlength=p * s).reshape(p, s)
                 w_miss = np.bincount(key, weights=wslot * ~det, minlength=p * s).reshape(p, s)
                 w_det, w_miss = np.where(active, w_det, 0.0), np.where(active, w_miss, 0.0)

@@ -42,6 +42,7 @@ The sweep folder is a container whose every entry is whole::
 from __future__ import annotations
 
 import hashlib
+import itertools
 import os
 import tempfile
 import traceback
@@ -65,7 +66,6 @@ FORMAT_VERSION = 1
 LABELS = ("log", "profile", "filter", "pd_mode", "particles", "seed")
 #: Metrics that are timings: they go to timings.csv, never to runs.csv or summary.csv.
 TIMING_KEYS = ("ms_per_step_mean", "ms_per_step_median", "cpu_ms_per_step_mean")
-TABLES = ("runs.csv", "summary.csv", "paired.csv", "timings.csv")
 #: The labels paired.csv compares settings by: two runs that differ in one of them and agree in every other label
 #: (the same log and seed) are a pair.
 COMPARED = ("filter", "pd_mode", "particles", "profile")
@@ -356,7 +356,7 @@ def summarise(rows: list[dict], by: tuple[str, ...], labels: tuple[str, ...] = (
     for key, rs in groups.items():
         entry: dict = dict(zip(by, key, strict=True))
         entry["runs"] = len(rs)
-        metrics = [k for k in rs[0] if k not in by and k not in labels and isinstance(rs[0][k], int | float) and not isinstance(rs[0][k], bool)]
+        metrics = [k for k in rs[0] if k not in by and k not in labels and _numeric(rs[0][k])]
         for k in metrics:
             vals = np.array([r[k] for r in rs if k in r], dtype=np.float64)
             entry[f"{k}_mean"] = float(vals.mean())
@@ -365,14 +365,19 @@ def summarise(rows: list[dict], by: tuple[str, ...], labels: tuple[str, ...] = (
     return out
 
 
+def _numeric(v) -> bool:
+    """Whether a runs.csv value is a metric's number (not a flag, a label or a missing value)."""
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
 def _number(v) -> float:
     """A metric's value as a float; NaN for one a run does not have (None)."""
-    return float(v) if isinstance(v, int | float) else float("nan")
+    return float(v) if _numeric(v) else float("nan")
 
 
 def _metric_keys(rows: list[dict], labels: tuple[str, ...]) -> list[str]:
     """The numeric metrics of runs.csv rows, in the first row's order (a metric some row lacks is left out)."""
-    keys = [k for k, v in rows[0].items() if k not in labels and isinstance(v, int | float) and not isinstance(v, bool)]
+    keys = [k for k, v in rows[0].items() if k not in labels and _numeric(v)]
     return [k for k in keys if all(k in r for r in rows)]
 
 
@@ -397,22 +402,25 @@ def paired(rows: list[dict], compared: tuple[str, ...] = COMPARED, labels: tuple
         by_key: dict[tuple, dict] = {}
         for r in rows:  # (two logs of one name are two runs with the same labels: paired in turn, not overwritten)
             by_key.setdefault(tuple(r.get(k) for k in rest), {}).setdefault(r.get(lab), []).append(r)
-        fixed = [k for k in compared if k != lab]
-        for ia, a in enumerate(values):
-            for b in values[ia + 1 :]:
-                groups: dict[tuple, list[tuple[dict, dict]]] = {}
-                for key, runs in by_key.items():
-                    if a in runs and b in runs:
-                        ctx = dict(zip(rest, key, strict=True))
-                        groups.setdefault(tuple(ctx[k] for k in fixed), []).extend(zip(runs[a], runs[b], strict=False))
-                for ctx, pairs in groups.items():
-                    head = {"varies": lab, "a": a, "b": b, **{k: v for k, v in zip(fixed, ctx, strict=True)}}
-                    for m in metrics:
-                        d = np.array([_number(ra[m]) - _number(rb[m]) for ra, rb in pairs], dtype=np.float64)
-                        d = d[np.isfinite(d)]
-                        if not d.size:
-                            continue
-                        se = float(d.std(ddof=1) / np.sqrt(d.size)) if d.size > 1 else 0.0
-                        out.append({**head, "metric": m, "pairs": int(d.size), "mean_difference": float(d.mean()), "standard_error": se,
-                                    "a_lower": int((d < 0).sum())})  # fmt: skip
+        fixed = [rest.index(k) for k in compared if k != lab]  # the other compared labels, as positions in a key
+        for a, b in itertools.combinations(values, 2):
+            groups: dict[tuple, list[tuple[dict, dict]]] = {}
+            for key, runs in by_key.items():
+                if a in runs and b in runs:
+                    groups.setdefault(tuple(key[i] for i in fixed), []).extend(zip(runs[a], runs[b], strict=False))
+            for ctx, pairs in groups.items():
+                head = {"varies": lab, "a": a, "b": b, **dict(zip((rest[i] for i in fixed), ctx, strict=True))}
+                out.extend({**head, **stats} for stats in _differences(pairs, metrics))
+    return out
+
+
+def _differences(pairs: list[tuple[dict, dict]], metrics: list[str]) -> list[dict]:
+    """Per metric with a finite difference in some pair: the pairs, mean a - b, its standard error, pairs a is lower."""
+    out = []
+    for m in metrics:
+        d = np.array([_number(ra[m]) - _number(rb[m]) for ra, rb in pairs], dtype=np.float64)
+        d = d[np.isfinite(d)]
+        if d.size:
+            se = float(d.std(ddof=1) / np.sqrt(d.size)) if d.size > 1 else 0.0
+            out.append({"metric": m, "pairs": int(d.size), "mean_difference": float(d.mean()), "standard_error": se, "a_lower": int((d < 0).sum())})
     return out

@@ -258,10 +258,11 @@ def slam_sweep_cmd(
     for label, key in shown:
         if f"{key}_mean" in summary[0]:
             t.add_row(label, *(f"{e[key + '_mean']:.3f} ± {e[key + '_std']:.3f}" for e in summary))
+    setting = ("profile", "filter", "pd_mode", "particles")  # what a summary column is (run_sweep's grouping)
     ms = {}
     for row, tim in zip(res.rows, res.timings, strict=True):
-        ms.setdefault(tuple(row[k] for k in ("profile", "filter", "pd_mode", "particles")), []).append(tim["ms_per_step_mean"])
-    t.add_row("ms per step", *(f"{np.mean(ms[tuple(e[k] for k in ('profile', 'filter', 'pd_mode', 'particles'))]):.1f}" for e in summary))
+        ms.setdefault(tuple(row[k] for k in setting), []).append(tim["ms_per_step_mean"])
+    t.add_row("ms per step", *(f"{np.mean(ms[tuple(e[k] for k in setting)]):.1f}" for e in summary))
     out.print(t)
     if res.paired:
         out.print(paired_table(res.paired))
