@@ -65,7 +65,8 @@ def count_unoccluded(
         sl = slice(a, min(s, a + step))
         exp = expected_ranges(poses[sl], angles[sl] if per_scan_angles else angles, centres[sl] if per_pose else centres, radii)  # (s', B, L)
         hit = np.isfinite(exp) & (exp <= rmax)
-        occl = hit & (meas[sl, :, None] < exp - tol)  # NaN compares False: a missing return does not occlude
+        # NaN compares False: a missing return does not occlude; an infinite tolerance: nothing does
+        occl = hit & (meas[sl, :, None] < exp - tol) if np.isfinite(tol) else np.zeros_like(hit)
         n_exp[sl] = hit.sum(axis=1)
         n_p[sl] = (hit & ~occl).sum(axis=1)
     return n_p, n_exp

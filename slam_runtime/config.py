@@ -105,7 +105,8 @@ class DetectionOptions(_Strict):
         default=None,
         gt=0.0,
         description="n_p profiles: a return occludes a map feature when it is shorter than the feature's surface by more than "
-        "this many range sigmas (default: the profile's k_sigma, the tolerance its P_D table was measured with)",
+        "this many range sigmas (default: the profile's k_sigma, the tolerance its P_D table was measured with; .inf: no return "
+        "does, and a feature's P_D is the table's at the count of beams it would get)",
     )
     occlusion: bool = Field(
         default=True, description="detection-level profiles with an occluder radius: features hidden behind a nearer mapped one have P_D 0"

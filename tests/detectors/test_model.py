@@ -160,3 +160,34 @@ def test_the_occlusion_tolerance_at_run_time():
     pd3, _ = m3.pd_landmarks(np.zeros(3), scan, np.array([[4.0, 0.0]]), 0.3)
     pd6, _ = m6.pd_landmarks(np.zeros(3), scan, np.array([[4.0, 0.0]]), 0.3)
     assert pd3[0] == 0.0 and pd6[0] > 0.9
+
+
+def test_an_infinite_occlusion_tolerance_turns_the_test_off():
+    """occlusion_sigmas: .inf (from YAML) hides nothing: a landmark behind a wall 1 m in front of it gets the P_D of
+    the beams it would get with no wall, on the integer-count and the filter's (phase-averaged) paths, without a
+    floating-point warning (an infinite tolerance minus an infinite expected range would be NaN)."""
+    import warnings
+
+    import yaml
+
+    from profiles.store import resolve
+    from slam_runtime.config import DetectionOptions, detection_model
+
+    prof = resolve("sim-park-laser@1.0.0")
+    opts = yaml.safe_load("{buffer_zone: false, occlusion_sigmas: .inf}")
+    off = detection_model(prof, DetectionOptions(**opts))
+    on = detection_model(prof, DetectionOptions(buffer_zone=False))
+    ang = prof.sensor.angles()
+    wall = np.where(np.abs(ang) < 0.3, 3.0, np.nan)  # returns 1 m in front of a landmark at 4 m
+    free = np.full(ang.size, np.nan)
+    centre = np.array([[4.0, 0.0]])
+    cov = np.diag([0.01, 0.01])[None, None]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        pd_wall, _ = off.pd_landmarks(np.zeros(3), wall, centre, 0.3)
+        pd_free, _ = off.pd_landmarks(np.zeros(3), free, centre, 0.3)
+        pts_wall, _ = off.pd_points(np.zeros((1, 3)), centre[None], cov, wall, ang)
+        pts_free, _ = off.pd_points(np.zeros((1, 3)), centre[None], cov, free, ang)
+    assert pd_wall[0] == pd_free[0] > 0.9 and pts_wall[0, 0] == pts_free[0, 0] > 0.9
+    assert on.pd_landmarks(np.zeros(3), wall, centre, 0.3)[0][0] == 0.0
+    assert on.pd_points(np.zeros((1, 3)), centre[None], cov, wall, ang)[0][0, 0] == 0.0
