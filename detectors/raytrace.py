@@ -60,13 +60,14 @@ def count_unoccluded(
         return n_p, n_exp
     rmax = np.inf if range_max is None else float(range_max)
     tol = k_sigma * range_sigma
+    occludes = bool(np.isfinite(tol))  # an infinite tolerance: no return occludes (and exp - tol would be NaN)
     step = max(1, _CHUNK // max(1, b * l_))
     for a in range(0, s, step):  # chunks of scans; inside, all beams x landmarks at once
         sl = slice(a, min(s, a + step))
         exp = expected_ranges(poses[sl], angles[sl] if per_scan_angles else angles, centres[sl] if per_pose else centres, radii)  # (s', B, L)
         hit = np.isfinite(exp) & (exp <= rmax)
-        # NaN compares False: a missing return does not occlude; an infinite tolerance: nothing does
-        occl = hit & (meas[sl, :, None] < exp - tol) if np.isfinite(tol) else np.zeros_like(hit)
+        # NaN compares False: a missing return does not occlude
+        occl = hit & (meas[sl, :, None] < exp - tol) if occludes else np.zeros_like(hit)
         n_exp[sl] = hit.sum(axis=1)
         n_p[sl] = (hit & ~occl).sum(axis=1)
     return n_p, n_exp

@@ -64,6 +64,8 @@ FORMAT = "detcal-sweep"
 FORMAT_VERSION = 1
 #: What varies between runs (the first columns of runs.csv).
 LABELS = ("log", "profile", "filter", "pd_mode", "particles", "seed")
+#: The labels of one setting: summary.csv has a row per setting (its runs over logs and seeds), the sweep table a column.
+SETTING = ("profile", "filter", "pd_mode", "particles")
 #: Metrics that are timings: they go to timings.csv, never to runs.csv or summary.csv.
 TIMING_KEYS = ("ms_per_step_mean", "ms_per_step_median", "cpu_ms_per_step_mean")
 #: The labels paired.csv compares settings by: two runs that differ in one of them and agree in every other label
@@ -281,7 +283,7 @@ def run_sweep(
     plan: dict | None = None,
     force: bool = False,
     done: set[str] | None = None,
-    by: tuple[str, ...] = ("profile", "filter", "pd_mode", "particles"),
+    by: tuple[str, ...] = SETTING,
     progress=None,
 ) -> SweepOutcome:
     """Run the jobs not done yet on ``engine``, each run folder moved in as its job completes; the tables once all are done.

@@ -6,7 +6,6 @@ import contextlib
 from pathlib import Path
 from typing import Annotated
 
-import numpy as np
 import typer
 from rich.table import Table
 
@@ -183,7 +182,7 @@ def slam_sweep_cmd(
     from profiles.store import resolve
     from slam_runtime.config import FILTER_KINDS, override, with_filter
     from slam_runtime.run import check_inputs
-    from slam_runtime.sweep import SweepJob, make_plan, open_sweep, run_sweep
+    from slam_runtime.sweep import SETTING, SweepJob, make_plan, open_sweep, run_sweep, summarise
 
     modes = list(dict.fromkeys(pd_modes or list(PD_MODES)))
     for m in modes:
@@ -258,11 +257,9 @@ def slam_sweep_cmd(
     for label, key in shown:
         if f"{key}_mean" in summary[0]:
             t.add_row(label, *(f"{e[key + '_mean']:.3f} ± {e[key + '_std']:.3f}" for e in summary))
-    setting = ("profile", "filter", "pd_mode", "particles")  # what a summary column is (run_sweep's grouping)
-    ms = {}
-    for row, tim in zip(res.rows, res.timings, strict=True):
-        ms.setdefault(tuple(row[k] for k in setting), []).append(tim["ms_per_step_mean"])
-    t.add_row("ms per step", *(f"{np.mean(ms[tuple(e[k] for k in setting)]):.1f}" for e in summary))
+    # timings.csv is apart from runs.csv: its rows take their run's setting to be summarised by the same grouping
+    timed = [{**{k: row[k] for k in SETTING}, "ms_per_step": tim["ms_per_step_mean"]} for row, tim in zip(res.rows, res.timings, strict=True)]
+    t.add_row("ms per step", *(f"{e['ms_per_step_mean']:.1f}" for e in summarise(timed, SETTING)))
     out.print(t)
     if res.paired:
         out.print(paired_table(res.paired))
