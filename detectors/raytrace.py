@@ -66,10 +66,9 @@ def count_unoccluded(
         sl = slice(a, min(s, a + step))
         exp = expected_ranges(poses[sl], angles[sl] if per_scan_angles else angles, centres[sl] if per_pose else centres, radii)  # (s', B, L)
         hit = np.isfinite(exp) & (exp <= rmax)
-        # NaN compares False: a missing return does not occlude
-        occl = hit & (meas[sl, :, None] < exp - tol) if occludes else np.zeros_like(hit)
         n_exp[sl] = hit.sum(axis=1)
-        n_p[sl] = (hit & ~occl).sum(axis=1)
+        # NaN compares False: a missing return does not occlude; with no occluding return every expected beam counts
+        n_p[sl] = (hit & ~(meas[sl, :, None] < exp - tol)).sum(axis=1) if occludes else n_exp[sl]
     return n_p, n_exp
 
 
