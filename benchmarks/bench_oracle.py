@@ -18,6 +18,13 @@ Run: ``python benchmarks/bench_oracle.py [--worlds 1,4-9] [--glmb-worlds 1-3] [-
   measurement carrying that share of its information (its noise over the ratio's square root, the
   odometry's unchanged): how much an ideal RB particle's map OSPA grows with the clutter (over draws of the
   data), and this world's ideal figure times that growth: what an ideal filter can be expected to reach.
+* glmb-paper, per clutter rate, on the world's own false alarms: :func:`slam_runtime.oracle.clutter_oracle`, the
+  posterior's mode and covariance with the associations *not* given (each landmark's exact single-feature
+  likelihood of each scan; the missing information of the associations taken off): the mode's map OSPA, an
+  ideal RB particle's (the map's conditional mean given a path drawn from that posterior, on this data), and
+  the mean of three such particles' maps (three ideal islands, ``benchmarks/configs/glmb_paper_islands.yaml``),
+  with the share of the measurements' information the association doubt removes. The first row (0) is the
+  labelled oracle's.
 * with ``--sweep DIR`` (a ``detcal slam sweep`` folder of glmb-paper runs on world ``--sweep-world``): each
   filter's maps on the same scale, mean and median over the runs, beside their OSPA.
 * with ``--runs``: RB-PHD-SLAM with ``benchmarks/configs/rfs_sim.yaml`` (and ``--set`` overrides) on each
@@ -71,6 +78,17 @@ def expected_rb_ospa(orc, truth: np.ndarray, rng: np.random.Generator, n: int = 
     mode = orc.landmarks[orc.detected]
     maps = truth[orc.detected] + (so.posterior_samples(orc, rng, n)[1] - mode) + (so.rb_map_samples(orc, rng, n) - mode)
     return float(np.mean([ospa(x, truth, 0.5, 1.0) for x in maps]))
+
+
+def ideal_maps(orc, truth: np.ndarray, rng: np.random.Generator, n: int = 3000, islands: int = 3) -> tuple[float, float, float]:
+    """On one log's data: the map OSPA of the oracle's mode, the mean over n ideal RB particles' maps (the mode + a
+    draw of N(0, Sigma_mm - H_mm^-1)), and the mean over n / islands averages of ``islands`` such maps."""
+    mode = orc.landmarks[orc.detected]
+    rb = so.rb_map_samples(orc, rng, n)
+    one = np.mean([ospa(m, truth, 0.5, 1.0) for m in rb])
+    k = n // islands
+    avg = rb[: k * islands].reshape(k, islands, -1, 2).mean(axis=1)
+    return ospa(mode, truth, 0.5, 1.0), float(one), float(np.mean([ospa(m, truth, 0.5, 1.0) for m in avg]))
 
 
 def sweep_maps(folder: Path, world: int) -> None:
@@ -184,6 +202,29 @@ def main() -> None:
         print(
             f"  under clutter (false alarms per scan: the information ratio, the ideal RB map OSPA's growth over data draws "
             f"(no clutter: {base:.4f}), this world's ideal RB figure times it): {'; '.join(parts)}",
+            flush=True,
+        )
+        rows = []
+        for c in (0.0, 1.0, 5.0, 10.0, 15.0):
+            if c == 0.0:
+                m, one, three = ideal_maps(orc, truth, np.random.default_rng(w))
+                rows.append(f"    {c:>4g}  {m:.4f}  {one:.4f}  {three:.4f}   (associations given)")
+                continue
+            gc = glmb_paper.GlmbPaperConfig(clutter=c)
+            log_c = glmb_paper.simulate_glmb_paper(gc, w)
+            kappa = c / ((gc.range_max - gc.range_min) * 2 * np.pi)
+            oc = so.clutter_oracle(
+                log_c, **noise, pd=gc.pd, clutter_density=kappa, range_min=gc.range_min, range_max=gc.range_max
+            )
+            m, one, three = ideal_maps(oc, truth, np.random.default_rng(w))
+            rows.append(
+                f"    {c:>4g}  {m:.4f}  {one:.4f}  {three:.4f}   information removed {oc.information_loss:.3f}, a detection's "
+                f"weight on its landmark {oc.own_weight:.3f}, false alarms' weight per scan {oc.false_weight:.3f}"
+                f"{'' if oc.converged else f', NOT converged in {oc.iterations} iterations'}"
+            )
+        print(
+            "  on this world's own false alarms, the associations not given (clutter_oracle): false alarms per scan, map OSPA "
+            "of the mode, an ideal RB particle, three ideal islands\n" + "\n".join(rows),
             flush=True,
         )
     for folder in a.sweep:

@@ -72,24 +72,47 @@ class OracleResult:
         return float(np.hypot(*(self.poses[-1, :2] - np.asarray(truth)[:2])))
 
 
-def batch_oracle(
-    log: SensorLog,
-    *,
-    odometry_sigma: tuple[float, ...],
-    range_sigma: float,
-    bearing_sigma: float,
-    iterations: int = 50,
-) -> OracleResult:
-    """The full-SLAM posterior's mode and covariance of a simulated log with labelled detections.
+@dataclass
+class ClutterOracleResult(OracleResult):
+    """The oracle of a log with false alarms, the associations not given (:func:`clutter_oracle`); its ``cost``
+    is the odometry's part of the objective."""
 
-    odometry_sigma: per odometry row, (dx, dy, dtheta) [m, m, rad] for ``increment`` odometry, (speed [m/s],
-    steering [rad]) for ``ackermann``; range_sigma [m], bearing_sigma [rad]: the measurement noise.
-    """
-    if iterations < 1:
-        raise UsageError(f"oracle: iterations must be at least 1, not {iterations}")
-    for name, v in (("range_sigma", range_sigma), ("bearing_sigma", bearing_sigma)):
-        if not (np.isfinite(v) and v > 0):
-            raise UsageError(f"oracle: {name} must be a positive number, not {v!r}")
+    log_likelihood: float  # the objective at the mode: the measurements' mixture log-likelihood minus the odometry's cost
+    own_weight: float  # mean responsibility a landmark's detection takes from its own landmark (1: no doubt)
+    false_weight: float  # responsibility the false alarms take from the landmarks, per scan
+    stray_weight: float  # responsibility landmark detections take from other landmarks than their own, per scan
+    information_loss: float  # share of the measurements' Gauss-Newton information the association doubt removes
+
+
+@dataclass
+class _Problem:
+    """A log's full-SLAM problem: its odometry, the landmarks its labelled detections see, the first pose."""
+
+    name: str
+    stamps: np.ndarray
+    ack: bool
+    odo: np.ndarray
+    ctrl: np.ndarray  # (N - 1, 2) initial controls (Ackermann) or (0, 2)
+    dts: np.ndarray | None
+    wb: float
+    sig: np.ndarray
+    start: np.ndarray
+    ids: np.ndarray
+    detected: np.ndarray
+    k_of: np.ndarray  # labelled detections: odometry index,
+    lj: np.ndarray  # index among the detected landmarks,
+    zr: np.ndarray  # range,
+    zb: np.ndarray  # bearing
+    x0: np.ndarray  # initial poses (dead reckoning)
+    lm0: np.ndarray  # initial landmarks (each from its first detection)
+
+    @property
+    def sizes(self) -> tuple[int, int, int]:
+        n = self.stamps.size
+        return 3 * n, 2 * self.ctrl.shape[0], 2 * int(self.detected.sum())
+
+
+def _problem(log: SensorLog, odometry_sigma) -> _Problem:
     if log.odometry is None or log.detections is None or log.landmarks is None:
         raise DataError(f"{log.name}: the oracle needs odometry, detections and landmark truth")
     lab = log.detections.descriptors.get("landmark")
@@ -142,6 +165,7 @@ def batch_oracle(
     x = np.zeros((n, 3))
     x[0] = start
     ack = kind == "ackermann"
+    dts, wb = None, 0.0
     if ack:
         if log.vehicle is None or log.vehicle.encoder_offset != 0.0:
             raise DataError(f"{log.name}: the oracle's Ackermann model is the rear-axle bicycle (encoder offset 0)")
@@ -159,37 +183,40 @@ def batch_oracle(
     a = x[k_of[first], 2] + zb[first]
     lm[:, 0] = x[k_of[first], 0] + zr[first] * np.cos(a)
     lm[:, 1] = x[k_of[first], 1] + zr[first] * np.sin(a)
+    return _Problem(log.name, stamps, ack, odo, ctrl, dts, wb, sig, start, ids, detected, k_of, lj, zr, zb, x, lm)
 
-    nx, nc = 3 * n, 2 * ctrl.shape[0]
-    nv = nx + nc + 2 * nl
-    lu = h = None
-    cost = np.inf
-    it = 0
-    converged = False
-    for it in range(1, iterations + 1):
-        blocks = _Blocks()
-        if ack:
-            _ackermann_factors(blocks, x, ctrl, odo[:-1], dts, wb, sig, nx)
-        else:
-            _increment_factors(blocks, x, odo, sig)
-        _range_bearing_factors(blocks, x, lm, k_of, lj, zr, zb, range_sigma, bearing_sigma, nx + nc)
-        d0 = x[0] - start
-        d0[2] = wrap_angle(d0[2])
-        blocks.add(1e6 * d0, [(np.arange(3), np.full(3, 1e6))])  # the first pose is the true start
-        jac, res = blocks.build(nv)
-        h = (jac.T @ jac).tocsc()
-        lu = splu(h)
-        step = lu.solve(-(jac.T @ res))
-        cost = 0.5 * float(res @ res)
-        x += step[:nx].reshape(n, 3)
-        x[:, 2] = wrap_angle(x[:, 2])
-        if ack:
-            ctrl += step[nx : nx + nc].reshape(-1, 2)
-        lm += step[nx + nc :].reshape(nl, 2)
-        if np.abs(step).max() < 1e-10:
-            converged = True
-            break
-    # marginal covariances from the information matrix at the mode
+
+def _motion_blocks(prob: _Problem, x: np.ndarray, ctrl: np.ndarray) -> _Blocks:
+    """The odometry's factors and the first pose's anchor."""
+    blocks = _Blocks()
+    nx = 3 * prob.stamps.size
+    if prob.ack:
+        _ackermann_factors(blocks, x, ctrl, prob.odo[:-1], prob.dts, prob.wb, prob.sig, nx)
+    else:
+        _increment_factors(blocks, x, prob.odo, prob.sig)
+    return blocks
+
+
+def _anchor(prob: _Problem, blocks: _Blocks, x: np.ndarray) -> None:
+    d0 = x[0] - prob.start
+    d0[2] = wrap_angle(d0[2])
+    blocks.add(1e6 * d0, [(np.arange(3), np.full(3, 1e6))])  # the first pose is the true start
+
+
+def _apply(prob: _Problem, step: np.ndarray, x: np.ndarray, ctrl: np.ndarray, lm: np.ndarray) -> None:
+    nx, nc, _ = prob.sizes
+    x += step[:nx].reshape(-1, 3)
+    x[:, 2] = wrap_angle(x[:, 2])
+    if prob.ack:
+        ctrl += step[nx : nx + nc].reshape(-1, 2)
+    lm += step[nx + nc :].reshape(-1, 2)
+
+
+def _result(prob: _Problem, h: sp.csc_matrix, lu, x, lm, it: int, converged: bool, cost: float, cls=None, **extra):
+    """Marginal covariances from the information matrix h (factorised as lu) at the mode."""
+    nx, nc, nm = prob.sizes
+    nl = nm // 2
+    nv = nx + nc + nm
     e = np.zeros((nv, 3 + 2 * nl))
     e[nx - 3 + np.arange(3), np.arange(3)] = 1.0
     e[nx + nc + np.arange(2 * nl), 3 + np.arange(2 * nl)] = 1.0
@@ -202,11 +229,232 @@ def batch_oracle(
     k = np.arange(nl)
     given[k, :, k, :] = np.linalg.inv(hmm[k, :, k, :])  # (nl, 2, 2) diagonal blocks
     given = given.reshape(2 * nl, 2 * nl)
-    out_lm = np.full((ids.size, 2), np.nan)
-    out_lm[detected] = lm
-    return OracleResult(
-        stamps, x, ids, out_lm, 0.5 * (final_cov + final_cov.T), 0.5 * (lcov + lcov.T), given, detected, it, converged, cost, h
+    out_lm = np.full((prob.ids.size, 2), np.nan)
+    out_lm[prob.detected] = lm
+    return (cls or OracleResult)(
+        prob.stamps,
+        x,
+        prob.ids,
+        out_lm,
+        0.5 * (final_cov + final_cov.T),
+        0.5 * (lcov + lcov.T),
+        given,
+        prob.detected,
+        it,
+        converged,
+        cost,
+        h,
+        **extra,
     )
+
+
+def _check_noise(range_sigma: float, bearing_sigma: float, iterations: int) -> None:
+    if iterations < 1:
+        raise UsageError(f"oracle: iterations must be at least 1, not {iterations}")
+    for name, v in (("range_sigma", range_sigma), ("bearing_sigma", bearing_sigma)):
+        if not (np.isfinite(v) and v > 0):
+            raise UsageError(f"oracle: {name} must be a positive number, not {v!r}")
+
+
+def batch_oracle(
+    log: SensorLog,
+    *,
+    odometry_sigma: tuple[float, ...],
+    range_sigma: float,
+    bearing_sigma: float,
+    iterations: int = 50,
+) -> OracleResult:
+    """The full-SLAM posterior's mode and covariance of a simulated log with labelled detections.
+
+    odometry_sigma: per odometry row, (dx, dy, dtheta) [m, m, rad] for ``increment`` odometry, (speed [m/s],
+    steering [rad]) for ``ackermann``; range_sigma [m], bearing_sigma [rad]: the measurement noise.
+    """
+    _check_noise(range_sigma, bearing_sigma, iterations)
+    prob = _problem(log, odometry_sigma)
+    x, _, lm, h, lu, it, converged, cost = _solve_labelled(prob, range_sigma, bearing_sigma, iterations)
+    return _result(prob, h, lu, x, lm, it, converged, cost)
+
+
+def _solve_labelled(prob: _Problem, range_sigma: float, bearing_sigma: float, iterations: int):
+    """Gauss-Newton on the labelled problem from dead reckoning: (poses, controls, landmarks, information,
+    its factorisation, iterations, converged, cost)."""
+    x, ctrl, lm = prob.x0.copy(), prob.ctrl.copy(), prob.lm0.copy()
+    nx, nc, nm = prob.sizes
+    nv = nx + nc + nm
+    lu = h = None
+    cost = np.inf
+    it = 0
+    converged = False
+    for it in range(1, iterations + 1):
+        blocks = _motion_blocks(prob, x, ctrl)
+        _range_bearing_factors(blocks, x, lm, prob.k_of, prob.lj, prob.zr, prob.zb, range_sigma, bearing_sigma, nx + nc)
+        _anchor(prob, blocks, x)
+        jac, res = blocks.build(nv)
+        h = (jac.T @ jac).tocsc()
+        lu = splu(h)
+        step = lu.solve(-(jac.T @ res))
+        cost = 0.5 * float(res @ res)
+        _apply(prob, step, x, ctrl, lm)
+        if np.abs(step).max() < 1e-10:
+            converged = True
+            break
+    return x, ctrl, lm, h, lu, it, converged, cost
+
+
+def clutter_oracle(
+    log: SensorLog,
+    *,
+    odometry_sigma: tuple[float, ...],
+    range_sigma: float,
+    bearing_sigma: float,
+    pd: float,
+    clutter_density: float,
+    range_max: float,
+    range_min: float = 0.0,
+    gate: float = 36.0,
+    iterations: int = 300,
+    tolerance: float = 1e-8,
+) -> ClutterOracleResult:
+    """The full-SLAM posterior's mode and covariance when the associations are *not* given: what the data of a
+    log with false alarms allow an exact filter.
+
+    Each landmark in view at a scan (its estimated range in [range_min, range_max]) contributes the exact
+    single-feature likelihood of the scan, (1 - pd) + pd sum_j N(z_j; h(x, m), R) / kappa, kappa =
+    ``clutter_density`` per (m rad) (Bar-Shalom's probabilistic data association; the multi-object
+    likelihood when no two landmarks compete for one measurement; the landmarks are those the labelled
+    detections saw, the labels used for nothing else). The mode is found by EM from the labelled oracle's
+    mode (:func:`batch_oracle`): each iteration weighs every (landmark, measurement) pair within ``gate``
+    (squared Mahalanobis distance) by its responsibility and takes one Gauss-Newton step of the weighted
+    problem. The information at the mode is the weighted Gauss-Newton information less the missing
+    information of the associations (Louis 1982): for each landmark and scan, the responsibility-weighted
+    covariance of the pairs' scores. A local mode: the one the true associations lead to.
+    """
+    _check_noise(range_sigma, bearing_sigma, iterations)
+    if not (0.0 < pd < 1.0):
+        raise UsageError(f"clutter oracle: pd must be in (0, 1), not {pd!r}")
+    if not (np.isfinite(clutter_density) and clutter_density > 0.0):
+        raise UsageError(f"clutter oracle: clutter_density must be a positive number, not {clutter_density!r}")
+    if not (0.0 <= range_min < range_max):
+        raise UsageError(f"clutter oracle: need 0 <= range_min < range_max, not {range_min!r}, {range_max!r}")
+    if not (np.isfinite(gate) and gate > 0.0):
+        raise UsageError(f"clutter oracle: gate must be a positive number, not {gate!r}")
+    prob = _problem(log, odometry_sigma)
+    x, ctrl, lm = _solve_labelled(prob, range_sigma, bearing_sigma, 50)[:3]  # the labelled mode: the start
+    nx, nc, nm = prob.sizes
+    nv = nx + nc + nm
+    mix = _Mixture(log, prob, x, lm, pd, clutter_density, range_min, range_max, range_sigma, bearing_sigma, gate)
+    k_all, zr_all, zb_all = mix.k_all, mix.zr, mix.zb
+
+    def weighted(dj, lj, w):
+        blocks = _motion_blocks(prob, x, ctrl)
+        _range_bearing_factors(blocks, x, lm, k_all[dj], lj, zr_all[dj], zb_all[dj], range_sigma, bearing_sigma, nx + nc, w)
+        _anchor(prob, blocks, x)
+        return blocks.build(nv)
+
+    it = 0
+    converged = False
+    for it in range(1, iterations + 1):
+        dj, lj, w, _, _ = mix.pairs(x, lm)  # E-step: the responsibilities at the current estimate
+        jac, res = weighted(dj, lj, w)  # M-step: one Gauss-Newton step of the weighted problem
+        step = splu((jac.T @ jac).tocsc()).solve(-(jac.T @ res))
+        _apply(prob, step, x, ctrl, lm)
+        if np.abs(step).max() < tolerance:
+            converged = True
+            break
+    dj, lj, w, grp, ll = mix.pairs(x, lm)
+    motion = _motion_blocks(prob, x, ctrl)
+    _anchor(prob, motion, x)
+    mjac, mres = motion.build(nv)
+    cost = 0.5 * float(mres @ mres)  # the odometry's (and the anchor's) part of the objective
+    jac, _ = weighted(dj, lj, w)
+    h_gn = (jac.T @ jac).tocsc()
+    h_meas = h_gn - (mjac.T @ mjac).tocsc()
+    # Louis's missing information: per (scan, landmark) group, sum_j w_j s_j s_j^T - s_bar s_bar^T over the
+    # group's pairs' scores s_j = -J_j^T r_j (whitened; the missed-detection term has none)
+    r, jb, cols = _range_bearing_jacobian(x, lm, k_all[dj], lj, zr_all[dj], zb_all[dj], range_sigma, bearing_sigma, nx + nc)
+    s = -np.einsum("mij,mi->mj", jb, r)  # (M, 5)
+    ug, gi = np.unique(grp, return_inverse=True)
+    sbar = np.zeros((ug.size, 5))
+    np.add.at(sbar, gi, w[:, None] * s)
+    gcols = np.zeros((ug.size, 5), dtype=np.int64)
+    gcols[gi] = cols
+    outer = w[:, None, None] * s[:, :, None] * s[:, None, :]
+    miss = np.zeros((ug.size, 5, 5))
+    np.add.at(miss, gi, outer)
+    miss -= sbar[:, :, None] * sbar[:, None, :]
+    rows_ = np.broadcast_to(gcols[:, :, None], miss.shape).ravel()
+    cols_ = np.broadcast_to(gcols[:, None, :], miss.shape).ravel()
+    h_miss = sp.csc_matrix((miss.ravel(), (rows_, cols_)), shape=(nv, nv))
+    h = (h_gn - h_miss).tocsc()
+    lu = splu(h)
+    meas_info = float(h_meas.diagonal().sum())
+    loss = float(h_miss.diagonal().sum()) / meas_info if meas_info > 0 else 0.0
+    own, own_j, n_frames = mix.own, mix.own_j, mix.n_frames
+    true_pair = own_j[dj] == lj
+    n_true = int(np.sum(own_j >= 0))
+    return _result(
+        prob,
+        h,
+        lu,
+        x,
+        lm,
+        it,
+        converged,
+        cost,
+        cls=ClutterOracleResult,
+        log_likelihood=ll - cost,
+        own_weight=float(w[true_pair].sum() / max(n_true, 1)),
+        false_weight=float(w[own[dj] == 0].sum() / max(n_frames, 1)),
+        stray_weight=float(w[(own_j[dj] >= 0) & ~true_pair].sum() / max(n_frames, 1)),
+        information_loss=loss,
+    )
+
+
+class _Mixture:
+    """The measurements' term of :func:`clutter_oracle`'s objective: for each scan and landmark in view, the
+    exact single-feature likelihood (1 - pd) + pd sum_j N(z_j; h(x, m), R) / kappa over the scan's measurements
+    within the gate. Which landmarks are in view at a scan is decided once, at (x0, lm0)."""
+
+    def __init__(self, log: SensorLog, prob: _Problem, x0, lm0, pd, kappa, range_min, range_max, sr, sb, gate) -> None:
+        det = log.detections
+        stamps = prob.stamps
+        self.k_all = np.searchsorted(stamps, det.frame_stamp[det.frame])
+        at = stamps[np.minimum(self.k_all, stamps.size - 1)]
+        if np.any(self.k_all >= stamps.size) or np.any(at != det.frame_stamp[det.frame]):
+            raise DataError(f"{log.name}: the oracle needs a detection frame at an odometry stamp")
+        self.frame = np.asarray(det.frame)
+        self.zr, self.zb = np.asarray(det.range, np.float64), np.asarray(det.bearing, np.float64)
+        self.nl = lm0.shape[0]
+        self.own = np.asarray(det.descriptors["landmark"])
+        col = -np.ones(prob.ids.size, dtype=np.int64)
+        col[prob.detected] = np.arange(self.nl)
+        idx = np.minimum(np.searchsorted(prob.ids, np.maximum(self.own, 0)), prob.ids.size - 1)
+        self.own_j = np.where(self.own > 0, col[idx], -1)  # each measurement's landmark among the detected (-1: none)
+        self.n_frames = np.unique(self.frame).size
+        self.pd, self.sr, self.sb, self.gate = pd, sr, sb, gate
+        self.norm = pd / (kappa * 2.0 * np.pi * sr * sb)
+        rng0 = self._predict(x0, lm0)[1]
+        self.view = (rng0 >= range_min) & (rng0 <= range_max)  # (D, L): the landmark is in view at the measurement's scan
+        self.groups = (int(self.frame.max()) + 1) * self.nl
+        fv = np.zeros(self.groups, dtype=bool)
+        fv[(self.frame[:, None] * self.nl + np.arange(self.nl))[self.view]] = True
+        self.in_view = fv  # (scan, landmark) groups in view (scans with a measurement)
+
+    def _predict(self, x, lm):
+        q = lm[None, :, :] - x[self.k_all, None, :2]  # (D, L, 2)
+        return q, np.hypot(q[..., 0], q[..., 1])
+
+    def pairs(self, x, lm):
+        """Every gated (measurement, landmark in view) pair: its measurement and landmark, its responsibility and
+        its (scan, landmark) group; and the log-likelihood, summed over the groups in view (up to a constant)."""
+        q, rng_ = self._predict(x, lm)
+        bear = np.arctan2(q[..., 1], q[..., 0]) - x[self.k_all, None, 2]
+        d2 = ((rng_ - self.zr[:, None]) / self.sr) ** 2 + (wrap_angle(bear - self.zb[:, None]) / self.sb) ** 2
+        dj, lj = np.nonzero(self.view & (d2 < self.gate))
+        ratio = self.norm * np.exp(-0.5 * d2[dj, lj])
+        grp = self.frame[dj] * self.nl + lj
+        denom = np.bincount(grp, weights=ratio, minlength=self.groups) + (1.0 - self.pd)
+        return dj, lj, ratio / denom[grp], grp, float(np.log(denom[self.in_view]).sum())
 
 
 def posterior_samples(res: OracleResult, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -358,7 +606,12 @@ def _ackermann_factors(b: _Blocks, x, ctrl, odo, dts, wb, sig, off) -> None:
     b.add(r[:, 2] / e, [(ix + 5, 1 / e), (ix + 2, -1 / e), (ic, -dts / wb * t / e), (ic + 1, -dts * v / wb / np.cos(s) ** 2 / e)])
 
 
-def _range_bearing_factors(b: _Blocks, x, lm, k_of, lj, zr, zb, sr, sb, off) -> None:
+def _range_bearing_factors(b: _Blocks, x, lm, k_of, lj, zr, zb, sr, sb, off, w=None) -> None:
+    """Range and bearing of landmark lj from pose k_of, whitened by (sr, sb); with w (per pair), each pair's
+    rows scaled by sqrt(w) (its squared residual weighted by w)."""
+    if w is not None:
+        root = np.sqrt(w)
+        sr, sb = sr / root, sb / root
     q = lm[lj] - x[k_of, :2]
     q2 = np.maximum((q**2).sum(axis=1), 1e-12)
     r = np.sqrt(q2)
@@ -377,3 +630,18 @@ def _range_bearing_factors(b: _Blocks, x, lm, k_of, lj, zr, zb, sr, sb, off) -> 
             (il + 1, q[:, 0] / q2 / sb),
         ],
     )
+
+
+def _range_bearing_jacobian(x, lm, k_of, lj, zr, zb, sr, sb, off) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The same factors as dense blocks: whitened residuals (M, 2), Jacobians (M, 2, 5) and their variable
+    indices (M, 5): the pose's x, y, heading, the landmark's x, y."""
+    b = _Blocks()
+    _range_bearing_factors(b, x, lm, k_of, lj, zr, zb, sr, sb, off)
+    m = k_of.size
+    jac = np.zeros((m, 2, 5))
+    # the entries in _range_bearing_factors' order: range (x, y, lx, ly), bearing (x, y, heading, lx, ly)
+    v = b.vals
+    jac[:, 0, [0, 1, 3, 4]] = np.column_stack(v[:4])
+    jac[:, 1, :] = np.column_stack(v[4:])
+    cols = np.column_stack([3 * k_of, 3 * k_of + 1, 3 * k_of + 2, off + 2 * lj, off + 2 * lj + 1])
+    return np.column_stack(b.res), jac, cols
