@@ -81,7 +81,7 @@ class ClutterOracleResult(OracleResult):
     own_weight: float  # mean responsibility a landmark's detection takes from its own landmark (1: no doubt)
     false_weight: float  # responsibility the false alarms take from the landmarks, per scan
     stray_weight: float  # responsibility landmark detections take from other landmarks than their own, per scan
-    information_loss: float  # share of the measurements' Gauss-Newton information the association doubt removes
+    information_loss: float  # share of the measurements' Gauss-Newton information the association doubt removes (traces)
 
 
 @dataclass
