@@ -154,6 +154,19 @@ class SlamConfig(_Strict):
     motion: MotionNoise = MotionNoise()
     detection: DetectionOptions = DetectionOptions()
     metric: MetricConfig = MetricConfig()
+    map_refine: bool = Field(
+        default=False,
+        description="after the run, re-estimate the map's positions along the estimated trajectory with every scan's "
+        "measurements, the associations not given (slam_runtime.refine: a smoother after the filter; the metrics keep the "
+        "filter's own map OSPA as map_ospa_filter); point features only",
+    )
+
+    @field_validator("map_refine")
+    @classmethod
+    def _refine_points_only(cls, refine: bool, info: ValidationInfo) -> bool:
+        if refine and info.data.get("features") == "planes":
+            raise PydanticCustomError("map_refine", "map_refine re-estimates point features; it does not apply to planes", {})
+        return refine
 
     @field_validator("islands")
     @classmethod

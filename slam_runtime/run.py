@@ -23,6 +23,7 @@ from detectors.logs import SensorLog
 from profiles.errors import DataError, UsageError
 from slam_runtime.config import SlamConfig, detection_model, feature_model, map_filter, vehicle_model
 from slam_runtime.metrics import axis_rmse, gospa, ospa, trajectory_rmse
+from slam_runtime.refine import refine_map
 from slam_runtime.slam import RBSlam
 from slam_runtime.sources import CloudPlanes, LoggedDetections, ScanCircles, control_rows, frames
 
@@ -50,6 +51,8 @@ class SlamResult:
     per_step: dict = field(default_factory=dict)  # what hooks recorded, name -> (T,)
     map_all_xy: np.ndarray | None = None  # (K', 2) every component of the best particle's map, however light
     map_all_w: np.ndarray | None = None  # (K',)
+    map_filter_xy: np.ndarray | None = None  # (K, 2) the filter's own map estimate, where map_xy was refined (map_refine)
+    refine_iterations: int = 0
     odometry: np.ndarray | None = None  # (T, 3) dead reckoning through the same frames (set by evaluate)
     metrics: dict = field(default_factory=dict)
 
@@ -178,6 +181,7 @@ def run_slam(
     mean_traj = np.zeros((n, 3))
     per_step = {h.name: np.full(n, np.nan) for h in hooks}
     detect_s = 0.0
+    kept: list = []  # every frame's measurements, for map_refine
     it = frames(log, b.measure, n)
     if progress is not None:
         it = progress(it, n, b.mapfilter.name + "-SLAM")
@@ -202,15 +206,24 @@ def run_slam(
         mean_traj[k] = slam.mean_pose()
         for h in hooks:
             per_step[h.name][k] = h(k, slam)
+        if cfg.map_refine:
+            kept.append(fi.meas)
         t_prev = time.perf_counter()
     traj = b.vehicle.pose(slam.trajectory())[1:]
     est_x, est_w = slam.map_estimate()
     all_x, all_w = b.mapfilter.components(slam.maps, slam.best())
     stage = {"detect": detect_s * 1e3, **{k: v * 1e3 for k, v in slam.time.items()}, **{k: v * 1e3 for k, v in b.mapfilter.timers.total.items()}}
+    map_xy = b.mapfilter.feature.position(est_x)
+    filter_xy, refine_it = None, 0
+    if cfg.map_refine:
+        t0 = time.perf_counter()
+        filter_xy = map_xy
+        map_xy, refine_it = refine_map(b.mapfilter.feature, b.mapfilter.detection, b.mapfilter, traj, kept, map_xy)
+        stage["refine"] = (time.perf_counter() - t0) * 1e3
     return SlamResult(
-        b.mapfilter.name, stamps, traj, mean_traj, b.mapfilter.feature.position(est_x), est_w, times, counts, ess_, res_, comp, start,
+        b.mapfilter.name, stamps, traj, mean_traj, map_xy, est_w, times, counts, ess_, res_, comp, start,
         resample_ms=rs_ms, step_cpu_ms=cpu, stage_ms=stage, capped_steps=b.mapfilter.capped_steps, per_step=per_step,
-        map_all_xy=b.mapfilter.feature.position(all_x), map_all_w=all_w,
+        map_all_xy=b.mapfilter.feature.position(all_x), map_all_w=all_w, map_filter_xy=filter_xy, refine_iterations=refine_it,
     )
 
 
@@ -285,6 +298,9 @@ def evaluate(log: SensorLog, res: SlamResult, c: float = 1.0, p: float = 1.0, cf
     elif log.landmarks is not None:
         truth_xy = log.landmarks.xy
         out["map_ospa"] = ospa(res.map_xy, truth_xy, c, p)
+        if res.map_filter_xy is not None:  # map_refine: the filter's own map beside the refined one
+            out["map_ospa_filter"] = ospa(res.map_filter_xy, truth_xy, c, p)
+            out["map_refine_iterations"] = int(res.refine_iterations)
         g = gospa(res.map_xy, truth_xy, c, p)
         out["map_gospa"] = g["gospa"]
         out["map_features"] = int(res.map_xy.shape[0])
