@@ -47,6 +47,7 @@ from scipy.sparse.linalg import splu
 from detectors.geometry import compose, interpolate_poses
 from detectors.logs import SensorLog, wrap_angle
 from profiles.errors import DataError, UsageError
+from slam_runtime.refine import association_weights
 
 #: the dynamics of Ackermann controls are constraints, kept to this residual scale [m, rad]
 _STIFF = 1e-5
@@ -366,9 +367,11 @@ def clutter_oracle(
     _anchor(prob, motion, x)
     mjac, mres = motion.build(nv)
     cost = 0.5 * float(mres @ mres)  # the odometry's (and the anchor's) part of the objective
-    jac, _ = weighted(dj, lj, w)
-    h_gn = (jac.T @ jac).tocsc()
-    h_meas = h_gn - (mjac.T @ mjac).tocsc()
+    meas = _Blocks()
+    _range_bearing_factors(meas, x, lm, k_all[dj], lj, zr_all[dj], zb_all[dj], range_sigma, bearing_sigma, nx + nc, w)
+    rjac, _ = meas.build(nv)
+    h_meas = (rjac.T @ rjac).tocsc()
+    h_gn = ((mjac.T @ mjac) + h_meas).tocsc()
     # Louis's missing information: per (scan, landmark) group, sum_j w_j s_j s_j^T - s_bar s_bar^T over the
     # group's pairs' scores s_j = -J_j^T r_j (whitened; the missed-detection term has none)
     r, jb, cols = _range_bearing_jacobian(x, lm, k_all[dj], lj, zr_all[dj], zb_all[dj], range_sigma, bearing_sigma, nx + nc)
@@ -431,30 +434,24 @@ class _Mixture:
         idx = np.minimum(np.searchsorted(prob.ids, np.maximum(self.own, 0)), prob.ids.size - 1)
         self.own_j = np.where(self.own > 0, col[idx], -1)  # each measurement's landmark among the detected (-1: none)
         self.n_frames = np.unique(self.frame).size
-        self.pd, self.sr, self.sb, self.gate = pd, sr, sb, gate
+        self.sr, self.sb, self.gate = sr, sb, gate
         self.norm = pd / (kappa * 2.0 * np.pi * sr * sb)
-        rng0 = self._predict(x0, lm0)[1]
-        self.view = (rng0 >= range_min) & (rng0 <= range_max)  # (D, L): the landmark is in view at the measurement's scan
-        self.groups = (int(self.frame.max()) + 1) * self.nl
-        fv = np.zeros(self.groups, dtype=bool)
-        fv[(self.frame[:, None] * self.nl + np.arange(self.nl))[self.view]] = True
-        self.in_view = fv  # (scan, landmark) groups in view (scans with a measurement)
-
-    def _predict(self, x, lm):
-        q = lm[None, :, :] - x[self.k_all, None, :2]  # (D, L, 2)
-        return q, np.hypot(q[..., 0], q[..., 1])
+        # the candidate pairs: each measurement with each landmark in view at its scan (from x0, lm0), fixed
+        rng0 = np.hypot(*(lm0[None, :, :] - x0[self.k_all, None, :2]).transpose(2, 0, 1))
+        self.cand_d, self.cand_j = np.nonzero((rng0 >= range_min) & (rng0 <= range_max))
+        groups, self.g_inv = np.unique(self.frame[self.cand_d] * self.nl + self.cand_j, return_inverse=True)
+        self.miss = np.full(groups.size, 1.0 - pd)  # the (scan, landmark) groups in view (scans with a measurement)
 
     def pairs(self, x, lm):
         """Every gated (measurement, landmark in view) pair: its measurement and landmark, its responsibility and
         its (scan, landmark) group; and the log-likelihood, summed over the groups in view (up to a constant)."""
-        q, rng_ = self._predict(x, lm)
-        bear = np.arctan2(q[..., 1], q[..., 0]) - x[self.k_all, None, 2]
-        d2 = ((rng_ - self.zr[:, None]) / self.sr) ** 2 + (wrap_angle(bear - self.zb[:, None]) / self.sb) ** 2
-        dj, lj = np.nonzero(self.view & (d2 < self.gate))
-        ratio = self.norm * np.exp(-0.5 * d2[dj, lj])
-        grp = self.frame[dj] * self.nl + lj
-        denom = np.bincount(grp, weights=ratio, minlength=self.groups) + (1.0 - self.pd)
-        return dj, lj, ratio / denom[grp], grp, float(np.log(denom[self.in_view]).sum())
+        d, j = self.cand_d, self.cand_j
+        q = lm[j] - x[self.k_all[d], :2]
+        bear = np.arctan2(q[:, 1], q[:, 0]) - x[self.k_all[d], 2]
+        d2 = ((np.hypot(q[:, 0], q[:, 1]) - self.zr[d]) / self.sr) ** 2 + (wrap_angle(bear - self.zb[d]) / self.sb) ** 2
+        gated = d2 < self.gate
+        w, denom = association_weights(np.where(gated, self.norm * np.exp(-0.5 * d2), 0.0), self.g_inv, self.miss)
+        return d[gated], j[gated], w[gated], self.g_inv[gated], float(np.log(denom).sum())
 
 
 def posterior_samples(res: OracleResult, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:

@@ -68,29 +68,25 @@ def refine_map(
     if not zs:
         return x, 0
     z, rinv, kappa, frame = np.concatenate(zs), np.concatenate(ri), np.concatenate(kap), np.concatenate(fr)
-    det_rinv = np.linalg.det(rinv)
     pd_all = np.zeros((len(frames), k_feat))
     pd_all[np.unique(frame)] = np.stack(pds)
-    # candidate pairs: every measurement with every feature in view at its scan (P_D > 0 there)
+    # candidate pairs: every measurement with every feature in view at its scan (P_D > 0 there), fixed for the run
     d_idx, j_idx = np.nonzero(pd_all[frame] > 0.0)
     if d_idx.size == 0:
         return x, 0
     pd_pair = pd_all[frame[d_idx], j_idx]
-    grp = frame[d_idx] * k_feat + j_idx
-    groups, g_inv = np.unique(grp, return_inverse=True)
+    groups, g_inv = np.unique(frame[d_idx] * k_feat + j_idx, return_inverse=True)
+    miss = np.zeros(groups.size)
+    miss[g_inv] = 1.0 - pd_pair
+    sp_p, z_p, ri_p = sp[frame[d_idx]], z[d_idx], rinv[d_idx]
+    scale = pd_pair * np.sqrt(np.linalg.det(ri_p)) / (2.0 * np.pi) / np.maximum(kappa[d_idx], 1e-300)
     it = 0
     for it in range(1, iterations + 1):
-        zhat, h = feature.predict_sensor(sp[frame[d_idx]], x[j_idx])
-        nu = feature.innovation(z[d_idx], zhat)
-        ri_p = rinv[d_idx]
+        zhat, h = feature.predict_sensor(sp_p, x[j_idx])
+        nu = feature.innovation(z_p, zhat)
         d2 = np.einsum("mi,mij,mj->m", nu, ri_p, nu)
         gated = d2 < gate
-        lik = np.where(gated, np.sqrt(det_rinv[d_idx]) / (2.0 * np.pi) * np.exp(-0.5 * np.minimum(d2, gate)), 0.0)
-        ratio = pd_pair * lik / np.maximum(kappa[d_idx], 1e-300)
-        miss = np.zeros(groups.size)
-        miss[g_inv] = 1.0 - pd_pair
-        denom = np.bincount(g_inv, weights=ratio, minlength=groups.size) + miss
-        w = np.where(gated, ratio / np.maximum(denom[g_inv], 1e-300), 0.0)
+        w, _ = association_weights(np.where(gated, scale * np.exp(-0.5 * np.minimum(d2, gate)), 0.0), g_inv, miss)
         # one Gauss-Newton step per feature of the responsibility-weighted least squares
         hr = np.einsum("mki,mkl->mil", h, ri_p)  # H^T R^-1 (M, 2, 2)
         a = np.zeros((k_feat, 2, 2))
@@ -105,3 +101,12 @@ def refine_map(
         if np.abs(step).max() < tolerance:
             break
     return x, it
+
+
+def association_weights(ratio: np.ndarray, group: np.ndarray, miss: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The E-step of probabilistic data association: pairs (measurement, feature) with likelihood ratios ``ratio``
+    (M,) = P_D g / kappa (0 for a pair outside the gate), each in the (scan, feature) group ``group`` (M,) whose
+    missed-detection term is ``miss`` (G,) = 1 - P_D. Returns each pair's responsibility (M,) and each group's
+    likelihood (1 - P_D) + sum of its ratios (G,)."""
+    denom = np.bincount(group, weights=ratio, minlength=miss.size) + miss
+    return ratio / denom[group], denom
