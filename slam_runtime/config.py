@@ -136,8 +136,16 @@ class SlamConfig(_Strict):
         ge=1,
         le=1_000,
         description="independent particle filters the particles are split into (each resamples on its own); the estimate "
-        "averages their heaviest particles' trajectories and, with a labelled filter, maps (label by label); particles must "
-        "be a multiple of it",
+        "averages their heaviest particles' trajectories and, with a labelled filter, maps (label by label; see island_match); "
+        "particles must be a multiple of it",
+    )
+    island_match: float | None = Field(
+        default=None,
+        gt=0.0,
+        description="[m] islands with a labelled point-feature filter: a feature of an island's estimate whose label the "
+        "reference island's estimate does not hold is averaged with the reference's nearest unpaired feature within this "
+        "distance (one to one, the least total distance), as one landmark under two labels (islands born it from different "
+        "measurements); null: by label only",
     )
     proposal: Literal["prior", "optimal"] = Field(
         default="prior", description="draw poses from the motion model, or from its Gaussian updated by the measurements the map explains"
@@ -167,6 +175,13 @@ class SlamConfig(_Strict):
         if refine and info.data.get("features") == "planes":
             raise PydanticCustomError("map_refine", "map_refine re-estimates point features; it does not apply to planes", {})
         return refine
+
+    @field_validator("island_match")
+    @classmethod
+    def _match_points_only(cls, gate: float | None, info: ValidationInfo) -> float | None:
+        if gate is not None and info.data.get("features") == "planes":
+            raise PydanticCustomError("island_match", "island_match pairs point features by position; it does not apply to planes", {})
+        return gate
 
     @field_validator("islands")
     @classmethod

@@ -175,7 +175,7 @@ def run_slam(
     slam = RBSlam(
         b.vehicle, b.mapfilter, cfg.particles, start, np.random.default_rng(seed),
         resampler=cfg.resampler, resample_ess=cfg.resample_ess, resample_every=cfg.resample_every, proposal=cfg.proposal,
-        islands=cfg.islands,
+        islands=cfg.islands, island_match=cfg.island_match,
     )
     times, counts, ess_, res_, comp, rs_ms, cpu = (np.zeros(n), np.zeros(n, np.int64), np.zeros(n), np.zeros(n, bool), np.zeros(n), np.zeros(n), np.zeros(n))
     mean_traj = np.zeros((n, 3))

@@ -25,7 +25,10 @@ circular mean; a vehicle state that is not a planar pose, ECT's, is the
 reference island's) and, for a labelled map filter, each label of the reference
 island's map estimate (the island of the largest evidence) at the mean of
 its state in the islands' estimates that hold it (:func:`average_states`;
-a label is one landmark in every particle). RB-PHD's map has no labels: its
+a label is one landmark in every particle of an island, but in every island
+only if each bore the landmark from the same measurement: with
+``island_match`` the features no label pairs are paired by position too,
+:func:`match_labels`). RB-PHD's map has no labels: its
 estimate is the reference island's heaviest particle's, as are the label
 history's states (:mod:`slam_runtime.labels` follows :meth:`RBSlam.best`).
 A step's ESS is the sum of the islands'; an island whose particles all have
@@ -54,9 +57,10 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from profiles.errors import UsageError
-from slam_runtime.features import lookup, mean_by_label
+from slam_runtime.features import RangeBearing, lookup, mean_by_label
 from slam_runtime.mapfilter import MapFilter, Measurements
 from slam_runtime.particles import RESAMPLERS, ParticleHistory, ess, normalise_log
 from slam_runtime.vehicle import VehicleModel
@@ -85,6 +89,7 @@ class RBSlam:
         resample_every: int = 1,
         proposal: str = "prior",
         islands: int = 1,
+        island_match: float | None = None,
     ) -> None:
         if islands < 1 or n % islands:
             raise UsageError(f"islands: {islands} islands cannot share {n} particles equally (particles must be a multiple of islands)")
@@ -98,6 +103,7 @@ class RBSlam:
         # islands (module docstring): particle k * m + j is particle j of island k; each island's weights are
         # normalised on their own, and each island resamples on its own
         self.islands, self._m = islands, n // islands
+        self.island_match = island_match
         self._isl = [slice(k * self._m, (k + 1) * self._m) for k in range(islands)]
         self.logw = np.full(n, -np.log(self._m))
         # log p(Z_1:k) of each island up to the filter's constant (log of the clutter-only likelihood): the sum over
@@ -241,6 +247,8 @@ class RBSlam:
         ref = self.best()
         lab, x, r = self.mf.labels(self.maps, ref)
         others = [self.mf.labels(self.maps, b)[:2] for b in map(self.island_best, range(self.islands)) if b != ref]
+        if self.island_match is not None and isinstance(self.mf.feature, RangeBearing):
+            others = [(match_labels(self.mf.feature, lab, x, ol, ox, self.island_match), ox) for ol, ox in others]
         return average_states(self.mf.feature, lab, x, others), r
 
 
@@ -259,6 +267,26 @@ def average_states(feature, label: np.ndarray, x: np.ndarray, others: list[tuple
         np.ones(label.size + sum(o[0].size for o in others)), feature.state_angular,
     )
     return mean[lookup(uniq, label)[0]]
+
+
+def match_labels(feature, label: np.ndarray, x: np.ndarray, other_label: np.ndarray, other_x: np.ndarray, gate: float) -> np.ndarray:
+    """``other_label`` (J,) with each feature whose label is not among the reference's ``label`` (K,) given the label of
+    the reference feature it pairs with: the features of either side that no label pairs are paired one to one by the
+    assignment of least total distance between positions (``feature.position``), pairs farther apart than ``gate``
+    [m] left unpaired (their labels unchanged). A label is one landmark in every particle only as long as every
+    island has born the landmark from the same measurement; under heavy clutter islands often do not (glmb-paper,
+    15 false alarms per scan: 43-83 % of the reference's labels in another island's estimate)."""
+    out = np.array(other_label, dtype=np.int64, copy=True)
+    free_ref = np.flatnonzero(~np.isin(label, other_label))
+    free_oth = np.flatnonzero(~np.isin(other_label, label))
+    if free_ref.size == 0 or free_oth.size == 0:
+        return out
+    d = np.linalg.norm(feature.position(x[free_ref])[:, None, :] - feature.position(other_x[free_oth])[None, :, :], axis=2)
+    big = 2.0 * gate + float(d.max())
+    i, j = linear_sum_assignment(np.where(d <= gate, d, big))
+    ok = d[i, j] <= gate
+    out[free_oth[j[ok]]] = label[free_ref[i[ok]]]
+    return out
 
 
 def _log_normal(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:

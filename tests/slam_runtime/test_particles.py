@@ -7,7 +7,7 @@ from profiles.errors import UsageError
 from slam_runtime.features import RangeBearing
 from slam_runtime.particles import RESAMPLERS, ParticleHistory, ess, normalise_log, systematic
 from slam_runtime.plane_features import PlaneFeature
-from slam_runtime.slam import RBSlam, average_states
+from slam_runtime.slam import RBSlam, average_states, match_labels
 from slam_runtime.sources import Measurements
 from slam_runtime.vehicle import OdometryIncrement
 
@@ -193,6 +193,34 @@ def test_island_maps_average_label_by_label():
     np.testing.assert_allclose(x, [[3.0, 1.0], [1.5, 1.0]])
     x = average_states(PlaneFeature(np.eye(3)), np.array([1]), np.array([[np.pi - 0.05, 0.0, 2.0]]), [(np.array([1]), np.array([[-np.pi + 0.15, 0.0, 4.0]]))])
     np.testing.assert_allclose(x, [[-np.pi + 0.05, 0.0, 3.0]], atol=1e-12)
+
+
+def test_island_features_pair_by_position_when_their_labels_differ():
+    """island_match: features that no label pairs are paired one to one by the least total distance, within the gate.
+    Label 1 pairs by label even 3 m away; label 7 (0.1 m from the reference's 2) takes label 2; labels 8 and 9 go to
+    the reference's 4 and 3, though 8 is nearer 3 (0.45 m) than 4 (0.55 m): pairing each with its nearest would give
+    3 to 8 and leave 9 1.4 m from 4, beyond the gate; label 6, 2 m from every free feature, keeps its label. With a
+    gate of 0.3 m only 7 pairs. The average then holds one landmark under two labels as one."""
+    fm = RangeBearing(np.eye(2))
+    ref_l, ref_x = np.array([1, 2, 3, 4]), np.array([[0.0, 0.0], [5.0, 0.0], [10.0, 0.0], [11.0, 0.0]])
+    oth_l = np.array([1, 7, 8, 9, 6])
+    oth_x = np.array([[3.0, 0.0], [5.1, 0.0], [10.45, 0.0], [9.6, 0.0], [5.0, 2.0]])
+    out = match_labels(fm, ref_l, ref_x, oth_l, oth_x, 1.0)
+    np.testing.assert_array_equal(out, [1, 2, 4, 3, 6])
+    np.testing.assert_array_equal(oth_l, [1, 7, 8, 9, 6])  # not changed in place
+    np.testing.assert_array_equal(match_labels(fm, ref_l, ref_x, oth_l, oth_x, 0.3), [1, 2, 8, 9, 6])
+    x = average_states(fm, ref_l, ref_x, [(out, oth_x)])
+    np.testing.assert_allclose(x, [[1.5, 0.0], [5.05, 0.0], [9.8, 0.0], [10.725, 0.0]])
+
+
+def test_island_match_is_refused_for_planes_naming_the_setting():
+    from pydantic import ValidationError
+
+    from slam_runtime.config import SlamConfig
+
+    with pytest.raises(ValidationError, match="island_match pairs point features by position; it does not apply to planes"):
+        SlamConfig(features="planes", island_match=0.5)
+    assert SlamConfig(island_match=0.5).island_match == 0.5
 
 
 def test_each_island_counts_its_own_updates_since_it_resampled():
