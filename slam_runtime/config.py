@@ -142,10 +142,10 @@ class SlamConfig(_Strict):
     island_match: float | None = Field(
         default=None,
         gt=0.0,
-        description="[m] islands with a labelled point-feature filter: a feature of an island's estimate whose label the "
-        "reference island's estimate does not hold is averaged with the reference's nearest unpaired feature within this "
-        "distance (one to one, the least total distance), as one landmark under two labels (islands born it from different "
-        "measurements); null: by label only",
+        description="[m] islands with a labelled point-feature filter: the features of an island's estimate and the reference "
+        "island's that no label pairs are paired by position, one to one, the least total distance, pairs this far apart or "
+        "more not made; a pair is one landmark the islands bore from different measurements and is averaged as one; null: "
+        "by label only",
     )
     proposal: Literal["prior", "optimal"] = Field(
         default="prior", description="draw poses from the motion model, or from its Gaussian updated by the measurements the map explains"

@@ -272,19 +272,19 @@ def average_states(feature, label: np.ndarray, x: np.ndarray, others: list[tuple
 def match_labels(feature, label: np.ndarray, x: np.ndarray, other_label: np.ndarray, other_x: np.ndarray, gate: float) -> np.ndarray:
     """``other_label`` (J,) with each feature whose label is not among the reference's ``label`` (K,) given the label of
     the reference feature it pairs with: the features of either side that no label pairs are paired one to one by the
-    assignment of least total distance between positions (``feature.position``), pairs farther apart than ``gate``
-    [m] left unpaired (their labels unchanged). A label is one landmark in every particle only as long as every
-    island has born the landmark from the same measurement; under heavy clutter islands often do not (glmb-paper,
-    15 false alarms per scan: 43-83 % of the reference's labels in another island's estimate)."""
+    assignment of least total cost, a pair costing the distance between the positions (``feature.position``) and a
+    feature left unpaired ``gate`` [m] (OSPA's cut-off: pairs ``gate`` or more apart are not made; their labels stay).
+    A label is one landmark in every particle of an island, but in every island only if each bore the landmark from
+    the same measurement; under heavy clutter they often do not (glmb-paper's held-out worlds at 15 false alarms per
+    scan: a mean of 63 %, 42-83 %, of the reference's labels in another island's estimate; 100 % at 1)."""
     out = np.array(other_label, dtype=np.int64, copy=True)
     free_ref = np.flatnonzero(~np.isin(label, other_label))
     free_oth = np.flatnonzero(~np.isin(other_label, label))
     if free_ref.size == 0 or free_oth.size == 0:
         return out
     d = np.linalg.norm(feature.position(x[free_ref])[:, None, :] - feature.position(other_x[free_oth])[None, :, :], axis=2)
-    big = 2.0 * gate + float(d.max())
-    i, j = linear_sum_assignment(np.where(d <= gate, d, big))
-    ok = d[i, j] <= gate
+    i, j = linear_sum_assignment(np.minimum(d, gate))
+    ok = d[i, j] < gate
     out[free_oth[j[ok]]] = label[free_ref[i[ok]]]
     return out
 
