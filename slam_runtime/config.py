@@ -125,6 +125,10 @@ class MetricConfig(_Strict):
 FilterConfig = Annotated[RBPHDConfig | LMBConfig | GLMBConfig, Field(discriminator="kind")]
 
 
+#: the settings that apply to point features only, and what each does to them (the message that refuses planes)
+_POINTS_ONLY = {"map_refine": "re-estimates point features", "island_match": "pairs point features by position"}
+
+
 class SlamConfig(_Strict):
     features: Literal["points", "planes"] = Field(default="points", description="point landmarks (2D) or planes (3D lidar clouds)")
     particles: int = Field(default=20, ge=1, le=100_000)
@@ -169,19 +173,13 @@ class SlamConfig(_Strict):
         "filter's own map OSPA as map_ospa_filter); point features only",
     )
 
-    @field_validator("map_refine")
+    @field_validator("map_refine", "island_match")
     @classmethod
-    def _refine_points_only(cls, refine: bool, info: ValidationInfo) -> bool:
-        if refine and info.data.get("features") == "planes":
-            raise PydanticCustomError("map_refine", "map_refine re-estimates point features; it does not apply to planes", {})
-        return refine
-
-    @field_validator("island_match")
-    @classmethod
-    def _match_points_only(cls, gate: float | None, info: ValidationInfo) -> float | None:
-        if gate is not None and info.data.get("features") == "planes":
-            raise PydanticCustomError("island_match", "island_match pairs point features by position; it does not apply to planes", {})
-        return gate
+    def _points_only(cls, value, info: ValidationInfo):
+        if value not in (None, False) and info.data.get("features") == "planes":
+            name = info.field_name
+            raise PydanticCustomError(name, "{field} {does}; it does not apply to planes", {"field": name, "does": _POINTS_ONLY[name]})
+        return value
 
     @field_validator("islands")
     @classmethod

@@ -32,8 +32,6 @@ from slam_runtime.features import RangeBearing
 
 
 def refine_map(
-    feature,
-    detection,
     mapfilter,
     poses: np.ndarray,
     frames: list,
@@ -44,7 +42,9 @@ def refine_map(
     tolerance: float = 1e-9,
 ) -> tuple[np.ndarray, int]:
     """The features x0 (K, 2) re-estimated along the vehicle poses (T, 3), one per frame of ``frames`` (T
-    :class:`slam_runtime.mapfilter.Measurements`). Returns (positions (K, 2), iterations run)."""
+    :class:`slam_runtime.mapfilter.Measurements`), with the map filter's feature model, detection model (P_D),
+    measurement noise and clutter. Returns (positions (K, 2), iterations run)."""
+    feature, detection = mapfilter.feature, mapfilter.detection
     if not isinstance(feature, RangeBearing):
         raise TypeError("refine_map: point (range-bearing) features only")
     x = np.array(x0, dtype=np.float64).reshape(-1, 2)
@@ -52,9 +52,11 @@ def refine_map(
     if k_feat == 0 or not frames:
         return x, 0
     sp = feature.sensor_pose(np.asarray(poses, dtype=np.float64))
-    zs, ri, kap, fr, pds = [], [], [], [], []
+    zs, ri, kap, fr = [], [], [], []
+    pd_all = np.zeros((len(frames), k_feat))
     cov0 = np.zeros((1, k_feat, 2, 2))
     ones = np.ones((1, k_feat))
+    # one frame at a time: an n_p profile's P_D needs each frame's own scan (once per run, after it)
     for t, meas in enumerate(frames):
         z, rz = mapfilter.measurements(meas)
         if z.shape[0] == 0:
@@ -64,12 +66,10 @@ def refine_map(
         kap.append(mapfilter.clutter(z, meas))
         fr.append(np.full(z.shape[0], t, dtype=np.int64))
         pd, _ = detection.pd_features(sp[t : t + 1], x[None], cov0, meas, ones)
-        pds.append(np.clip(pd[0], 0.0, 1.0))
+        pd_all[t] = np.clip(pd[0], 0.0, 1.0)
     if not zs:
         return x, 0
     z, rinv, kappa, frame = np.concatenate(zs), np.concatenate(ri), np.concatenate(kap), np.concatenate(fr)
-    pd_all = np.zeros((len(frames), k_feat))
-    pd_all[np.unique(frame)] = np.stack(pds)
     # candidate pairs: every measurement with every feature in view at its scan (P_D > 0 there), fixed for the run
     d_idx, j_idx = np.nonzero(pd_all[frame] > 0.0)
     if d_idx.size == 0:

@@ -218,7 +218,7 @@ def run_slam(
     if cfg.map_refine:
         t0 = time.perf_counter()
         filter_xy = map_xy
-        map_xy, refine_it = refine_map(b.mapfilter.feature, b.mapfilter.detection, b.mapfilter, traj, kept, map_xy)
+        map_xy, refine_it = refine_map(b.mapfilter, traj, kept, map_xy)
         stage["refine"] = (time.perf_counter() - t0) * 1e3
     return SlamResult(
         b.mapfilter.name, stamps, traj, mean_traj, map_xy, est_w, times, counts, ess_, res_, comp, start,

@@ -467,8 +467,8 @@ def test_islands_pair_one_landmarks_labels_by_position_under_clutter():
         new = match_labels(s.mf.feature, lab, x, ol, ox, 0.5)
         after.append(np.isin(lab, new).mean())
         moved = np.flatnonzero(new != ol)
-        j = np.searchsorted(lab, new[moved], sorter=np.argsort(lab))
-        r = np.argsort(lab)[j]
+        order = np.argsort(lab)
+        r = order[np.searchsorted(lab, new[moved], sorter=order)]
         paired += moved.size
         same += int(np.sum(nearest(ox[moved]) == nearest(x[r])))
     assert max(shared) <= 0.85 and min(after) >= 0.9 and paired > 0 and same == paired, (shared, after, paired, same)

@@ -62,7 +62,7 @@ def test_without_clutter_it_is_each_landmarks_least_squares():
     cfg, log, b, poses, meas = _along_truth(0.0, 3, profile_clutter=1e-6)
     rng = np.random.default_rng(0)
     x0 = log.landmarks.xy + rng.normal(0.0, 0.05, log.landmarks.xy.shape)
-    got, it = refine_map(b.mapfilter.feature, b.mapfilter.detection, b.mapfilter, poses, meas, x0, gate=25.0)
+    got, it = refine_map(b.mapfilter, poses, meas, x0, gate=25.0)
     ref = _labelled_least_squares(log, poses, x0, cfg.sigma_range, cfg.sigma_bearing, cfg.range_max)
     assert 1 < it < 100
     np.testing.assert_allclose(got, ref, atol=1e-5)
@@ -76,7 +76,7 @@ def test_under_heavy_clutter_it_recovers_the_map_the_labels_would_give():
     cfg, log, b, poses, meas = _along_truth(15.0, 4)
     truth = log.landmarks.xy
     x0 = truth + np.random.default_rng(1).normal(0.0, 0.15, truth.shape)
-    got, _ = refine_map(b.mapfilter.feature, b.mapfilter.detection, b.mapfilter, poses, meas, x0)
+    got, _ = refine_map(b.mapfilter, poses, meas, x0)
     ref = _labelled_least_squares(log, poses, truth, cfg.sigma_range, cfg.sigma_bearing, cfg.range_max)
     rms = lambda a, c: float(np.sqrt(np.mean(np.sum((a - c) ** 2, axis=1))))  # noqa: E731
     assert rms(got, ref) < 0.025
