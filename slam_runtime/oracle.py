@@ -369,10 +369,7 @@ def clutter_oracle(
     cost = 0.5 * float(mres @ mres)  # the odometry's (and the anchor's) part of the objective
     # the measurements' Gauss-Newton information, sum_j w_j J_j^T J_j, from the pairs' dense blocks (whitened)
     r, jb, cols = _range_bearing_jacobian(x, lm, k_all[dj], lj, zr_all[dj], zb_all[dj], range_sigma, bearing_sigma, nx + nc)
-    jtj = w[:, None, None] * np.einsum("mki,mkj->mij", jb, jb)
-    pair_rows = np.broadcast_to(cols[:, :, None], jtj.shape).ravel()
-    pair_cols = np.broadcast_to(cols[:, None, :], jtj.shape).ravel()
-    h_meas = sp.csc_matrix((jtj.ravel(), (pair_rows, pair_cols)), shape=(nv, nv))
+    h_meas = _sparse_blocks(w[:, None, None] * np.einsum("mki,mkj->mij", jb, jb), cols, nv)
     h_gn = ((mjac.T @ mjac) + h_meas).tocsc()
     # Louis's missing information: per (scan, landmark) group, sum_j w_j s_j s_j^T - s_bar s_bar^T over the
     # group's pairs' scores s_j = -J_j^T r_j (whitened; the missed-detection term has none)
@@ -386,9 +383,7 @@ def clutter_oracle(
     miss = np.zeros((ug.size, 5, 5))
     np.add.at(miss, gi, outer)
     miss -= sbar[:, :, None] * sbar[:, None, :]
-    rows_ = np.broadcast_to(gcols[:, :, None], miss.shape).ravel()
-    cols_ = np.broadcast_to(gcols[:, None, :], miss.shape).ravel()
-    h_miss = sp.csc_matrix((miss.ravel(), (rows_, cols_)), shape=(nv, nv))
+    h_miss = _sparse_blocks(miss, gcols, nv)
     h = (h_gn - h_miss).tocsc()
     lu = splu(h)
     meas_info = float(h_meas.diagonal().sum())
@@ -412,6 +407,13 @@ def clutter_oracle(
         stray_weight=float(w[(own_j[dj] >= 0) & ~true_pair].sum() / max(n_frames, 1)),
         information_loss=loss,
     )
+
+
+def _sparse_blocks(blocks: np.ndarray, cols: np.ndarray, nv: int) -> sp.csc_matrix:
+    """(nv, nv) the sum of dense blocks (M, k, k), block m at the rows and columns cols[m] (M, k) (repeats add)."""
+    rows = np.broadcast_to(cols[:, :, None], blocks.shape).ravel()
+    cols_ = np.broadcast_to(cols[:, None, :], blocks.shape).ravel()
+    return sp.csc_matrix((blocks.ravel(), (rows, cols_)), shape=(nv, nv))
 
 
 class _Mixture:

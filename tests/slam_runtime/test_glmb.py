@@ -1,14 +1,17 @@
 """The delta-GLMB and LMB map filters on scenarios whose answer is known."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
+from calib.config import load_yaml_model
 from calib.sim.glmb_paper import GlmbPaperConfig, simulate_glmb_paper, truth_profile
 from detectors.model import DetectionModel
 from profiles.errors import UsageError
 from profiles.schema import ClutterParams, MeasurementNoise, PdTable, SensorModel
 from slam_runtime.config import SlamConfig, override
-from slam_runtime.features import RangeBearing
+from slam_runtime.features import RangeBearing, lookup
 from slam_runtime.glmb import GLMB, Births, GLMBConfig, GLMBMaps, Tracks, label_parts
 from slam_runtime.labels import labelled_hooks
 from slam_runtime.lmb import LMB, LMBConfig, LMBMaps
@@ -352,6 +355,10 @@ def test_seen_mean_averages_angles_across_the_wrap():
     assert x[0] == pytest.approx([-np.pi + 0.05, 0.1, 5.0], abs=1e-12)
 
 
+def _bench_config(name: str) -> SlamConfig:
+    """The benchmark config ``benchmarks/configs/<name>.yaml``."""
+    return load_yaml_model(SlamConfig, Path(__file__).resolve().parents[2] / "benchmarks/configs" / f"{name}.yaml")
+
 
 class _Last:
     """Hook: keeps the particle loop of the run."""
@@ -371,12 +378,9 @@ def test_seen_mean_is_a_filtering_estimate_best_a_smoothing_draw():
     World 4 at 1 false alarm per scan, where the weighted mean pose drifts up to 0.45 m before the loop closes
     and the closure corrects the particles' histories (so the best particle's map) but not what was recorded
     before it: seen_mean is farther by at least 0.03 (measured: 0.170 against 0.113)."""
-    from pathlib import Path
-
-    from calib.config import load_yaml_model
     from slam_runtime.metrics import ospa
 
-    base = load_yaml_model(SlamConfig, Path(__file__).resolve().parents[2] / "benchmarks/configs/glmb_paper_optimal.yaml")
+    base = _bench_config("glmb_paper_optimal")
     cfg = override(base, particles=50, **{"filter.map_estimate": "seen_mean"})
     gap = {}
     for world, clutter in ((1, 5.0), (4, 1.0)):
@@ -402,16 +406,13 @@ def test_islands_average_beats_each_islands_own_estimate():
     0.081 against 0.084 and 0.114 (with one Gibbs seed shared by the islands it was 0.060 and 0.078 m against
     0.106 and 0.096 m, maps 0.063 and 0.073 against 0.102 and 0.094).
     Each island's heaviest particle holds one draw of the history; three draws average out part of the error."""
-    from pathlib import Path
-
-    from calib.config import load_yaml_model
     from detectors.geometry import interpolate_poses
     from slam_runtime.metrics import ospa
 
     sim = GlmbPaperConfig(clutter=1.0)
     log, prof = simulate_glmb_paper(sim, 2), truth_profile(sim)
     gt = log.reference["ground_truth"]
-    base = load_yaml_model(SlamConfig, Path(__file__).resolve().parents[2] / "benchmarks/configs/glmb_paper_optimal.yaml")
+    base = _bench_config("glmb_paper_optimal")
     cfg = override(base, particles=150, islands=3)
     gain_traj, gain_map = [], []
     for seed in range(2):
@@ -439,14 +440,11 @@ def test_islands_pair_one_landmarks_labels_by_position_under_clutter():
     apart in one island), and every pair it makes by position is of one landmark (both features nearest the same true
     landmark; 17 of 17). The runs are the same (the trajectory is identical); only the map estimate's positions
     differ."""
-    from pathlib import Path
-
-    from calib.config import load_yaml_model
     from slam_runtime.slam import match_labels
 
     sim = GlmbPaperConfig(clutter=15.0)
     log, prof = simulate_glmb_paper(sim, 2), truth_profile(sim)
-    base = load_yaml_model(SlamConfig, Path(__file__).resolve().parents[2] / "benchmarks/configs/glmb_paper_islands.yaml")
+    base = _bench_config("glmb_paper_islands")
     cfg = override(base, particles=150, islands=3).model_copy(update={"island_match": None})  # by label only
     last = _Last()
     res = run_slam(log, prof, cfg, seed=0, hooks=(last,))
@@ -458,6 +456,7 @@ def test_islands_pair_one_landmarks_labels_by_position_under_clutter():
     def nearest(p):
         return np.argmin(np.linalg.norm(p[:, None] - truth[None], axis=2), axis=1)
 
+    order = np.argsort(lab)
     shared, after, paired, same = [], [], 0, 0
     for b in (s.island_best(k) for k in range(3)):
         if b == ref:
@@ -467,8 +466,7 @@ def test_islands_pair_one_landmarks_labels_by_position_under_clutter():
         new = match_labels(s.mf.feature, lab, x, ol, ox, 0.5)
         after.append(np.isin(lab, new).mean())
         moved = np.flatnonzero(new != ol)
-        order = np.argsort(lab)
-        r = order[np.searchsorted(lab, new[moved], sorter=order)]
+        r = order[lookup(lab[order], new[moved])[0]]
         paired += moved.size
         same += int(np.sum(nearest(ox[moved]) == nearest(x[r])))
     assert max(shared) <= 0.85 and min(after) >= 0.9 and paired > 0 and same == paired, (shared, after, paired, same)
