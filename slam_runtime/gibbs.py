@@ -174,29 +174,33 @@ def argsort_stable(x):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _maha2(c, dd):  # pragma: no cover - compiled
-    """dd^T c^-1 dd for a small symmetric positive definite c (d, d), by Gaussian elimination."""
-    d = dd.shape[0]
-    a = c.copy()
-    b = dd.copy()
+def _maha2(c, ci, u, ui, v, vi, work):  # pragma: no cover - compiled
+    """dd^T c[ci]^-1 dd with dd = u[ui] - v[vi], for a small symmetric positive definite c[ci] (d, d), by Gaussian
+    elimination in the scratch ``work`` (d, d + 3) (rows indexed here, not sliced: a view or a temporary per pair
+    costs more than the elimination)."""
+    d = u.shape[1]
+    for r in range(d):
+        for k in range(d):
+            work[r, k] = c[ci, r, k]
+        work[r, d] = u[ui, r] - v[vi, r]
+        work[r, d + 1] = work[r, d]
     for i in range(d):
-        piv = a[i, i]
+        piv = work[i, i]
         if piv <= 1e-300:
             return np.inf
         for r in range(i + 1, d):
-            f = a[r, i] / piv
+            f = work[r, i] / piv
             for k in range(i, d):
-                a[r, k] -= f * a[i, k]
-            b[r] -= f * b[i]
-    x = np.empty(d)
+                work[r, k] -= f * work[i, k]
+            work[r, d] -= f * work[i, d]
     for i in range(d - 1, -1, -1):
-        t = b[i]
+        t = work[i, d]
         for k in range(i + 1, d):
-            t -= a[i, k] * x[k]
-        x[i] = t / a[i, i]
+            t -= work[i, k] * work[k, d + 2]
+        work[i, d + 2] = t / work[i, i]
     m2 = 0.0
     for i in range(d):
-        m2 += dd[i] * x[i]
+        m2 += work[i, d + 1] * work[i, d + 2]
     return m2
 
 
@@ -227,12 +231,16 @@ def _splitmix(x):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _keyed_uniform(seed, hyp, smp, label):  # pragma: no cover - compiled
-    """A uniform in [0, 1) that is a function of (seed, prior hypothesis rank, sample, candidate label) only."""
-    x = _splitmix(np.uint64(seed) ^ np.uint64(0x5851F42D4C957F2D))
-    x = _splitmix(x ^ np.uint64(hyp))
-    x = _splitmix(x ^ np.uint64(smp))
-    x = _splitmix(x ^ np.uint64(label))
+def _key(x, part):  # pragma: no cover - compiled
+    """One link of the key chain: the uniform of a draw is a function of (seed, prior hypothesis rank, sample,
+    candidate label) only, hashed link by link so that a chain's prefix (seed, rank) and a sweep's (sample) are
+    hashed once, not once per draw."""
+    return _splitmix(x ^ np.uint64(part))
+
+
+@numba.njit(cache=True, nogil=True)
+def _uniform(x):  # pragma: no cover - compiled
+    """The top 53 bits of a key as a uniform in [0, 1)."""
     return float(x >> np.uint64(11)) * (1.0 / 9007199254740992.0)
 
 
@@ -243,15 +251,18 @@ def _mix(h, x):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _sample_option(e_d, e_m, e_row, gl, ng, taken, k, u01):  # pragma: no cover - compiled
-    """Draw gamma_k from its conditional: death, miss, or a gated measurement no other candidate holds.
+def _sample_option(e_d, e_m, e_row, gl, ng, i, taken, k, u01):  # pragma: no cover - compiled
+    """Draw gamma_k (candidate i, row k of the chain) from its conditional: death, miss, or a gated measurement no
+    other candidate holds.
 
-    e_d, e_m, e_row (ng,): the options' weights eta scaled by the row's largest (precomputed once per step)."""
+    e_d, e_m: the weights eta of death and miss, e_row[i, :ng] those of the measurements gl[i, :ng] it gates, scaled
+    by the row's largest (precomputed once per step); the arrays are passed whole and indexed here (a row view per
+    draw costs more than the draw)."""
     tot = e_d + e_m
     for q in range(ng):
-        t = taken[gl[q]]
+        t = taken[gl[i, q]]
         if t == -1 or t == k:
-            tot += e_row[q]
+            tot += e_row[i, q]
     x = u01 * tot
     if x < e_d:
         return -1
@@ -261,15 +272,15 @@ def _sample_option(e_d, e_m, e_row, gl, ng, taken, k, u01):  # pragma: no cover 
     x -= e_m
     last = -1
     for q in range(ng):
-        t = taken[gl[q]]
+        t = taken[gl[i, q]]
         if t == -1 or t == k:
             last = q
-            if x < e_row[q]:
-                return gl[q] + 1
-            x -= e_row[q]
+            if x < e_row[i, q]:
+                return gl[i, q] + 1
+            x -= e_row[i, q]
     # round-off at the end of the cumulative sum: the last option that was allowed
     if last >= 0:
-        return gl[last] + 1
+        return gl[i, last] + 1
     return 0 if e_m > 0.0 else -1
 
 
@@ -388,6 +399,7 @@ def joint_update(seeds, logw, member, act, nact, l_death, l_miss, l_det, total, 
                     hh = _mix(hh, s)
             phash[h] = hh
         rows = np.empty(na, np.int64)
+        free = np.empty(na, np.int64)
         gamma = np.empty(na, np.int64)
         sub_rows = np.empty(na, np.int64)
         col_of = np.full(M, -1, np.int64)
@@ -397,9 +409,15 @@ def joint_update(seeds, logw, member, act, nact, l_death, l_miss, l_det, total, 
             if alloc[h] == 0:
                 continue
             n = 0
+            # free: the rows whose draw is not forced (a candidate that gates no measurement and has one of death
+            # and miss impossible, a track of the hypothesis when P_S = 1, keeps its one option: no draw)
+            nf = 0
             for i in range(na):
                 if member[p, h, act[p, i]] and not held[p, i]:
                     rows[n] = i
+                    if ng[i] > 0 or (e_d[i] > 0.0 and e_m[i] > 0.0):
+                        free[nf] = n
+                        nf += 1
                     n += 1
             # the chain starts at the optimal assignment; a candidate that gates no measurement takes its best
             # non-detection option, the others are assigned over the measurements they gate (+ one dummy each)
@@ -445,25 +463,30 @@ def joint_update(seeds, logw, member, act, nact, l_death, l_miss, l_det, total, 
                 if gamma[k] > 0:
                     taken[gamma[k] - 1] = k
             first = nch
+            key_h = _key(_key(np.uint64(seeds[p]), 0x5851F42D4C957F2D), hq)
             for smp in range(alloc[h]):
                 if smp > 0:
-                    for k in range(n):
+                    key_s = _key(key_h, smp)
+                    for f in range(nf):
+                        k = free[f]
                         i = rows[k]
                         # common random numbers keyed by label (module docstring)
-                        g = _sample_option(e_d[i], e_m[i], e_row[i], gl[i], ng[i], taken, k, _keyed_uniform(seeds[p], hq, smp, cand_label[p, i]))
+                        g = _sample_option(e_d[i], e_m[i], e_row, gl, ng[i], i, taken, k, _uniform(_key(key_s, cand_label[p, i])))
                         if gamma[k] > 0:
                             taken[gamma[k] - 1] = -1
                         gamma[k] = g
                         if g > 0:
                             taken[g - 1] = k
+                # the forced rows are the same in every child of this prior: hashed and compared over the free ones
                 hh = np.int64(0)
-                for k in range(n):
-                    hh = _mix(hh, gamma[k])
+                for f in range(nf):
+                    hh = _mix(hh, gamma[free[f]])
                 dup = False
                 for c in range(first, nch):
                     if ch_hash[c] == hh:
                         same = True
-                        for k in range(n):
+                        for f in range(nf):
+                            k = free[f]
                             if ch_assign[c, rows[k]] != gamma[k]:
                                 same = False
                                 break
@@ -610,6 +633,56 @@ def joint_update(seeds, logw, member, act, nact, l_death, l_miss, l_det, total, 
 
 
 @numba.njit(cache=True, nogil=True)
+def detection_costs(zhat, hph, z, rz, own_cov, r, logdet_r, wrap_bearing, gate, dzlog, l_base, log_kappa, in_a, pd_pos):  # pragma: no cover - compiled
+    """log eta of the detections of 2-d measurements, fused over (particle, candidate, measurement): the same
+    arithmetic as the vectorised form in :meth:`slam_runtime.glmb._LabelledFilter._costs` (one pass instead of
+    some twenty (P, A, M) temporaries).
+
+    zhat (P, A, 2), hph (P, A, 2, 2): the candidates' predicted measurements and H P H^T; z (M, 2); the innovation
+    covariance is hph + rz[j] when own_cov (each measurement's own covariance, rz (M, 2, 2)), else hph + r, whose
+    log determinants logdet_r (P, A) the caller takes (numpy's vectorised log, so that the result is the same to the
+    last bit as the vectorised form's); the second component is an angle when wrap_bearing. gate: squared Mahalanobis gate; dzlog = dz log(2 pi);
+    l_base (P, A) log(r P_S P_D); log_kappa (M,); in_a (P, A) the active candidates; pd_pos (P, A) P_D > 0.
+
+    Returns l_det (P, A, M) (-inf outside the gate or where P_D = 0) and gated (P, A, M) (in the gate, active)."""
+    P, A = l_base.shape
+    M = z.shape[0]
+    l_det = np.full((P, A, M), -np.inf)
+    gated = np.zeros((P, A, M), np.bool_)
+    for p in range(P):
+        for a in range(A):
+            if not in_a[p, a]:
+                continue
+            h00, h01, h10, h11 = hph[p, a, 0, 0], hph[p, a, 0, 1], hph[p, a, 1, 0], hph[p, a, 1, 1]
+            if not own_cov:
+                s00, s01, s10, s11 = h00 + r[0, 0], h01 + r[0, 1], h10 + r[1, 0], h11 + r[1, 1]
+                dt = s00 * s11 - s01 * s10
+                dd = dt if np.abs(dt) > 1e-300 else 1e-300
+                i00, i01, i11 = s11 / dd, -s01 / dd, s00 / dd
+                logdet = logdet_r[p, a]
+            for j in range(M):
+                if own_cov:
+                    s00, s01, s10, s11 = h00 + rz[j, 0, 0], h01 + rz[j, 0, 1], h10 + rz[j, 1, 0], h11 + rz[j, 1, 1]
+                    dt = s00 * s11 - s01 * s10
+                    dd = dt if np.abs(dt) > 1e-300 else 1e-300
+                    i00, i01, i11 = s11 / dd, -s01 / dd, s00 / dd
+                    logdet = np.log(max(dt, 1e-300))
+                x = z[j, 0] - zhat[p, a, 0]
+                y = z[j, 1] - zhat[p, a, 1]
+                if wrap_bearing:
+                    if y > np.pi:
+                        y = y - 2 * np.pi
+                    if y <= -np.pi:
+                        y = y + 2 * np.pi
+                m2 = i00 * x * x + 2.0 * i01 * x * y + i11 * y * y
+                if m2 <= gate:
+                    gated[p, a, j] = True
+                    if pd_pos[p, a]:
+                        l_det[p, a, j] = l_base[p, a] + (-0.5 * m2 - 0.5 * (dzlog + logdet)) - log_kappa[j]
+    return l_det, gated
+
+
+@numba.njit(cache=True, nogil=True)
 def _moments(w, mu, cov, key, n):  # pragma: no cover - compiled
     """Moment match of the weighted Gaussians w (N,), mu (N, d), cov (N, d, d) into the n groups key (N,) names:
     each group's summed weight (n,), mean (n, d) and covariance (n, d, d) (zero where its weight is)."""
@@ -699,6 +772,7 @@ def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, 
     s0 = 0
     h0 = 0
     m0 = 0
+    work = np.empty((d, d + 3))
     for p in range(P):
         ns = slot_count[p]
         nh = hyp_count[p]
@@ -715,6 +789,7 @@ def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, 
         order0 = argsort_stable(lab)
         grp = np.full(ns, -1, np.int64)
         gfree = np.zeros(ns, np.bool_)
+        sub = np.empty(ns, np.int64)
         key = np.empty(ns)
         ng = 0
         a = 0
@@ -722,28 +797,33 @@ def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, 
             b = a
             while b < ns and lab[order0[b]] == lab[order0[a]]:
                 b += 1
-            idx = order0[a:b]
+            # the label's versions, heaviest first (a stable insertion sort: a label has a few versions)
+            nb = b - a
             allrel = True
-            for q in range(idx.shape[0]):
-                key[q] = -wv[idx[q]]
-                if not release[s0 + idx[q]]:
+            for q in range(nb):
+                t = order0[a + q]
+                if not release[s0 + t]:
                     allrel = False
-            sub = idx[argsort_stable(key[: idx.shape[0]])]
+                r = q - 1
+                while r >= 0 and wv[sub[r]] < wv[t]:
+                    sub[r + 1] = sub[r]
+                    r -= 1
+                sub[r + 1] = t
             if allrel:
-                for q in range(sub.shape[0]):
+                for q in range(nb):
                     grp[sub[q]] = ng
                 gfree[ng] = True
                 ng += 1
             else:
-                for q in range(sub.shape[0]):
+                for q in range(nb):
                     first = sub[q]
                     if grp[first] >= 0:
                         continue
                     grp[first] = ng
                     if merge > 0.0:
-                        for r in range(q + 1, sub.shape[0]):
+                        for r in range(q + 1, nb):
                             o = sub[r]
-                            if grp[o] < 0 and _maha2(cov[s0 + first], mu[s0 + o] - mu[s0 + first]) <= merge:
+                            if grp[o] < 0 and _maha2(cov, s0 + first, mu, s0 + o, mu, s0 + first, work) <= merge:
                                 grp[o] = ng
                     ng += 1
             a = b
@@ -777,8 +857,10 @@ def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, 
                     i = gord[x]
                     if head[i] != i or gfree[i] != gfree[j] or glab[i] == glab[j]:
                         continue
-                    dd = gmu[j] - gmu[i]
-                    if np.dot(dd, dd) > merge * gtr[i] or _maha2(gcov[i], dd) > merge:
+                    dd2 = 0.0
+                    for k in range(d):
+                        dd2 += (gmu[j, k] - gmu[i, k]) ** 2
+                    if dd2 > merge * gtr[i] or _maha2(gcov, i, gmu, j, gmu, i, work) > merge:
                         continue
                     # held together: j beside any version of a label already in i's group (also a version
                     # too far from i to be in it), so that no hypothesis ends up with one label twice
@@ -837,8 +919,13 @@ def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, 
                 if not gfree[g]:
                     hl[a0 + n] = g
                     n += 1
-            srt = argsort_stable(hl[a0 : a0 + n])
-            hl[a0 : a0 + n] = hl[a0 : a0 + n][srt]
+            for q in range(1, n):  # sorted in place (insertion sort: a hypothesis holds a few groups)
+                t = hl[a0 + q]
+                r = q - 1
+                while r >= 0 and hl[a0 + r] > t:
+                    hl[a0 + r + 1] = hl[a0 + r]
+                    r -= 1
+                hl[a0 + r + 1] = t
             u = 0
             for q in range(n):  # a group once, also where the hypothesis held two of the alternatives it merged
                 if u == 0 or hl[a0 + q] != hl[a0 + u - 1]:

@@ -11,7 +11,7 @@ from scipy.stats import multivariate_normal
 from detectors.model import DetectionModel
 from profiles.schema import ClutterParams, PdTable, SensorModel
 from slam_runtime.features import RangeBearing
-from slam_runtime.gibbs import argsort_stable, hungarian, reduce_hypotheses
+from slam_runtime.gibbs import argsort_stable, hungarian, joint_update, reduce_hypotheses
 from slam_runtime.glmb import GLMB, Births, GLMBConfig, GLMBMaps, Tracks
 from slam_runtime.lmb import LMB, LMBConfig, LMBMaps
 from slam_runtime.mapfilter import Measurements
@@ -247,6 +247,31 @@ def test_a_birth_that_gates_nothing_is_summed_out_exactly():
     assert out[True][0] == pytest.approx(out[False][0], abs=1e-4)
     assert out[True][0] < np.log(total)
     assert not out[True][1] and out[False][1]
+
+
+@pytest.mark.parametrize("forced", ["miss", "death"])
+def test_a_candidate_with_one_option_is_in_every_child_with_it(forced):
+    """The kernel on hand-made options: candidates 0 and 1 share measurement 0 (four and three options), candidate
+    2 gates nothing and has one option only (missed: a track with P_S 1; or dead). The sampler does not draw
+    it; with enough samples every child is found: the 11 distinct assignments of 0 and 1, each child holding 2
+    with its one option, and the normalisation constant (eq. 25) the enumeration's, 2's factor included."""
+    ln = np.log
+    l_death = np.array([[ln(0.1), ln(0.1), 0.0 if forced == "death" else -np.inf]])
+    l_miss = np.array([[ln(0.2), ln(0.2), -np.inf if forced == "death" else ln(0.3)]])
+    l_det = np.array([[[ln(2.0), ln(0.5)], [ln(1.0), -np.inf], [-np.inf, -np.inf]]])
+    opts = [[(-1, 0.1), (0, 0.2), (1, 2.0), (2, 0.5)], [(-1, 0.1), (0, 0.2), (1, 1.0)]]
+    total = sum(w0 * w1 for (a0, w0), (a1, w1) in itertools.product(*opts) if a0 <= 0 or a0 != a1)
+    total *= 1.0 if forced == "death" else 0.3
+    out = joint_update(
+        np.array([5]), np.zeros((1, 1)), np.ones((1, 1, 3), bool), np.array([[0, 1, 2]]), np.array([3]), l_death, l_miss, l_det,
+        2000, 0.0, 1000, np.zeros((1, 3), bool), np.zeros((1, 3)), np.array([[10, 11, 12]]),
+    )
+    loglik, _, hyp_count, _, mem_count, mem_slot, _, slot_src, slot_a = out
+    assert hyp_count[0] == 11
+    assert loglik[0] == pytest.approx(ln(total), abs=1e-12)
+    held_2 = [int(np.sum(slot_src[mem_slot[a:b]] == 2)) for a, b in itertools.pairwise(np.concatenate([[0], np.cumsum(mem_count)]))]
+    assert held_2 == [0 if forced == "death" else 1] * 11
+    assert np.all(slot_a[slot_src == 2] == 0)
 
 
 def test_particles_that_agree_draw_the_same_children():

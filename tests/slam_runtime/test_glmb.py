@@ -473,3 +473,36 @@ def test_islands_pair_one_landmarks_labels_by_position_under_clutter():
     res2 = run_slam(log, prof, override(cfg, island_match=0.5), seed=0)
     np.testing.assert_array_equal(res2.trajectory, res.trajectory)
     assert not np.array_equal(res2.map_xy, res.map_xy)
+
+
+@pytest.mark.parametrize("own_cov", [False, True])
+def test_compiled_detection_costs_are_the_vectorised_ones(own_cov):
+    """The fused kernel of the detections' log eta (point landmarks) against the vectorised form it replaces, on
+    random candidates and measurements: bearings on both sides of the wrap, candidates inactive or of P_D 0,
+    log(r P_S P_D) -inf for some, pairs in and out of the gate. With the model's R the two agree to the bit (the
+    log determinants are numpy's in both); with each measurement's own covariance the kernel takes the log
+    itself, and they agree to rounding."""
+    rng = np.random.default_rng(4)
+    p, a, m = 7, 9, 11
+    mf = GLMB(RangeBearing(np.diag([0.3**2, np.deg2rad(2.0) ** 2])), model(), GLMBConfig(gate=9.0), rng=rng)
+    zhat = np.stack([rng.uniform(0.5, 3.0, (p, a)), rng.uniform(-np.pi, np.pi, (p, a))], axis=-1)
+    l_ = rng.normal(size=(p, a, 2, 2)) * 0.3
+    hph = l_ @ np.swapaxes(l_, -1, -2) + np.eye(2) * 1e-3
+    z = np.stack([rng.uniform(0.5, 3.0, m), rng.choice([-1.0, 1.0], m) * rng.uniform(2.9, np.pi, m)], axis=-1)
+    z[:4] = zhat[0, :4] + rng.normal(size=(4, 2)) * 0.2  # some pairs inside the gate
+    lr = rng.normal(size=(m, 2, 2)) * 0.2
+    rz = lr @ np.swapaxes(lr, -1, -2) + np.eye(2) * 1e-3
+    l_base = np.where(rng.random((p, a)) < 0.2, -np.inf, rng.normal(size=(p, a)))
+    log_kappa = rng.normal(size=m)
+    in_a, pd_pos = rng.random((p, a)) < 0.8, rng.random((p, a)) < 0.8
+    zhat[:, :, 1] = np.where(rng.random((p, a)) < 0.5, np.pi - 0.05, zhat[:, :, 1])  # across the wrap from z's
+    args = (zhat, hph, z, rz, own_cov, l_base, log_kappa, in_a, pd_pos)
+    l_c, g_c = mf._det_costs(*args)
+    l_v, g_v = mf._det_costs(*args, compiled=False)
+    np.testing.assert_array_equal(g_c, g_v)
+    assert 20 < g_c.sum() < g_c.size - 20  # both sides of the gate
+    np.testing.assert_array_equal(np.isfinite(l_c), np.isfinite(l_v))
+    if own_cov:
+        np.testing.assert_allclose(l_c[np.isfinite(l_c)], l_v[np.isfinite(l_v)], rtol=1e-13, atol=1e-13)
+    else:
+        np.testing.assert_array_equal(l_c, l_v)
