@@ -1,5 +1,6 @@
-"""Compiled kernels of the labelled map filters (delta-GLMB, LMB): optimal assignment and the Gibbs
-sampler of the joint prediction/update (Vo, Vo & Hoang 2017; delta-GLMB-SLAM paper eqs. 11-17).
+"""Compiled kernels of the labelled map filters (delta-GLMB, LMB): optimal assignment, the Gibbs
+sampler of the joint prediction/update (Vo, Vo & Hoang 2017; delta-GLMB-SLAM paper eqs. 11-17), the
+reduction of its hypotheses, and the detections' log eta of point landmarks (:func:`detection_costs`).
 
 The joint prediction/update of one prior hypothesis ``(I, xi)`` with weight w
 draws association maps gamma over the hypothesis's candidate tracks (its
