@@ -217,9 +217,10 @@ def override(cfg: SlamConfig, **changes) -> SlamConfig:
         raise UsageError(f"{'.'.join(str(x) for x in e['loc'])}: {e['msg']}") from None
 
 
-#: Settings whose name two filters share but whose meaning differs: never carried from one filter to another
-#: (RB-PHD's ``prune`` drops Gaussian components of weight below it, delta-GLMB's drops hypotheses).
-_NOT_CARRIED = frozenset({"kind", "prune"})
+#: Settings whose name two filters share but whose meaning or default differs: never carried from one filter to another
+#: (RB-PHD's ``prune`` drops Gaussian components of weight below it, delta-GLMB's drops hypotheses; ``factor_independent``
+#: is on by default for delta-GLMB and off for LMB, whose comparison runs keep the fast LMB update unless asked).
+_NOT_CARRIED = frozenset({"kind", "prune", "factor_independent"})
 
 
 def with_filter(cfg: SlamConfig, kind: str | None) -> SlamConfig:

@@ -18,7 +18,10 @@ clutter needs: one detection lifts a 0.01 birth to about 0.02 at 15 false
 alarms per scan). The particle's log-likelihood is the log of the
 normalisation constant, the sum of the drawn associations' weights (eq. 25).
 Births that gate no measurement are summed out of the sampler
-(:mod:`slam_runtime.gibbs`) and given their exact existence afterwards.
+(:mod:`slam_runtime.gibbs`) and given their exact existence afterwards; with
+``factor_independent`` so is every candidate that shares no gated measurement
+with another (its exact Bernoulli update, as delta-GLMB's independent births
+and released tracks; the grouping of Reuter et al. 2014), off by default.
 P_D, the buffer zone, kappa, survival and adaptive birth as in
 :mod:`slam_runtime.glmb`.
 
@@ -50,6 +53,12 @@ class LMBConfig(LabelledSettings):
 
     kind: Literal["lmb"] = "lmb"
     prune_tracks: float = Field(default=1e-3, gt=0.0, lt=1.0, description="tracks of smaller existence probability are removed")
+    factor_independent: bool = Field(
+        default=False,
+        description="tracks and births that share no gated measurement with another candidate are updated exactly outside the "
+        "sampler (existence the share of their options in which they exist, density the moment match of their versions: the "
+        "grouping of Reuter et al. 2014); false: every candidate in view joins the sampler's one chain (the fast LMB update)",
+    )
 
 
 @dataclass
@@ -119,7 +128,8 @@ class LMB(LabelledFilter):
             pd_model = pd
             if ab is not None:
                 pd = pd * mean_factor(ab)
-            c = self._costs(sl, sp, z, rz, meas.cov is not None, log_kappa, pd, buf)
+            # one hypothesis: every candidate is a candidate of every hypothesis, with the same options
+            c = self._costs(sl, sp, z, rz, meas.cov is not None, log_kappa, pd, buf, np.ones((p, s), dtype=bool) if self.cfg.factor_independent else None)
             member = np.zeros((p, 1, s), dtype=bool)
             in_a = np.arange(c.act.shape[1])[None, :] < c.nact[:, None]
             member[np.nonzero(in_a)[0], 0, c.act[in_a]] = True
@@ -140,6 +150,12 @@ class LMB(LabelledFilter):
             hp, ha = np.nonzero(c.idle)
             hs = c.act[hp, ha]
             r_all[hp, hs] = 1.0 / (1.0 + np.exp(c.l_death[hp, ha] - c.l_miss[hp, ha]))
+            # independent candidates (factor_independent) have their exact Bernoulli update
+            ip, ia = np.nonzero(c.held & ~c.idle)
+            i_s = c.act[ip, ia]
+            if ip.size:
+                _, _, i_r, i_mu, i_cov = self._independent(sl, sp, z, rz, c)
+                r_all[ip, i_s] = i_r
             if ab is not None:
                 # each label's factor on P_D, from its detected and missed versions' weights (an idle birth: missed)
                 det = res.slot_a > 0
@@ -147,10 +163,17 @@ class LMB(LabelledFilter):
                 w_miss = np.bincount(key, weights=wslot * ~det, minlength=p * s).reshape(p, s)
                 w_det, w_miss = np.where(active, w_det, 0.0), np.where(active, w_miss, 0.0)
                 w_det[hp, hs], w_miss[hp, hs] = 0.0, 1.0
+                if ip.size:  # an independent candidate: its options' shares
+                    lh = c.l_held[ip, ia]
+                    w_det[ip, i_s] = np.exp(c.l_det[ip, ia] - lh[:, None]).sum(axis=1)
+                    w_miss[ip, i_s] = np.exp(c.l_miss[ip, ia] - lh)
                 ab = beta_update(ab, self._miss_pd(sl, pd_model, buf), w_det, w_miss)
             active[hp, hs] = False  # keeps its prior mean and covariance below
+            active[ip, i_s] = False
             mu_all = np.where(active[..., None], m_new.reshape(p, s, d), sl.mu)
             cov_all = np.where(active[..., None, None], c_new.reshape(p, s, d, d), sl.cov)
+            if ip.size:
+                mu_all[ip, i_s], cov_all[ip, i_s] = i_mu, i_cov
             keep = sl.valid & (r_all >= self.cfg.prune_tracks)
             cnt = keep.sum(axis=1)
             order = np.argsort(~keep, axis=1, kind="stable")[:, : int(cnt.max()) if p else 0]

@@ -214,6 +214,40 @@ def test_joint_lmb_update_matches_the_enumeration():
         assert got[k] == pytest.approx(v, abs=2e-3)
 
 
+def test_lmb_updates_independent_tracks_exactly_outside_the_sampler():
+    """LMB with ``factor_independent``: tracks A and B share the measurement between them (one chain), the birth
+    gates only its own measurement and a track C in view gates none (both independent: updated outside the
+    sampler). With one Gibbs sample the independent ones already have the existences and means that 20,000
+    samples of the joint chain give (within the undrawn mass), and C's existence is the exact r P_S (1 - P_D) /
+    (1 - r P_S P_D); with 20,000 samples either way every track agrees, and so does the normalisation constant."""
+    fm = RangeBearing(R)
+    z = _meas(fm)
+    c_pos = np.array([3.0, -3.0])
+    tr = Tracks(
+        np.stack([MU["A"], MU["B"], c_pos])[None], np.stack([COV["A"], COV["B"], np.eye(2) * 0.05**2])[None], np.array([[LAB["A"], LAB["B"], 11]])
+    )
+    births = Births(MU["b"][None, None], COV["b"][None, None], np.array([[RB]]), np.array([LAB["b"]]))
+    state = LMBMaps(tr, np.array([[0.9, 0.4, 0.6]]), births)
+
+    def run(samples, factor):
+        cfg = LMBConfig(samples=samples, survival=PS, prune_tracks=1e-12, factor_independent=factor)
+        maps, ll = LMB(fm, _det(), cfg, rng=np.random.default_rng(1)).update(state, POSE[None], Measurements(z))
+        keep = maps.tracks.label[0] >= 0
+        return dict(zip(maps.tracks.label[0][keep].tolist(), zip(maps.r[0][keep], maps.tracks.mu[0][keep], strict=True), strict=True)), ll[0]
+
+    ref, ll_ref = run(20000, False)
+    one, _ = run(1, True)
+    full, ll_full = run(20000, True)
+    assert one[11][0] == pytest.approx(0.6 * PS * (1 - PD) / (1 - 0.6 * PS * PD), rel=1e-12)
+    for lab in (11, LAB["b"]):
+        assert one[lab][0] == pytest.approx(ref[lab][0], abs=2e-3)
+        np.testing.assert_allclose(one[lab][1], ref[lab][1], atol=1e-3)
+    for lab in ref:
+        assert full[lab][0] == pytest.approx(ref[lab][0], abs=2e-3)
+        np.testing.assert_allclose(full[lab][1], ref[lab][1], atol=1e-3)
+    assert ll_full == pytest.approx(ll_ref, abs=1e-3)
+
+
 # ---------------------------------------------------------------------- summed births, keyed random numbers
 FAR = np.array([2.0, 6.0])  # a birth that gates none of the three measurements (in view, 5.8 m away from them)
 
