@@ -238,6 +238,14 @@ def test_lmb_updates_independent_tracks_exactly_outside_the_sampler():
     ref, ll_ref = run(20000, False)
     one, _ = run(1, True)
     full, ll_full = run(20000, True)
+    # with learn_pd the factors on P_D follow the same shares: the independent tracks' after one sample as the chain's
+    ab = {}
+    for samples, factor in ((20000, False), (1, True)):
+        cfg = LMBConfig(samples=samples, survival=PS, prune_tracks=1e-12, factor_independent=factor, learn_pd=True)
+        maps, _ = LMB(fm, _det(), cfg, rng=np.random.default_rng(1)).update(state, POSE[None], Measurements(z))
+        ab[factor] = {int(x): maps.pd_ab[0, k] for k, x in enumerate(maps.tracks.label[0]) if x >= 0}
+    for lab in (11, LAB["b"]):
+        np.testing.assert_allclose(ab[True][lab], ab[False][lab], atol=2e-2)
     assert one[11][0] == pytest.approx(0.6 * PS * (1 - PD) / (1 - 0.6 * PS * PD), rel=1e-12)
     for lab in (11, LAB["b"]):
         assert one[lab][0] == pytest.approx(ref[lab][0], abs=2e-3)
