@@ -175,15 +175,15 @@ def argsort_stable(x):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _maha2(c, ci, u, ui, v, vi, work):  # pragma: no cover - compiled
-    """dd^T c[ci]^-1 dd with dd = u[ui] - v[vi], for a small symmetric positive definite c[ci] (d, d), by Gaussian
+def _maha2(c, ci, x, a, b, work):  # pragma: no cover - compiled
+    """dd^T c[ci]^-1 dd with dd = x[a] - x[b], for a small symmetric positive definite c[ci] (d, d), by Gaussian
     elimination in the scratch ``work`` (d, d + 3) (rows indexed here, not sliced: a view or a temporary per pair
     costs more than the elimination)."""
-    d = u.shape[1]
+    d = x.shape[1]
     for r in range(d):
         for k in range(d):
             work[r, k] = c[ci, r, k]
-        work[r, d] = u[ui, r] - v[vi, r]
+        work[r, d] = x[a, r] - x[b, r]
         work[r, d + 1] = work[r, d]
     for i in range(d):
         piv = work[i, i]
@@ -634,9 +634,18 @@ def joint_update(seeds, logw, member, act, nact, l_death, l_miss, l_det, total, 
 
 
 @numba.njit(cache=True, nogil=True)
+def _inv2(s00, s01, s10, s11):  # pragma: no cover - compiled
+    """The entries (0, 0), (0, 1), (1, 1) of the inverse of a symmetric 2x2 matrix and its determinant, with the
+    floored determinant of :func:`slam_runtime.gm.inv` (the same operations, so the same bits)."""
+    dt = s00 * s11 - s01 * s10
+    dd = dt if np.abs(dt) > 1e-300 else 1e-300
+    return s11 / dd, -s01 / dd, s00 / dd, dt
+
+
+@numba.njit(cache=True, nogil=True)
 def detection_costs(zhat, hph, z, rz, own_cov, r, logdet_r, wrap_bearing, gate, dzlog, l_base, log_kappa, in_a, pd_pos):  # pragma: no cover - compiled
     """log eta of the detections of 2-d measurements, fused over (particle, candidate, measurement): the same
-    arithmetic as the vectorised form in :meth:`slam_runtime.glmb._LabelledFilter._costs` (one pass instead of
+    arithmetic as the vectorised form in :meth:`slam_runtime.glmb.LabelledFilter._det_costs` (one pass instead of
     some twenty (P, A, M) temporaries).
 
     zhat (P, A, 2), hph (P, A, 2, 2): the candidates' predicted measurements and H P H^T; z (M, 2); the innovation
@@ -656,17 +665,11 @@ def detection_costs(zhat, hph, z, rz, own_cov, r, logdet_r, wrap_bearing, gate, 
                 continue
             h00, h01, h10, h11 = hph[p, a, 0, 0], hph[p, a, 0, 1], hph[p, a, 1, 0], hph[p, a, 1, 1]
             if not own_cov:
-                s00, s01, s10, s11 = h00 + r[0, 0], h01 + r[0, 1], h10 + r[1, 0], h11 + r[1, 1]
-                dt = s00 * s11 - s01 * s10
-                dd = dt if np.abs(dt) > 1e-300 else 1e-300
-                i00, i01, i11 = s11 / dd, -s01 / dd, s00 / dd
+                i00, i01, i11, _ = _inv2(h00 + r[0, 0], h01 + r[0, 1], h10 + r[1, 0], h11 + r[1, 1])
                 logdet = logdet_r[p, a]
             for j in range(M):
                 if own_cov:
-                    s00, s01, s10, s11 = h00 + rz[j, 0, 0], h01 + rz[j, 0, 1], h10 + rz[j, 1, 0], h11 + rz[j, 1, 1]
-                    dt = s00 * s11 - s01 * s10
-                    dd = dt if np.abs(dt) > 1e-300 else 1e-300
-                    i00, i01, i11 = s11 / dd, -s01 / dd, s00 / dd
+                    i00, i01, i11, dt = _inv2(h00 + rz[j, 0, 0], h01 + rz[j, 0, 1], h10 + rz[j, 1, 0], h11 + rz[j, 1, 1])
                     logdet = np.log(max(dt, 1e-300))
                 x = z[j, 0] - zhat[p, a, 0]
                 y = z[j, 1] - zhat[p, a, 1]
@@ -824,7 +827,7 @@ def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, 
                     if merge > 0.0:
                         for r in range(q + 1, nb):
                             o = sub[r]
-                            if grp[o] < 0 and _maha2(cov, s0 + first, mu, s0 + o, mu, s0 + first, work) <= merge:
+                            if grp[o] < 0 and _maha2(cov, s0 + first, mu, s0 + o, s0 + first, work) <= merge:
                                 grp[o] = ng
                     ng += 1
             a = b
@@ -861,7 +864,7 @@ def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, 
                     dd2 = 0.0
                     for k in range(d):
                         dd2 += (gmu[j, k] - gmu[i, k]) ** 2
-                    if dd2 > merge * gtr[i] or _maha2(gcov, i, gmu, j, gmu, i, work) > merge:
+                    if dd2 > merge * gtr[i] or _maha2(gcov, i, gmu, j, i, work) > merge:
                         continue
                     # held together: j beside any version of a label already in i's group (also a version
                     # too far from i to be in it), so that no hypothesis ends up with one label twice

@@ -153,9 +153,8 @@ class LMB(LabelledFilter):
             # independent candidates (factor_independent) have their exact Bernoulli update
             ip, ia = np.nonzero(c.held & ~c.idle)
             i_s = c.act[ip, ia]
-            if ip.size:
-                _, _, i_r, i_mu, i_cov = self._independent(sl, sp, z, rz, c)
-                r_all[ip, i_s] = i_r
+            _, _, i_r, i_mu, i_cov = self._independent(sl, sp, z, rz, c)
+            r_all[ip, i_s] = i_r
             if ab is not None:
                 # each label's factor on P_D, from its detected and missed versions' weights (an idle birth: missed)
                 det = res.slot_a > 0
@@ -163,17 +162,16 @@ class LMB(LabelledFilter):
                 w_miss = np.bincount(key, weights=wslot * ~det, minlength=p * s).reshape(p, s)
                 w_det, w_miss = np.where(active, w_det, 0.0), np.where(active, w_miss, 0.0)
                 w_det[hp, hs], w_miss[hp, hs] = 0.0, 1.0
-                if ip.size:  # an independent candidate: its options' shares
-                    lh = c.l_held[ip, ia]
-                    w_det[ip, i_s] = np.exp(c.l_det[ip, ia] - lh[:, None]).sum(axis=1)
-                    w_miss[ip, i_s] = np.exp(c.l_miss[ip, ia] - lh)
+                # an independent candidate: its options' shares
+                lh = c.l_held[ip, ia]
+                w_det[ip, i_s] = np.exp(c.l_det[ip, ia] - lh[:, None]).sum(axis=1)
+                w_miss[ip, i_s] = np.exp(c.l_miss[ip, ia] - lh)
                 ab = beta_update(ab, self._miss_pd(sl, pd_model, buf), w_det, w_miss)
             active[hp, hs] = False  # keeps its prior mean and covariance below
             active[ip, i_s] = False
             mu_all = np.where(active[..., None], m_new.reshape(p, s, d), sl.mu)
             cov_all = np.where(active[..., None, None], c_new.reshape(p, s, d, d), sl.cov)
-            if ip.size:
-                mu_all[ip, i_s], cov_all[ip, i_s] = i_mu, i_cov
+            mu_all[ip, i_s], cov_all[ip, i_s] = i_mu, i_cov
             keep = sl.valid & (r_all >= self.cfg.prune_tracks)
             cnt = keep.sum(axis=1)
             order = np.argsort(~keep, axis=1, kind="stable")[:, : int(cnt.max()) if p else 0]
