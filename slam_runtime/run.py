@@ -108,7 +108,7 @@ def build(log: SensorLog, profile, cfg: SlamConfig) -> Built:
             f"profile {profile.ref} is a {profile.kind} profile; "
             + ("run it with --features planes" if planar else "--features planes needs a lidar3d-planes profile")
         )
-    det = detection_model(profile, cfg.detection, None)
+    det = detection_model(profile, cfg.detection, None, filter_kind=cfg.filter.kind)
     feat = feature_model(det, cfg.measurement, mount, cfg.metric)
     mf = map_filter(cfg, feat, det)
     veh = vehicle_model(log.odometry.kind, cfg.motion, log.vehicle, cfg.features)

@@ -191,3 +191,30 @@ def test_an_infinite_occlusion_tolerance_turns_the_test_off():
     assert pd_wall[0] == pd_free[0] > 0.9 and pts_wall[0, 0] == pts_free[0, 0] > 0.9
     assert on.pd_landmarks(np.zeros(3), wall, centre, 0.3)[0][0] == 0.0
     assert on.pd_points(np.zeros((1, 3)), centre[None], cov, wall, ang)[0][0, 0] == 0.0
+
+
+def test_the_occlusion_tolerance_defaults_per_filter(small_sim):
+    """With no detection.occlusion_sigmas, RB-PHD takes the profile's tolerance and the labelled filters none
+    (config.OCCLUSION_DEFAULT); 'profile' and a number are taken as given by every filter. Checked on the model the
+    run's factory (slam_runtime.run.build) gives each filter for a park log."""
+    import pydantic
+    import yaml
+
+    from profiles.store import resolve
+    from slam_runtime.config import DetectionOptions, SlamConfig, override
+    from slam_runtime.run import build
+
+    prof = resolve("sim-park-laser@1.0.0")
+    got = {}
+    for kind in ("rbphd", "lmb", "glmb"):
+        for occ in (None, "profile", 6.0):
+            cfg = override(SlamConfig(), filter={"kind": kind}).model_copy(update={"detection": DetectionOptions(occlusion_sigmas=occ)})
+            got[kind, occ] = build(small_sim.log, prof, cfg).mapfilter.detection.k_sigma
+    assert got["rbphd", None] == got["rbphd", "profile"] == got["lmb", "profile"] == got["glmb", "profile"] == prof.detector.k_sigma == 3.0
+    assert got["lmb", None] == got["glmb", None] == np.inf
+    assert all(got[k, 6.0] == 6.0 for k in ("rbphd", "lmb", "glmb"))
+    # 'profile' from YAML; a misspelt word or a tolerance of 0 refused, naming the field
+    assert DetectionOptions(**yaml.safe_load("{occlusion_sigmas: profile}")).occlusion_sigmas == "profile"
+    for bad in ("profiel", 0.0):
+        with pytest.raises(pydantic.ValidationError, match="occlusion_sigmas"):
+            DetectionOptions(occlusion_sigmas=bad)
