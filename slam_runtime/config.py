@@ -115,6 +115,21 @@ class DetectionOptions(_Strict):
         default=True, description="detection-level logs that label their detections (UTIAS `target`): feed only the landmark ones to the filter"
     )
 
+    @field_validator("occlusion_sigmas", mode="before")
+    @classmethod
+    def _tolerance(cls, value):
+        """One message for a wrong value instead of one per member of the union."""
+        if value is None or value == "profile":
+            return value
+        try:
+            k = float(value) if not isinstance(value, bool) else None
+        except (TypeError, ValueError):
+            k = None
+        if k is None or not k > 0.0:
+            msg = "expected a number of range sigmas above 0, .inf or 'profile', not {value}"
+            raise PydanticCustomError("occlusion_sigmas", msg, {"value": repr(value)})
+        return k
+
 
 class MetricConfig(_Strict):
     ospa_c: float = Field(default=1.0, gt=0.0, description="OSPA / GOSPA cut-off [m]")

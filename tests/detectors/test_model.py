@@ -215,6 +215,6 @@ def test_the_occlusion_tolerance_defaults_per_filter(small_sim):
     assert all(got[k, 6.0] == 6.0 for k in ("rbphd", "lmb", "glmb"))
     # 'profile' from YAML; a misspelt word or a tolerance of 0 refused, naming the field
     assert DetectionOptions(**yaml.safe_load("{occlusion_sigmas: profile}")).occlusion_sigmas == "profile"
-    for bad in ("profiel", 0.0):
-        with pytest.raises(pydantic.ValidationError, match="occlusion_sigmas"):
+    for bad in ("profiel", 0.0, -1, float("nan"), True):
+        with pytest.raises(pydantic.ValidationError, match=r"occlusion_sigmas\n.*above 0, \.inf or 'profile', not "):
             DetectionOptions(occlusion_sigmas=bad)
