@@ -213,7 +213,7 @@ def test_the_occlusion_tolerance_defaults_per_filter(small_sim):
     assert got["rbphd", None] == got["rbphd", "profile"] == got["lmb", "profile"] == got["glmb", "profile"] == prof.detector.k_sigma == 3.0
     assert got["lmb", None] == got["glmb", None] == np.inf
     assert all(got[k, 6.0] == 6.0 for k in ("rbphd", "lmb", "glmb"))
-    # 'profile' from YAML; a misspelt word or a tolerance of 0 refused, naming the field
+    # 'profile' from YAML; a misspelt word, a tolerance of 0 or below, NaN or a boolean refused with one message
     assert DetectionOptions(**yaml.safe_load("{occlusion_sigmas: profile}")).occlusion_sigmas == "profile"
     for bad in ("profiel", 0.0, -1, float("nan"), True):
         with pytest.raises(pydantic.ValidationError, match=r"occlusion_sigmas\n.*above 0, \.inf or 'profile', not "):
