@@ -101,7 +101,7 @@ class DetectionOptions(_Strict):
     descriptor_likelihood: bool = Field(
         default=True, description="weigh each detection by g_x(d) / g_FA(d) of its descriptors (eqs. 2.26, 5.6) when the profile has a Hotelling model"
     )
-    occlusion_sigmas: Annotated[float, Field(gt=0.0)] | Literal["profile"] | None = Field(
+    occlusion_sigmas: float | Literal["profile"] | None = Field(
         default=None,
         description="n_p profiles: a return occludes a map feature when it is shorter than the feature's surface by more than "
         "this many range sigmas ('profile': the profile's k_sigma, the tolerance its P_D table was measured with; .inf: no return "
@@ -118,7 +118,7 @@ class DetectionOptions(_Strict):
     @field_validator("occlusion_sigmas", mode="before")
     @classmethod
     def _tolerance(cls, value):
-        """One message for a wrong value instead of one per member of the union."""
+        """Above 0, .inf or 'profile': one message for a wrong value instead of one per member of the union."""
         if value is None or value == "profile":
             return value
         try:
@@ -286,7 +286,7 @@ OCCLUSION_DEFAULT = {"rbphd": "profile", "lmb": float("inf"), "glmb": float("inf
 def occlusion_sigmas(opts: DetectionOptions, filter_kind: str) -> float | None:
     """The occlusion tolerance a filter runs with, in range sigmas (None: the profile's)."""
     k = OCCLUSION_DEFAULT[filter_kind] if opts.occlusion_sigmas is None else opts.occlusion_sigmas
-    return None if k == "profile" else float(k)
+    return None if k == "profile" else k
 
 
 def detection_model(profile, opts: DetectionOptions, sensor=None, *, filter_kind: str = "rbphd"):

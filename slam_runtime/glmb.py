@@ -475,9 +475,10 @@ class LabelledFilter(MapFilter):
         return m0 + matvec(k, fm.innovation(z, zhat)), 0.5 * (c1 + transpose(c1))
 
     def _independent(self, sl: _Slots, sp: np.ndarray, z: np.ndarray, rz: np.ndarray, c: _Costs):
-        """The exact Bernoulli update of the held candidates that are not idle births: (particle (K,), label (K,),
-        existence (K,), mean (K, dx), covariance (K, dx, dx)): existence the share of its options in which it
-        exists, density the moment match of its missed (prior) and detected (EKF-updated) versions."""
+        """The exact Bernoulli update of the held candidates that are not idle births: (particle (K,), candidate
+        (K,), existence (K,), mean (K, dx), covariance (K, dx, dx)), the candidates in the order of
+        ``np.nonzero(c.held & ~c.idle)`` (slot ``c.act[particle, candidate]``): existence the share of its options in
+        which it exists, density the moment match of its missed (prior) and detected (EKF-updated) versions."""
         hp, ha = np.nonzero(c.held & ~c.idle)
         hs = c.act[hp, ha]
         mu0, cov0, lh = sl.mu[hp, hs], sl.cov[hp, hs], c.l_held[hp, ha]
@@ -488,7 +489,7 @@ class LabelledFilter(MapFilter):
             np.concatenate([q, np.arange(hp.size)]), np.exp(np.concatenate([c.l_det[hp[q], ha[q], j] - lh[q], c.l_miss[hp, ha] - lh])),
             np.concatenate([m_det, mu0]), np.concatenate([c_det, cov0]), hp.size,
         )
-        return hp, sl.label[hp, hs], np.minimum(r, 1.0), mean, cov
+        return hp, ha, np.minimum(r, 1.0), mean, cov
 
     def _births(self, sp: np.ndarray, z: np.ndarray, rz: np.ndarray, explained: np.ndarray) -> Births:
         """Birth tracks for the next step from this step's measurements (eq. 28, adaptive birth)."""
@@ -685,7 +686,8 @@ class GLMB(LabelledFilter):
             res = self._sample(maps.logw, member, c, cfg.prune, 1 << 30)
         with tm("update"):
             sp_, _, mu, cov, label = self._updated(sl, sp, z, rz, res)
-            ip, i_label, i_r, i_mu, i_cov = self._independent(sl, sp, z, rz, c)
+            ip, ia, i_r, i_mu, i_cov = self._independent(sl, sp, z, rz, c)
+            i_label = sl.label[ip, c.act[ip, ia]]
             # tracks of the hypotheses that the sensor could not see leave them (module docstring)
             release = (res.slot_a == 0) & (res.slot_src < t) & ~active[sp_, res.slot_src] if cfg.release_unseen else np.zeros(sp_.size, bool)
         with tm("merge"):

@@ -151,9 +151,8 @@ class LMB(LabelledFilter):
             hs = c.act[hp, ha]
             r_all[hp, hs] = 1.0 / (1.0 + np.exp(c.l_death[hp, ha] - c.l_miss[hp, ha]))
             # independent candidates (factor_independent) have their exact Bernoulli update
-            ip, ia = np.nonzero(c.held & ~c.idle)
+            ip, ia, i_r, i_mu, i_cov = self._independent(sl, sp, z, rz, c)
             i_s = c.act[ip, ia]
-            _, _, i_r, i_mu, i_cov = self._independent(sl, sp, z, rz, c)
             r_all[ip, i_s] = i_r
             if ab is not None:
                 # each label's factor on P_D, from its detected and missed versions' weights (an idle birth: missed)
