@@ -1,9 +1,10 @@
 """A labelled filter's map on the held-out glmb-paper worlds, many runs per setting:
 ``python benchmarks/bench_glmb_worlds.py [--clutter 1,15] [--worlds 2,3,4,5] [--seeds 0-14] [--filter glmb]
-[--set key=value ...] [--true-poses] [--clutter-draws 0-9] [--workers 2]``.
+[--filter lmb] [--config C.yaml] [--set key=value ...] [--true-poses] [--clutter-draws 0-9] [--csv runs.csv]
+[--workers 2]``.
 
 Each run is ``detcal simulate glmb-paper --clutter C --seed W`` (world W) and one filter seed with the
-settings of ``benchmarks/configs/glmb_paper_optimal.yaml`` (``--set`` overrides any, e.g.
+settings of ``benchmarks/configs/glmb_paper_optimal.yaml`` or ``--config`` (``--set`` overrides any, e.g.
 ``--set particles=100 --set filter.samples=400``), evaluated as ``detcal slam sweep`` does (map OSPA c = 0.5,
 p = 1). World 1 is the paper-protocol table's and is left out by default, so that settings are chosen on
 other worlds. Per clutter rate it prints the mean map OSPA and its standard error, the pose RMSE, GOSPA's
@@ -12,7 +13,10 @@ with several worlds or several clutter draws each one's mean map OSPA and its st
 ``--true-poses`` gives every particle the true pose at every scan (mapping only: what the map filter loses
 by itself). ``--clutter-draws`` runs each world under other draws of its false alarms (the path, controls and
 detections kept: ``simulate_glmb_paper(..., clutter_draw=D)``), to tell a world's own clutter draw from the
-filter. Same arguments, same figures; BLAS is pinned to one thread per worker.
+filter. With two ``--filter`` each run is made with both and the paired difference (first - second, matched by
+clutter rate, world, clutter draw and filter seed) is printed with its standard error and the number of runs the
+first is lower in. ``--csv`` writes every run's figures, one row per run. Same arguments, same figures; BLAS is
+pinned to one thread per worker.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA
     os.environ.setdefault(var, "1")
 
 import argparse  # noqa: E402
+import csv  # noqa: E402
 import sys  # noqa: E402
 from multiprocessing import Pool  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -45,8 +50,8 @@ CONFIG = ROOT / "benchmarks/configs/glmb_paper_optimal.yaml"
 
 
 def one(job: tuple) -> dict:
-    clutter, world, seed, kind, sets, true_poses, draw = job
-    cfg = load_yaml_model(SlamConfig, CONFIG)
+    clutter, world, seed, kind, sets, true_poses, draw, config = job
+    cfg = load_yaml_model(SlamConfig, config)
     if kind != cfg.filter.kind:
         cfg = with_filter(cfg, kind)
     cfg = override(cfg, **dict(parse_set(x) for x in sets))
@@ -83,7 +88,7 @@ def one(job: tuple) -> dict:
     g = gospa(est, log.landmarks.xy, 0.5, 1.0)
     found = max(m["landmarks_true"] - g["n_missed"], 1)
     return {
-        "clutter": clutter, "world": world, "draw": draw, "ospa": ospa(est, log.landmarks.xy, 0.5, 1.0), "ospa_other": other,
+        "filter": kind, "clutter": clutter, "world": world, "draw": draw, "seed": seed, "ospa": ospa(est, log.landmarks.xy, 0.5, 1.0), "ospa_other": other,
         "rmse": m["trajectory_rmse_vs_ground_truth_m"], "rmse_mean": m["mean_trajectory_rmse_vs_ground_truth_m"], "missed": g["n_missed"],
         "false": g["n_false"], "loc": g["localisation"] / found, "cpu": m["cpu_ms_per_step_mean"],
     }
@@ -110,27 +115,49 @@ def main() -> None:
     ap.add_argument("--clutter", default="1,15", help="false alarms per scan, comma-separated")
     ap.add_argument("--worlds", default="2,3,4,5", help="simulator seeds: 2-5 or 2,4")
     ap.add_argument("--seeds", default="0-14", help="filter seeds: 0-14 or 0,3")
-    ap.add_argument("--filter", default="glmb", choices=("glmb", "lmb", "rbphd"))
+    ap.add_argument("--filter", dest="filters", action="append", choices=("glmb", "lmb", "rbphd"), help="glmb (default); twice to pair two")
+    ap.add_argument("--config", type=Path, default=CONFIG, help="the settings (default: glmb_paper_optimal.yaml)")
+    ap.add_argument("--csv", type=Path, default=None, help="write every run's figures here, one row per run")
     ap.add_argument("--set", dest="sets", action="append", default=[], help="override a setting: key=value (repeatable)")
     ap.add_argument("--true-poses", action="store_true", help="every particle at the true pose (mapping only)")
     ap.add_argument("--clutter-draws", default=None, help="other clutter streams of each world: 0-9 (default: the world's own)")
     ap.add_argument("--workers", type=int, default=2)
     a = ap.parse_args()
+    filters = a.filters or ["glmb"]
+    if len(filters) > 2 or len(set(filters)) < len(filters):
+        sys.exit("bench_glmb_worlds: --filter takes one filter, or two different ones to pair")
     if any(x.split("=", 1)[0].strip() == "map_refine" for x in a.sets):
         # the runs place the map two ways after the run (seen_mean and best); map_refine would refine only the first
         sys.exit("bench_glmb_worlds: map_refine is not measured here; run detcal slam sweep with a config that holds it")
     rates = [float(c) for c in a.clutter.split(",")]
     draws = [None] if a.clutter_draws is None else ints(a.clutter_draws)
-    jobs = [(c, w, s, a.filter, a.sets, a.true_poses, d) for c in rates for w in ints(a.worlds) for d in draws for s in ints(a.seeds)]
+    jobs = [
+        (c, w, s, f, a.sets, a.true_poses, d, a.config)
+        for f in filters for c in rates for w in ints(a.worlds) for d in draws for s in ints(a.seeds)
+    ]
     with Pool(a.workers) as pool:
-        out = pool.map(one, jobs, chunksize=1)
+        runs = pool.map(one, jobs, chunksize=1)
+    if a.csv is not None:
+        with a.csv.open("w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=list(runs[0]))
+            w.writeheader()
+            w.writerows(runs)
+    for f in filters:
+        _report([o for o in runs if o["filter"] == f], f, a, rates, draws)
+    if len(filters) == 2:
+        _paired(runs, filters, rates)
+
+
+def _report(out: list, kind: str, a, rates: list, draws: list) -> None:
+    """One filter's figures per clutter rate."""
+    config = "" if a.config == CONFIG else f"{a.config.name}, "
     print(
-        f"{a.filter}, worlds {a.worlds}, filter seeds {a.seeds}, {' '.join(a.sets) or 'the config'}{', true poses' if a.true_poses else ''}"
+        f"{kind}, worlds {a.worlds}, filter seeds {a.seeds}, {config}{' '.join(a.sets) or 'the config'}{', true poses' if a.true_poses else ''}"
         f"{'' if a.clutter_draws is None else f', clutter draws {a.clutter_draws}'}"
     )
     worlds = ints(a.worlds)
     for c in rates:
-        r = {k: np.array([o[k] for o in out if o["clutter"] == c], dtype=float) for k in out[0] if k not in ("clutter", "world", "draw")}
+        r = {k: np.array([o[k] for o in out if o["clutter"] == c], dtype=float) for k in out[0] if k not in ("filter", "clutter", "world", "draw", "seed")}
         print(
             f"  {c:g} false alarms per scan ({r['ospa'].size} runs): map OSPA {_mean_se(r['ospa'])}"
             f" (placed the other way: {_mean_se(r['ospa_other'])})"
@@ -143,6 +170,22 @@ def main() -> None:
             print("    per world: " + _per(out, c, "world", worlds), flush=True)
         if len(draws) > 1:  # the spread between clutter draws of the same worlds
             print("    per clutter draw: " + _per(out, c, "draw", draws), flush=True)
+
+
+def _paired(runs: list, filters: list, rates: list) -> None:
+    """The first filter's map OSPA less the second's, run by run (same clutter rate, world, clutter draw, filter seed)."""
+    key = {(o["filter"], o["clutter"], o["world"], o["draw"], o["seed"]): o for o in runs}
+    print(f"{filters[0]} - {filters[1]}, paired")
+    for c in rates:
+        pairs = [(o, key[(filters[1], *k[1:])]) for k, o in key.items() if k[0] == filters[0] and k[1] == c]
+        d = np.array([x["ospa"] - y["ospa"] for x, y in pairs])
+        dm = np.array([x["missed"] - y["missed"] for x, y in pairs], dtype=float)
+        dl = np.array([x["loc"] - y["loc"] for x, y in pairs])
+        print(
+            f"  {c:g} false alarms per scan ({d.size} pairs): map OSPA {_mean_se(d)}, {filters[0]} lower in {int((d < 0).sum())}"
+            f" (higher in {int((d > 0).sum())});  landmarks missed per run {_mean_se(dm)};  localisation per landmark found {_mean_se(dl)}",
+            flush=True,
+        )
 
 
 def _mean_se(x: np.ndarray) -> str:
