@@ -82,6 +82,31 @@ def test_existing_versions_are_never_silently_replaced(tmp_path):
     assert save_profile(make_profile("1.1.0", rate=7.0), tmp_path)[1] == "written"
 
 
+def test_a_rerun_that_rounds_differently_is_the_same_profile_not_a_conflict(tmp_path):
+    """A calibration rerun under another numpy or BLAS build rounds its sums differently in the last bits (the
+    bundled profile's Hotelling covariance moved by 1-2 units in the last place between numpy builds): that is
+    the same content, so saving it again reports the profile unchanged and leaves the file as it was. A number
+    changed beyond the tolerance (relative 1e-9), a string or a count is other content, refused as before."""
+    from profiles.store import SAME_REL_TOL, same_content
+
+    p = make_profile()
+    path, _ = save_profile(p, tmp_path)
+    before = path.read_bytes()
+    cov = [[np.nextafter(0.2, 1.0), 0.01], [0.01, np.nextafter(0.03, 0.0)]]
+    rerun = p.model_copy(update={"hotelling": p.hotelling.model_copy(update={"covariance": cov})})
+    assert rerun != p and same_content(rerun, p)
+    assert save_profile(rerun, tmp_path) == (path, "unchanged") and path.read_bytes() == before
+    for other in (
+        p.model_copy(update={"clutter": p.clutter.model_copy(update={"rate": 5.5 * (1 + 10 * SAME_REL_TOL)})}),
+        p.model_copy(update={"pd": p.pd.model_copy(update={"counts": [10, 20, 30, 41]})}),
+        p.model_copy(update={"hotelling": p.hotelling.model_copy(update={"names": ["log_radius", "convexity"]})}),
+    ):
+        assert not same_content(other, p)
+        with pytest.raises(UsageError, match="exists with other content"):
+            save_profile(other, tmp_path)
+    assert path.read_bytes() == before
+
+
 def test_registry_resolves_newest_and_exact_versions(tmp_path, monkeypatch):
     monkeypatch.setenv("DETCAL_PROFILES", str(tmp_path))
     for v, r in (("1.0.0", 1.0), ("1.10.0", 2.0), ("1.9.3", 3.0)):

@@ -110,11 +110,15 @@ def test_no_nan_over_a_full_run_at_50_clutter_per_scan():
 
 def test_rbphd_on_a_cluttered_park_beats_odometry_and_the_profile_maps_better_than_constant_pd():
     """The park of the comparison (benchmarks/configs/small_park.yaml: bushes that fit circles,
-    walls, posts, dust), world seed 1, the whole run. Truth: the simulator's poses and trees.
+    walls, posts, dust), world seed 1, the whole run, filter seeds 0-2. Truth: the simulator's poses and trees.
 
-    The filter with the calibrated profile beats dead reckoning, and its map is closer to the
-    trees (OSPA c = 1 m, p = 1) than with a constant P_D, which forgets what it cannot see. One
-    world only; the ten-world figures come from `detcal slam sweep` (see the README).
+    The filter with the calibrated profile beats dead reckoning in every run, and its map is closer to the
+    trees (OSPA c = 1 m, p = 1) than with a constant P_D, which forgets what it cannot see: the mean map OSPA
+    over the three seeds lower by at least 5 %, and more features kept in every run. Measured: 0.505 / 0.471 /
+    0.520 against 0.544 / 0.603 / 0.569 (the mean 13 % lower; seeds 3-5: 0.498 / 0.472 / 0.471 against 0.525 /
+    0.532 / 0.580), 46-49 features against 34-36. One run alone is not enough: its ratio ranged 0.78-0.95
+    over seeds 0-5, and a numpy build that rounds differently moved seed 0's from 0.88 to 0.93. The eight-world
+    figures come from `detcal slam sweep` (see the README).
     """
     from pathlib import Path
 
@@ -127,15 +131,17 @@ def test_rbphd_on_a_cluttered_park_beats_odometry_and_the_profile_maps_better_th
     cfg = load_yaml_model(ParkConfig, Path(__file__).resolve().parents[2] / "benchmarks/configs/small_park.yaml")
     log = simulate_park(cfg, 1).log
     prof = resolve("sim-park-laser@1.0.0")
-    runs = {}
-    for m in ("profile", "constant"):
-        res = run_slam(log, prof, override(SlamConfig(), **{"detection.pd_mode": m}), seed=0)
-        runs[m] = evaluate(log, res)
-        assert np.isfinite(res.trajectory).all()
-    prof_m, const_m = runs["profile"], runs["constant"]
-    assert prof_m["trajectory_rmse_vs_ground_truth_m"] < 0.5 * prof_m["odometry_rmse_vs_ground_truth_m"]
-    assert prof_m["map_ospa"] < 0.9 * const_m["map_ospa"]
-    assert prof_m["map_features"] > const_m["map_features"]
+    runs = {"profile": [], "constant": []}
+    for seed in range(3):
+        for m, evals in runs.items():
+            res = run_slam(log, prof, override(SlamConfig(), **{"detection.pd_mode": m}), seed=seed)
+            evals.append(evaluate(log, res))
+            assert np.isfinite(res.trajectory).all()
+    for pm, cm in zip(runs["profile"], runs["constant"], strict=True):
+        assert pm["trajectory_rmse_vs_ground_truth_m"] < 0.5 * pm["odometry_rmse_vs_ground_truth_m"]
+        assert pm["map_features"] > cm["map_features"]
+    ospa = {m: float(np.mean([r["map_ospa"] for r in runs[m]])) for m in runs}
+    assert ospa["profile"] < 0.95 * ospa["constant"], ospa
 
 
 def test_the_optimal_proposal_keeps_three_particles_on_the_path():
