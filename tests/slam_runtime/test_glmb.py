@@ -516,8 +516,9 @@ def test_with_the_poses_given_delta_glmb_maps_better_than_lmb_under_clutter(monk
     so under heavy clutter its map misses fewer landmarks and its mean map OSPA is lower, by at least 0.005.
     Measured over 120 such pairs (worlds 1-5 x seeds 0-23, ``bench_glmb_worlds.py --true-poses``): 0.0422 against
     0.0531, paired -0.0109 +- 0.0018, 24 landmarks missed against 85; these 15 pairs: 0.040 against 0.052, one
-    landmark missed against 10. 0.005 is under half the measured gap and about two standard errors of 15 pairs
-    (one pair's difference has a standard deviation of about 0.02)."""
+    landmark missed against 10. 0.005 is under half the gap measured over 120 pairs, and about 1.2 standard
+    errors of a mean of 15 pairs below it (one pair's difference has a standard deviation of about 0.02): a draw
+    of 15 pairs falls under it about once in nine, so the test holds these 15 fixed."""
     from detectors.geometry import interpolate_poses
     from slam_runtime import slam as slam_loop
     from slam_runtime.config import with_filter
@@ -547,6 +548,5 @@ def test_with_the_poses_given_delta_glmb_maps_better_than_lmb_under_clutter(monk
                 g = gospa(res.map_xy, log.landmarks.xy, 0.5, 1.0)
                 scores.append(evaluate(log, res, 0.5, 1.0, cfg)["map_ospa"])
                 missed[kind] += g["n_missed"]
-    monkeypatch.setattr(slam_loop.RBSlam, "update", update)
     gap = float(np.mean(score["lmb"]) - np.mean(score["glmb"]))
     assert gap >= 0.005 and missed["glmb"] < missed["lmb"], (gap, missed)
