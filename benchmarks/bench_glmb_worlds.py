@@ -41,7 +41,6 @@ from benchmarks.common import ints, parse_set  # noqa: E402
 from calib.config import load_yaml_model  # noqa: E402
 from calib.sim.glmb_paper import GlmbPaperConfig, simulate_glmb_paper, truth_profile  # noqa: E402
 from detectors.geometry import interpolate_poses  # noqa: E402
-from slam_runtime import slam as slam_loop  # noqa: E402
 from slam_runtime.config import SlamConfig, override, with_filter  # noqa: E402
 from slam_runtime.metrics import gospa, ospa  # noqa: E402
 from slam_runtime.run import evaluate, run_slam  # noqa: E402
@@ -57,28 +56,17 @@ def one(job: tuple) -> dict:
     cfg = override(cfg, **dict(parse_set(x) for x in sets))
     g = GlmbPaperConfig(clutter=clutter)
     log, prof = simulate_glmb_paper(g, world, draw), truth_profile(g)
-    update = slam_loop.RBSlam.update
+    truth = None
     if true_poses:
         gt = log.reference["ground_truth"]
         truth = interpolate_poses(gt.stamp, gt.poses, log.detections.frame_stamp)
-        step = iter(range(truth.shape[0]))
-
-        def at_truth(self, meas):
-            self._prior = None
-            self.x = np.repeat(truth[next(step)][None, :3], self.n, axis=0)
-            return update(self, meas)
-
-        slam_loop.RBSlam.update = at_truth
     # the labelled filters run with seen_mean, which records the mean at every step, and the map is then placed both
     # ways (the runs do not depend on the placement): "ospa" is the configured placement's, "ospa_other" the other's
     placing = getattr(cfg.filter, "map_estimate", None)
     if placing is not None:
         cfg = override(cfg, **{"filter.map_estimate": "seen_mean"})
     last = _Last()
-    try:
-        res = run_slam(log, prof, cfg, seed=seed, hooks=(last,))
-    finally:
-        slam_loop.RBSlam.update = update
+    res = run_slam(log, prof, cfg, seed=seed, hooks=(last,), poses=truth)
     m = evaluate(log, res, 0.5, 1.0, cfg)
     est, other = res.map_xy, float("nan")
     if placing is not None:

@@ -158,12 +158,22 @@ class LogEvidence:
 
 
 def run_slam(
-    log: SensorLog, profile, cfg: SlamConfig, seed: int, *, progress=None, max_frames: int | None = None, hooks: tuple = ()
+    log: SensorLog,
+    profile,
+    cfg: SlamConfig,
+    seed: int,
+    *,
+    progress=None,
+    max_frames: int | None = None,
+    hooks: tuple = (),
+    poses: np.ndarray | None = None,
 ) -> SlamResult:
     """Run the filter ``cfg.filter`` over every frame (or the first ``max_frames``) of ``log``.
 
     hooks: callables ``hook(k, slam) -> float`` called after every step, recorded
     under ``hook.name`` in ``per_step`` (e.g. :class:`MapOSPA`).
+    poses: (frames, >= 3) a pose per frame (x, y, heading) at which every particle is put before the frame's update
+    (:meth:`RBSlam.place`): mapping only, the map filter alone with the path given.
     """
     check_inputs(log, profile)
     b = build(log, profile, cfg)
@@ -193,6 +203,8 @@ def run_slam(
         detect_s += t0 - t_prev
         if fi.controls.shape[0]:
             slam.predict(fi.controls, fi.dts)
+        if poses is not None:
+            slam.place(poses[k])
         try:
             info = slam.update(fi.meas)
         except FloatingPointError as exc:  # every particle at zero weight: the filter cannot go on

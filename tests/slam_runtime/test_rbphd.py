@@ -141,7 +141,7 @@ def test_rbphd_on_a_cluttered_park_beats_odometry_and_the_profile_maps_better_th
     for pm, cm in zip(runs["profile"], runs["constant"], strict=True):
         assert pm["trajectory_rmse_vs_ground_truth_m"] < 0.5 * pm["odometry_rmse_vs_ground_truth_m"]
         assert pm["map_features"] > cm["map_features"]
-    ospa = {m: float(np.mean([r["map_ospa"] for r in runs[m]])) for m in runs}
+    ospa = {m: float(np.mean([r["map_ospa"] for r in evals])) for m, evals in runs.items()}
     assert ospa["profile"] < 0.95 * ospa["constant"], ospa
 
 
