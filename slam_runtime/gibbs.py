@@ -39,7 +39,8 @@ particle having a candidate more (a track the other's map lacks) does not
 shift every later draw of its chains. Labels are shared by the particles
 (a birth's label is its measurement's), so the keys line up across them.
 The seed is per particle: one filter gives all its particles the same; islands
-(independent filters) give each island its own, so their draws are independent.
+(independent filters) give each island its own, so their draws are independent
+(``draws: particle`` gives every particle its own).
 
 Held candidates: a candidate that is a candidate of every prior hypothesis
 with the same options (a birth, a released track) and independent of every

@@ -240,3 +240,30 @@ def test_each_island_counts_its_own_updates_since_it_resampled():
     # island 0 collapsed but was not due: its weights carry the collapse (particle 1 of its four copies heaviest)
     w = slam.weights()
     assert w[1] == pytest.approx(0.5 * 0.97) and np.allclose(w[4:], 0.125)
+
+
+class _ProposingMaps(_ScoredMaps):
+    """As _ScoredMaps, offering a pose proposal five metres from the motion's mean (a draw no placed pose is near)."""
+
+    def pose_proposal(self, maps, xbar, q, meas):
+        return xbar + 5.0, q + np.eye(3) * 0.01, None
+
+
+@pytest.mark.parametrize("proposal", ["prior", "optimal"])
+def test_placed_poses_replace_the_motions_draw_and_a_non_planar_vehicle_is_refused(proposal):
+    """Mapping with the path given: after ``place`` every particle holds the given pose whatever the motion or the
+    optimal proposal would draw, and the trajectory records it; a state that is not a planar pose (the ECT model's
+    six) cannot be given one."""
+    slam = RBSlam(OdometryIncrement(), _ProposingMaps(np.zeros(4)), 4, np.zeros(3), np.random.default_rng(0), proposal=proposal)
+    assert slam.proposal == proposal
+    given = [np.array([1.0, 0.5, 0.2]), np.array([2.0, 1.0, -3.0])]
+    for pose in given:
+        slam.predict(np.array([[1.0, 0.0, 0.0]]), np.array([1.0]))
+        slam.place(pose)
+        slam.update(_nothing())
+        np.testing.assert_array_equal(slam.x, np.repeat(pose[None], 4, axis=0))
+    np.testing.assert_array_equal(slam.trajectory()[1:], np.stack(given))
+    from slam_runtime.ect import ECT
+
+    with pytest.raises(UsageError, match="planar-pose vehicle only, not to one of state dimension 6"):
+        RBSlam(ECT(), _ScoredMaps(np.zeros(4)), 4, np.zeros(3), np.random.default_rng(0)).place(given[0])
