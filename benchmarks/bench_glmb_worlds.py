@@ -10,7 +10,8 @@ p = 1). World 1 is the paper-protocol table's and is left out by default, so tha
 other worlds. Per clutter rate it prints the mean map OSPA and its standard error, the pose RMSE, GOSPA's
 landmarks missed and false per run, the localisation error per landmark found and the mean CPU per step, and
 with several worlds or several clutter draws each one's mean map OSPA and its standard error.
-``--true-poses`` gives every particle the true pose at every scan (mapping only: what the map filter loses
+``--true-poses`` gives every particle the true pose at every scan (``poses: ground_truth``, as ``--set
+poses=ground_truth``; mapping only: what the map filter loses
 by itself). ``--clutter-draws`` runs each world under other draws of its false alarms (the path, controls and
 detections kept: ``simulate_glmb_paper(..., clutter_draw=D)``), to tell a world's own clutter draw from the
 filter. With two ``--filter`` each run is made with both and the paired difference (first - second, matched by
@@ -40,7 +41,6 @@ sys.path.insert(0, str(ROOT))
 from benchmarks.common import ints, parse_set  # noqa: E402
 from calib.config import load_yaml_model  # noqa: E402
 from calib.sim.glmb_paper import GlmbPaperConfig, simulate_glmb_paper, truth_profile  # noqa: E402
-from detectors.geometry import interpolate_poses  # noqa: E402
 from slam_runtime.config import SlamConfig, override, with_filter  # noqa: E402
 from slam_runtime.metrics import gospa, ospa  # noqa: E402
 from slam_runtime.run import evaluate, run_slam  # noqa: E402
@@ -56,17 +56,15 @@ def one(job: tuple) -> dict:
     cfg = override(cfg, **dict(parse_set(x) for x in sets))
     g = GlmbPaperConfig(clutter=clutter)
     log, prof = simulate_glmb_paper(g, world, draw), truth_profile(g)
-    truth = None
     if true_poses:
-        gt = log.reference["ground_truth"]
-        truth = interpolate_poses(gt.stamp, gt.poses, log.detections.frame_stamp)
+        cfg = override(cfg, poses="ground_truth")
     # the labelled filters run with seen_mean, which records the mean at every step, and the map is then placed both
     # ways (the runs do not depend on the placement): "ospa" is the configured placement's, "ospa_other" the other's
     placing = getattr(cfg.filter, "map_estimate", None)
     if placing is not None:
         cfg = override(cfg, **{"filter.map_estimate": "seen_mean"})
     last = _Last()
-    res = run_slam(log, prof, cfg, seed=seed, hooks=(last,), poses=truth)
+    res = run_slam(log, prof, cfg, seed=seed, hooks=(last,))
     m = evaluate(log, res, 0.5, 1.0, cfg)
     est, other = res.map_xy, float("nan")
     if placing is not None:

@@ -188,6 +188,22 @@ class SlamConfig(_Strict):
         "filter's own map OSPA as map_ospa_filter); point features only",
     )
 
+    poses: Literal["estimated", "ground_truth"] = Field(
+        default="estimated",
+        description="estimated: full SLAM; ground_truth: mapping only, every particle put at the log's ground-truth pose "
+        "(interpolated to the frame's time) before every frame's update: the map filter and the detector profile alone, "
+        "without the path's error (the log needs ground-truth poses spanning its frames; planar poses: point features)",
+    )
+
+    @field_validator("poses")
+    @classmethod
+    def _planar_poses_only(cls, value: str, info: ValidationInfo) -> str:
+        if value == "ground_truth" and info.data.get("features") == "planes":
+            raise PydanticCustomError(
+                "poses", "poses: ground_truth puts planar poses (x, y, heading); the planes' vehicle model has six states", {}
+            )
+        return value
+
     @field_validator("map_refine", "island_match")
     @classmethod
     def _points_only(cls, value, info: ValidationInfo):

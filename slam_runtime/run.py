@@ -129,6 +129,38 @@ def start_pose(log: SensorLog, stamp: int) -> np.ndarray:
     return np.zeros(3)
 
 
+def ground_truth_poses(log: SensorLog, stamps: np.ndarray) -> np.ndarray:
+    """(frames, 3) the vehicle's pose (x, y, heading) at each frame's stamp, interpolated in the log's ground truth
+    (at the vehicle's reference point: a reference given at another point is moved back by its lever arm): the path
+    that ``poses: ground_truth`` puts the particles on. Refused, naming the log and the frame, when the log has no
+    ground truth or a frame falls outside its time span (interpolation there would be a guess)."""
+    ref = log.reference.get("ground_truth")
+    if ref is None:
+        have = ", ".join(sorted(log.reference)) or "none"
+        raise DataError(f"log {log.name!r}: poses: ground_truth needs ground-truth poses, and the log has none (its references: {have})")
+    stamps = np.asarray(stamps, dtype=np.int64)
+    outside = np.flatnonzero((stamps < ref.stamp[0]) | (stamps > ref.stamp[-1]))
+    if outside.size:
+        k = int(outside[0])
+        span = (int(ref.stamp[0]) - int(stamps[0])) / 1e9, (int(ref.stamp[-1]) - int(stamps[0])) / 1e9
+        raise DataError(
+            f"log {log.name!r}, frame {k} (t = {(int(stamps[k]) - int(stamps[0])) / 1e9:.2f} s): outside the ground truth's "
+            f"time span ({span[0]:.2f} to {span[1]:.2f} s; {outside.size} of {stamps.size} frames outside); poses: ground_truth "
+            "needs the truth at every frame (--frames N runs the first N only)"
+        )
+    poses = interpolate_poses(ref.stamp, ref.poses, stamps)
+    if any(ref.point):
+        poses = compose(poses, np.array([-ref.point[0], -ref.point[1], 0.0]))
+    return poses
+
+
+def check_poses(log: SensorLog, cfg: SlamConfig, max_frames: int | None = None) -> None:
+    """With ``poses: ground_truth``, refuse up front a log whose frames (the first ``max_frames``) the ground truth
+    does not span (:func:`ground_truth_poses`); nothing to check otherwise."""
+    if cfg.poses == "ground_truth":
+        ground_truth_poses(log, np.array([fr.stamp for fr in log.frames()], dtype=np.int64)[:max_frames])
+
+
 class MapOSPA:
     """Hook: OSPA of the best particle's map against the truth after every step (evaluation, not filtering).
 
@@ -173,7 +205,8 @@ def run_slam(
     hooks: callables ``hook(k, slam) -> float`` called after every step, recorded
     under ``hook.name`` in ``per_step`` (e.g. :class:`MapOSPA`).
     poses: (frames, >= 3) a pose per frame (x, y, heading) at which every particle is put before the frame's update
-    (:meth:`RBSlam.place`): mapping only, the map filter alone with the path given.
+    (:meth:`RBSlam.place`): mapping only, the map filter alone with the path given; ``cfg.poses: ground_truth``
+    takes them from the log's ground truth (:func:`ground_truth_poses`).
     """
     check_inputs(log, profile)
     b = build(log, profile, cfg)
@@ -181,6 +214,8 @@ def run_slam(
     n = stamps.size
     if n == 0:
         raise DataError(f"log {log.name!r}: no scans or detections to run on")
+    if cfg.poses == "ground_truth" and poses is None:
+        poses = ground_truth_poses(log, stamps)
     start = start_pose(log, int(stamps[0]))
     slam = RBSlam(
         b.vehicle, b.mapfilter, cfg.particles, start, np.random.default_rng(seed),

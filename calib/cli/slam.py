@@ -19,8 +19,21 @@ PD_MODES = ("profile", "constant")
 
 FEATURES = ("points", "planes")
 
+POSES = ("estimated", "ground_truth")
 
-def slam_config(config: Path | None, filter_: str | None, particles: int | None, pd_mode: str | None, features: str | None = None):
+PosesOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--poses",
+        help="estimated (full SLAM) or ground_truth (mapping only: every particle at the log's ground-truth pose at every frame, "
+        "the map filter and the profile without the path's error) (default: the config's, estimated).",
+    ),
+]
+
+
+def slam_config(
+    config: Path | None, filter_: str | None, particles: int | None, pd_mode: str | None, features: str | None = None, poses: str | None = None
+):
     """The settings file (or the defaults) with the command-line overrides, validated."""
     from calib.config import load_yaml_model
     from slam_runtime.config import FILTER_KINDS, SlamConfig, override, with_filter
@@ -32,8 +45,10 @@ def slam_config(config: Path | None, filter_: str | None, particles: int | None,
         raise UsageError(f"--pd-mode: expected one of {', '.join(PD_MODES)}, got {pd_mode!r}")
     if features is not None and features not in FEATURES:
         raise UsageError(f"--features: expected one of {', '.join(FEATURES)}, got {features!r}")
+    if poses is not None and poses not in POSES:
+        raise UsageError(f"--poses: expected one of {', '.join(POSES)}, got {poses!r}")
     cfg = load_yaml_model(SlamConfig, config)
-    return override(with_filter(cfg, filter_), particles=particles, features=features, **{"detection.pd_mode": pd_mode})
+    return override(with_filter(cfg, filter_), particles=particles, features=features, poses=poses, **{"detection.pd_mode": pd_mode})
 
 
 @app.command("run")
@@ -48,6 +63,7 @@ def slam_run_cmd(
     pd_mode: Annotated[str | None, typer.Option(help="P_D from the profile, or `constant` inside the sensor range (for comparison).")] = None,
     features: Annotated[str | None, typer.Option(help="Landmarks: points (2D) or planes (3D point clouds) (default: the config's, points).")] = None,
     config: Annotated[Path | None, typer.Option(help="YAML settings (filter, motion noise, metric); unknown keys are refused.")] = None,
+    poses: PosesOpt = None,
     frames: Annotated[int | None, typer.Option(help="Only the first N frames.")] = None,
     out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/slam_<log>_<profile>_<seed>).")] = None,
     force: Annotated[bool, typer.Option(help="Replace the run folder if it exists.")] = False,
@@ -59,7 +75,7 @@ def slam_run_cmd(
     from slam_runtime.report import write_slam_run
     from slam_runtime.run import MapOSPA, check_inputs, evaluate, run_slam
 
-    cfg = slam_config(config, filter_, particles, pd_mode, features)
+    cfg = slam_config(config, filter_, particles, pd_mode, features, poses)
     positive("--frames", frames)
     if seed < 0:
         raise UsageError(f"--seed: expected a non-negative integer, got {seed}")
@@ -88,7 +104,8 @@ def slam_run_cmd(
     }
     write_slam_run(log, res, target, settings, overwrite=force, labels=labelled[0] if labelled else None)
     shown = {k: v for k, v in res.metrics.items() if not isinstance(v, dict)}
-    out.print(summary_table(f"{res.filter}-SLAM on {log.name} with {prof.ref} -> {target}", shown))
+    mode = " (poses: ground truth, mapping only)" if cfg.poses == "ground_truth" else ""
+    out.print(summary_table(f"{res.filter}-SLAM{mode} on {log.name} with {prof.ref} -> {target}", shown))
 
 
 #: the metrics of the sweep's paired table (metric, heading): those the runs have are shown
@@ -161,6 +178,7 @@ def slam_sweep_cmd(
     particles: Annotated[list[int] | None, typer.Option("--particles", help="Particle counts (repeat; default: the config's).")] = None,
     seeds: Annotated[str, typer.Option(help="Filter seeds: a count (3), a list (1,3,7) or a range (1-5).")] = "1",
     config: Annotated[Path | None, typer.Option(help="YAML settings shared by every run.")] = None,
+    poses: PosesOpt = None,
     frames: Annotated[int | None, typer.Option(help="Only the first N frames of each log.")] = None,
     workers: WorkersOpt = None,
     scheduler: SchedulerOpt = None,
@@ -181,14 +199,14 @@ def slam_sweep_cmd(
     from calib.progress import progress
     from profiles.store import resolve
     from slam_runtime.config import FILTER_KINDS, override, with_filter
-    from slam_runtime.run import check_inputs
+    from slam_runtime.run import check_inputs, check_poses
     from slam_runtime.sweep import SETTING, SweepJob, make_plan, open_sweep, run_sweep, summarise
 
     modes = list(dict.fromkeys(pd_modes or list(PD_MODES)))
     for m in modes:
         if m not in PD_MODES:
             raise UsageError(f"--pd-mode: expected one of {', '.join(PD_MODES)}, got {m!r}")
-    base = slam_config(config, None, None, None)
+    base = slam_config(config, None, None, None, poses=poses)
     kinds = list(dict.fromkeys(filters or [base.filter.kind]))
     for f in kinds:
         if f not in FILTER_KINDS:
@@ -205,6 +223,7 @@ def slam_sweep_cmd(
         log = reader.read(p)
         for prof in profs:
             check_inputs(log, prof)
+        check_poses(log, base, frames)  # a log the runs could not be put on the truth of is refused before any run
         src = LogSource.of(log, p, reader.fmt, reader.options)
         refs = [r.model_dump() for r in input_refs(p, log)]
         sources.append((src, refs))

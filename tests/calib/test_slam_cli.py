@@ -119,3 +119,28 @@ def test_an_n_p_profile_refuses_a_laser_of_another_beam_geometry(tmp_path, capsy
     assert code == 2
     assert_one_line_error(err, "calibrated for 181 beams from -90.00 deg every 1.0000 deg; this log's laser has 361")
     assert not (tmp_path / "r").exists()
+
+
+def test_slam_run_with_the_poses_given_maps_along_the_truth(tmp_path, capsys, park_log):
+    """``--poses ground_truth``: mapping only, every particle on the simulator's path, so the run's trajectory is the
+    truth (to rounding) and the config records the mode; a log with GPS only, or a setting that is not a mode, is
+    refused in one line before anything is written, by ``slam sweep`` before any run."""
+    args = ["slam", "run", str(park_log), "--profile", "sim-park-laser", "--frames", "60", "--particles", "5", "--poses", "ground_truth"]
+    code, out, err = run(capsys, *args, "--out", str(tmp_path / "a"))
+    assert code == 0, err
+    m = yaml.safe_load((tmp_path / "a/metrics.yaml").read_text())
+    assert m["trajectory_rmse_vs_ground_truth_m"] < 1e-9 and m["odometry_rmse_vs_ground_truth_m"] > 0.01
+    assert yaml.safe_load((tmp_path / "a/config.yaml").read_text())["settings"]["poses"] == "ground_truth"
+    assert "poses: ground truth" in out
+    code, _, err = run(capsys, *args[:-1], "truth", "--out", str(tmp_path / "b"))
+    assert code == 2
+    assert_one_line_error(err, "--poses: expected one of estimated, ground_truth, got 'truth'")
+    prof = VENDORED.parent.parent / "benchmarks/profiles/victoria-park-nominal@1.0.0.yaml"
+    vp = ["--profile", str(prof), "--particles", "5", "--poses", "ground_truth"]
+    code, _, err = run(capsys, "slam", "run", str(VENDORED / "victoria_park"), *vp, "--out", str(tmp_path / "c"))
+    assert code == 1
+    assert_one_line_error(err, "poses: ground_truth needs ground-truth poses, and the log has none (its references: gps)")
+    code, _, err = run(capsys, "slam", "sweep", str(VENDORED / "victoria_park"), *vp, "--workers", "0", "--out", str(tmp_path / "d"))
+    assert code == 1
+    assert_one_line_error(err, "poses: ground_truth needs ground-truth poses")
+    assert not any((tmp_path / n).exists() for n in "bcd")

@@ -164,3 +164,34 @@ def test_a_turned_sensor_is_corrected_by_mount_yaw_and_the_log_evidence_finds_it
     assert out["corrected"][1] == pytest.approx(out["straight"][1], abs=1e-6)
     assert min(out["turned"][0], out["over"][0]) > out["corrected"][0] + 0.01  # 0.104 / 0.110 against 0.088 m
     assert out["corrected"][1] > max(out["turned"][1], out["over"][1]) + 1000  # ~6,000 nats here
+
+
+def test_ground_truth_poses_are_the_truth_at_each_frame_and_refuse_what_they_cannot_give():
+    """``poses: ground_truth`` takes each frame's pose from the log's ground truth, interpolated to the frame's time
+    (a heading across the wrap included), moved back to the vehicle's reference point when the truth is given at
+    another; a frame before the truth starts is named, and so is a log with no ground truth; planes (a six-state
+    vehicle) cannot be put on planar poses."""
+    from pydantic import ValidationError
+
+    from detectors.logs import ReferencePoses
+    from profiles.errors import DataError
+    from slam_runtime.config import SlamConfig
+    from slam_runtime.run import ground_truth_poses
+
+    st = _stamps(3, 1.0)  # 1, 2, 3 s
+    truth = np.array([[0.0, 0.0, np.pi - 0.1], [2.0, 0.0, -np.pi + 0.1], [2.0, 2.0, 0.0]])
+    log = SensorLog("t", reference={"ground_truth": ReferencePoses("ground_truth", st, truth)})
+    got = ground_truth_poses(log, np.array([st[0], (st[0] + st[1]) // 2, st[2]]))
+    np.testing.assert_allclose(got[[0, 2]], truth[[0, 2]], atol=1e-12)
+    np.testing.assert_allclose(got[1, :2], [1.0, 0.0], atol=1e-12)
+    assert np.cos(got[1, 2]) == pytest.approx(-1.0, abs=1e-12)  # half-way between pi - 0.1 and -pi + 0.1: pi, not 0
+    # the truth given 1 m ahead of the reference point (heading 0 at the last row): the vehicle is 1 m behind it
+    ahead = SensorLog("t", reference={"ground_truth": ReferencePoses("ground_truth", st, truth, point=(1.0, 0.0))})
+    np.testing.assert_allclose(ground_truth_poses(ahead, st[2:]), [[1.0, 2.0, 0.0]], atol=1e-12)
+    with pytest.raises(DataError, match=r"log 't', frame 0 \(t = 0.00 s\): outside the ground truth's time span \(0.50 to 2.50 s; 1 of 3"):
+        ground_truth_poses(log, st - 500_000_000)
+    gps = SensorLog("g", reference={"gps": ReferencePoses("gps", st, truth * [1, 1, np.nan])})
+    with pytest.raises(DataError, match=r"log 'g': poses: ground_truth needs ground-truth poses, and the log has none \(its references: gps\)"):
+        ground_truth_poses(gps, st)
+    with pytest.raises(ValidationError, match="the planes' vehicle model has six states"):
+        SlamConfig(features="planes", poses="ground_truth")
