@@ -138,6 +138,12 @@ def ground_truth_poses(log: SensorLog, stamps: np.ndarray) -> np.ndarray:
     if ref is None:
         have = ", ".join(sorted(log.reference)) or "none"
         raise DataError(f"log {log.name!r}: poses: ground_truth needs ground-truth poses, and the log has none (its references: {have})")
+    no_heading = np.flatnonzero(~np.isfinite(ref.poses[:, 2]))
+    if no_heading.size:
+        raise DataError(
+            f"log {log.name!r}: reference[ground_truth].poses[{int(no_heading[0])}]: heading is not finite "
+            f"({no_heading.size} of {ref.stamp.size} rows); poses: ground_truth needs the heading at every row"
+        )
     stamps = np.asarray(stamps, dtype=np.int64)
     outside = np.flatnonzero((stamps < ref.stamp[0]) | (stamps > ref.stamp[-1]))
     if outside.size:

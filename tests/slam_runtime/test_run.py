@@ -190,6 +190,9 @@ def test_ground_truth_poses_are_the_truth_at_each_frame_and_refuse_what_they_can
     np.testing.assert_allclose(ground_truth_poses(ahead, st[2:]), [[1.0, 2.0, 0.0]], atol=1e-12)
     with pytest.raises(DataError, match=r"log 't', frame 0 \(t = 0.00 s\): outside the ground truth's time span \(0.50 to 2.50 s; 1 of 3"):
         ground_truth_poses(log, st - 500_000_000)
+    blind = SensorLog("b", reference={"ground_truth": ReferencePoses("ground_truth", st, truth * [1, 1, np.nan])})
+    with pytest.raises(DataError, match=r"log 'b': reference\[ground_truth\].poses\[0\]: heading is not finite \(3 of 3 rows\)"):
+        ground_truth_poses(blind, st)
     gps = SensorLog("g", reference={"gps": ReferencePoses("gps", st, truth * [1, 1, np.nan])})
     with pytest.raises(DataError, match=r"log 'g': poses: ground_truth needs ground-truth poses, and the log has none \(its references: gps\)"):
         ground_truth_poses(gps, st)
