@@ -144,3 +144,10 @@ def test_slam_run_with_the_poses_given_maps_along_the_truth(tmp_path, capsys, pa
     assert code == 1
     assert_one_line_error(err, "poses: ground_truth needs ground-truth poses")
     assert not any((tmp_path / n).exists() for n in "bcd")
+    code, _, err = run(
+        capsys, "slam", "sweep", str(park_log), "--profile", "sim-park-laser", "--frames", "20", "--particles", "5",
+        "--poses", "ground_truth", "--workers", "0", "--out", str(tmp_path / "e"),
+    )
+    assert code == 0, err
+    runs = list(csv.DictReader((tmp_path / "e/runs.csv").read_text().splitlines()))
+    assert len(runs) == 2 and all(float(r["trajectory_rmse_vs_ground_truth_m"]) < 1e-9 for r in runs)
