@@ -595,12 +595,12 @@ def test_with_the_poses_given_the_calibrated_pd_maps_the_park_better_in_delta_gl
     ospa, trees = {"profile": [], "constant": []}, {"profile": [], "constant": []}
     for world in (1, 2):
         log = simulate_park(park, world).log
-        for mode in ospa:
+        for mode, scores in ospa.items():
             cfg = override(with_filter(SlamConfig(), "glmb"), poses="ground_truth", **{"detection.pd_mode": mode})
             for seed in range(3):
                 m = evaluate(log, run_slam(log, prof, cfg, seed=seed))
                 assert m["trajectory_rmse_vs_ground_truth_m"] < 1e-9
-                ospa[mode].append(m["map_ospa"])
+                scores.append(m["map_ospa"])
                 trees[mode].append(m["landmarks_mapped"])
     gap = float(np.mean(ospa["constant"]) - np.mean(ospa["profile"]))
     assert gap >= 0.02 and np.mean(trees["profile"]) > np.mean(trees["constant"]), (gap, trees)
