@@ -585,21 +585,33 @@ class SensorLog:
         for st, w, i in zip(stamps[perm].tolist(), which[perm].tolist(), index[perm].tolist(), strict=True):
             yield Event(st, names[w], i)
 
+    def _frame_stamp(self) -> tuple[np.ndarray, str] | None:
+        """The stamps (F,) of the frames and their kind: scans, else detection frames, else point clouds."""
+        if self.scans is not None:
+            return self.scans.stamp, "scan"
+        if self.detections is not None:
+            return self.detections.frame_stamp, "detections"
+        if self.clouds is not None:
+            return self.clouds.stamp, "cloud"
+        return None
+
+    def frame_stamps(self) -> np.ndarray:
+        """(F,) int64 ns: the stamps of :meth:`frames`, in order, without building the frames."""
+        src = self._frame_stamp()
+        return np.zeros(0, dtype=np.int64) if src is None else np.asarray(src[0], dtype=np.int64)
+
     def frames(self) -> Iterator[Frame]:
         """Scan frames, or detection frames when the log has no scans, or point-cloud frames when it has
         neither, in time order."""
-        if self.scans is not None:
-            fstamp, kind = self.scans.stamp, "scan"
-            rows: list[int | slice] = list(range(len(self.scans)))
-        elif self.detections is not None:
-            fstamp, kind = self.detections.frame_stamp, "detections"
-            off = self.detections.frame_slices()
-            rows = [slice(int(a), int(b)) for a, b in zip(off[:-1], off[1:], strict=True)]
-        elif self.clouds is not None:
-            fstamp, kind = self.clouds.stamp, "cloud"
-            rows = list(range(len(self.clouds)))
-        else:
+        src = self._frame_stamp()
+        if src is None:
             return
+        fstamp, kind = src
+        if kind == "detections":
+            off = self.detections.frame_slices()
+            rows: list[int | slice] = [slice(int(a), int(b)) for a, b in zip(off[:-1], off[1:], strict=True)]
+        else:
+            rows = list(range(fstamp.size))
         if self.odometry is not None:
             cut = np.searchsorted(self.odometry.stamp, fstamp, side="right")
         else:

@@ -164,7 +164,7 @@ def check_poses(log: SensorLog, cfg: SlamConfig, max_frames: int | None = None) 
     """With ``poses: ground_truth``, refuse up front a log whose frames (the first ``max_frames``) the ground truth
     does not span (:func:`ground_truth_poses`); nothing to check otherwise."""
     if cfg.poses == "ground_truth":
-        ground_truth_poses(log, np.array([fr.stamp for fr in log.frames()], dtype=np.int64)[:max_frames])
+        ground_truth_poses(log, log.frame_stamps()[:max_frames])
 
 
 class MapOSPA:
@@ -204,24 +204,21 @@ def run_slam(
     progress=None,
     max_frames: int | None = None,
     hooks: tuple = (),
-    poses: np.ndarray | None = None,
 ) -> SlamResult:
     """Run the filter ``cfg.filter`` over every frame (or the first ``max_frames``) of ``log``.
 
     hooks: callables ``hook(k, slam) -> float`` called after every step, recorded
     under ``hook.name`` in ``per_step`` (e.g. :class:`MapOSPA`).
-    poses: (frames, >= 3) a pose per frame (x, y, heading) at which every particle is put before the frame's update
-    (:meth:`RBSlam.place`): mapping only, the map filter alone with the path given; ``cfg.poses: ground_truth``
-    takes them from the log's ground truth (:func:`ground_truth_poses`).
+    ``cfg.poses: ground_truth`` puts every particle at the log's ground-truth pose (:func:`ground_truth_poses`)
+    before each frame's update (:meth:`RBSlam.place`): mapping only, the map filter alone with the path given.
     """
     check_inputs(log, profile)
     b = build(log, profile, cfg)
-    stamps = np.array([fr.stamp for fr in log.frames()], dtype=np.int64)[:max_frames]
+    stamps = log.frame_stamps()[:max_frames]
     n = stamps.size
     if n == 0:
         raise DataError(f"log {log.name!r}: no scans or detections to run on")
-    if cfg.poses == "ground_truth" and poses is None:
-        poses = ground_truth_poses(log, stamps)
+    poses = ground_truth_poses(log, stamps) if cfg.poses == "ground_truth" else None
     start = start_pose(log, int(stamps[0]))
     slam = RBSlam(
         b.vehicle, b.mapfilter, cfg.particles, start, np.random.default_rng(seed),
