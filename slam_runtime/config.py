@@ -229,14 +229,20 @@ FILTER_KINDS = ("rbphd", "lmb", "glmb")
 
 def override(cfg: SlamConfig, **changes) -> SlamConfig:
     """A validated copy of ``cfg`` with dotted-path changes, e.g. ``override(cfg, particles=50, **{"detection.pd_mode": "constant"})``;
-    a bad value raises a UsageError naming the field."""
+    a change of None is skipped (an option not given); a bad value raises a UsageError naming the field."""
+    return with_settings(cfg, {k: v for k, v in changes.items() if v is not None})
+
+
+def with_settings(cfg: SlamConfig, changes: dict) -> SlamConfig:
+    """A validated copy of ``cfg`` with ``changes`` ({dotted path: value}; None sets None); a bad key or value raises a
+    UsageError naming it."""
     data = cfg.model_dump()
     for key, value in changes.items():
-        if value is None:
-            continue
         node = data
         *path, last = key.split(".")
-        for part in path:
+        for i, part in enumerate(path):
+            if not isinstance(node.get(part), dict):
+                raise UsageError(f"{key}: unknown key ({'.'.join(path[: i + 1])} is not a group of settings)")
             node = node[part]
         if last == "kind" and path == ["filter"] and node.get("kind") != value:
             node.clear()  # another filter: its own defaults
@@ -245,7 +251,8 @@ def override(cfg: SlamConfig, **changes) -> SlamConfig:
         return SlamConfig.model_validate(data)
     except ValidationError as exc:
         e = exc.errors()[0]
-        raise UsageError(f"{'.'.join(str(x) for x in e['loc'])}: {e['msg']}") from None
+        msg = "unknown key" if e["type"] == "extra_forbidden" else e["msg"]
+        raise UsageError(f"{'.'.join(str(x) for x in e['loc'])}: {msg}") from None
 
 
 #: Settings whose name two filters share but whose meaning or default differs: never carried from one filter to another

@@ -19,7 +19,7 @@ The sweep folder is a container whose every entry is whole::
     failed.yaml     the runs that failed in the last attempt, with their errors (gone once none did)
     runs.csv        one row per run: the labels and every metric but the timings
     summary.csv     mean and standard deviation of those metrics per setting
-    paired.csv      settings that differ in one label (filter, P_D mode, particles, profile), compared run
+    paired.csv      settings that differ in one label (filter, P_D mode, particles, profile, variant), compared run
                     by run on the same log and seed: the mean difference of every metric, its
                     standard error and how often the first is lower (only when two settings differ so)
     timings.csv     per run: filter ms per step (wall, CPU) and the task's seconds, host, peak memory
@@ -62,15 +62,16 @@ from slam_runtime.config import SlamConfig
 #: The plan's format tag (config.yaml of a sweep folder).
 FORMAT = "detcal-sweep"
 FORMAT_VERSION = 1
-#: What varies between runs (the first columns of runs.csv).
-LABELS = ("log", "profile", "filter", "pd_mode", "particles", "seed")
+#: What varies between runs (the first columns of runs.csv). ``variant``: the settings a sweep varies besides these
+#: (``detcal slam sweep --vary key=a,b``), written ``key=value`` (several joined by ``, ``); empty when none is varied.
+LABELS = ("log", "profile", "filter", "pd_mode", "particles", "variant", "seed")
 #: The labels of one setting: summary.csv has a row per setting (its runs over logs and seeds), the sweep table a column.
-SETTING = ("profile", "filter", "pd_mode", "particles")
+SETTING = ("profile", "filter", "pd_mode", "particles", "variant")
 #: Metrics that are timings: they go to timings.csv, never to runs.csv or summary.csv.
 TIMING_KEYS = ("ms_per_step_mean", "ms_per_step_median", "cpu_ms_per_step_mean")
 #: The labels paired.csv compares settings by: two runs that differ in one of them and agree in every other label
 #: (the same log and seed) are a pair.
-COMPARED = ("filter", "pd_mode", "particles", "profile")
+COMPARED = ("filter", "pd_mode", "particles", "profile", "variant")
 
 
 @dataclass
@@ -80,7 +81,7 @@ class SweepJob:
     profile: object  # profiles.profile.DetectorProfile
     config: SlamConfig
     seed: int
-    labels: dict  # what varies: log, profile, filter, pd_mode, particles, seed
+    labels: dict  # what varies: log, profile, filter, pd_mode, particles, variant, seed
     max_frames: int | None = None
     inputs: list[dict] = field(default_factory=list)  # the log's input files with their sha256 (recorded in config.yaml)
 
@@ -426,3 +427,39 @@ def _differences(pairs: list[tuple[dict, dict]], metrics: list[str]) -> list[dic
             se = float(d.std(ddof=1) / np.sqrt(d.size)) if d.size > 1 else 0.0
             out.append({"metric": m, "pairs": int(d.size), "mean_difference": float(d.mean()), "standard_error": se, "a_lower": int((d < 0).sum())})
     return out
+
+
+def by_evidence(rows: list[dict]) -> list[dict]:
+    """The values of a sweep's varied settings (label ``variant``) ranked by the runs' log evidence, per profile, filter,
+    P_D mode and particle count: the likeliest (the largest mean log p(Z) over its runs, i.e. the largest joint
+    evidence of the logs and seeds) and its lead over the next, paired by log and seed (mean, standard error, pairs
+    in which it is higher). The evidence compares settings of the filter's model; a setting that changes which
+    measurements the filter takes, or the profile's clutter model, changes the quantity itself."""
+    groups: dict[tuple, dict[object, list[dict]]] = {}
+    for r in rows:
+        if _numeric(r.get("log_evidence")):
+            groups.setdefault(tuple(r.get(k) for k in SETTING if k != "variant"), {}).setdefault(r.get("variant"), []).append(r)
+    out = []
+    for key, by_var in groups.items():
+        means = {v: float(np.mean([r["log_evidence"] for r in rs])) for v, rs in by_var.items()}
+        ranked = sorted(means, key=lambda v: -means[v])  # (stable: ties keep the plan's order)
+        best = ranked[0]
+        entry = {**dict(zip((k for k in SETTING if k != "variant"), key, strict=True)), "best": best, "best_mean": means[best], "next": None}
+        if len(ranked) > 1:
+            nxt = ranked[1]
+            other = {}
+            for r in by_var[nxt]:
+                other.setdefault((r.get("log"), r.get("seed")), []).append(r)
+            pairs = []
+            for r in by_var[best]:
+                mates = other.get((r.get("log"), r.get("seed")))
+                if mates:
+                    pairs.append(r["log_evidence"] - mates.pop(0)["log_evidence"])
+            d = np.array(pairs, dtype=np.float64)
+            entry.update(
+                next=nxt, pairs=int(d.size), lead=float(d.mean()) if d.size else float("nan"),
+                lead_se=float(d.std(ddof=1) / np.sqrt(d.size)) if d.size > 1 else 0.0, lead_higher=int((d > 0).sum()),
+            )
+        out.append(entry)
+    return out
+

@@ -31,6 +31,56 @@ PosesOpt = Annotated[
 ]
 
 
+VaryOpt = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--vary",
+        help="Vary a setting: KEY=V1,V2,... (a dotted path of the settings file, e.g. filter.survival=1,0.99; values read "
+        "as YAML). Every run is made with each value (repeat the option to cross several settings), labelled `variant` "
+        "in runs.csv and compared run by run in paired.csv; the last table ranks the values by the runs' log evidence, "
+        "which needs no ground truth.",
+    ),
+]
+
+#: settings that have their own option in the sweep: --vary refuses them
+_OWN_OPTION = {"filter.kind": "--filter", "particles": "--particles", "detection.pd_mode": "--pd-mode"}
+
+
+def variants(specs: list[str] | None) -> list[tuple[str | None, dict]]:
+    """The --vary options as [(label, {dotted key: value})], every combination of their values (one (None, {})
+    without the option). A value is read as YAML; the label keeps it as written (``filter.survival=0.99``)."""
+    import itertools
+
+    import yaml
+
+    if not specs:
+        return [(None, {})]
+    axes: list[list[tuple[str, str, object]]] = []
+    seen: set[str] = set()
+    for spec in specs:
+        key, sep, text = spec.partition("=")
+        key = key.strip()
+        tokens = [t.strip() for t in text.split(",")]
+        if not sep or not key or not all(tokens):
+            raise UsageError(f"--vary: expected KEY=V1,V2,... (e.g. filter.survival=1,0.99), got {spec!r}")
+        if key in _OWN_OPTION:
+            raise UsageError(f"--vary {key}: use {_OWN_OPTION[key]} (repeat it) to vary this setting")
+        if key in seen:
+            raise UsageError(f"--vary {key}: given twice (list its values in one option: {key}=V1,V2)")
+        seen.add(key)
+        axis, values = [], []
+        for t in tokens:
+            try:
+                v = yaml.safe_load(t)
+            except yaml.YAMLError:
+                raise UsageError(f"--vary {key}: cannot read the value {t!r}") from None
+            if v not in values:  # (1 and 1.0 are one value)
+                values.append(v)
+                axis.append((key, t, v))
+        axes.append(axis)
+    return [(", ".join(f"{k}={t}" for k, t, _ in combo), {k: v for k, _, v in combo}) for combo in itertools.product(*axes)]
+
+
 def slam_config(
     config: Path | None, filter_: str | None, particles: int | None, pd_mode: str | None, features: str | None = None, poses: str | None = None
 ):
@@ -113,6 +163,7 @@ PAIRED_SHOWN = (
     ("map_ospa", "map OSPA"),
     ("trajectory_rmse_vs_ground_truth_m", "trajectory RMSE [m]"),
     ("trajectory_rmse_vs_gps_m", "trajectory RMSE vs GPS [m]"),
+    ("log_evidence", "log evidence [nats]"),
 )
 
 
@@ -136,10 +187,25 @@ def paired_table(rows: list[dict]) -> Table:
         r0 = next(iter(by_metric.values()))
         ctx = ", ".join(f"{k} {r0[k]}" for k in COMPARED if k != r0["varies"])
         cells = [
-            "" if (r := by_metric.get(k)) is None else f"{r['mean_difference']:+.3f} ± {r['standard_error']:.3f} ({r['a_lower']}/{r['pairs']})"
+            "" if (r := by_metric.get(k)) is None else f"{r['mean_difference']:+.{d}f} ± {r['standard_error']:.{d}f} ({r['a_lower']}/{r['pairs']})"
             for k, _ in present
+            for d in (1 if k == "log_evidence" else 3,)
         ]
         t.add_row(f"{r0['varies']}: {r0['a']} - {r0['b']}", ctx, str(max(r["pairs"] for r in by_metric.values())), *cells)
+    return t
+
+
+def evidence_table(rows: list[dict]) -> Table:
+    """The values of the varied settings ranked by the runs' log evidence (:func:`slam_runtime.sweep.by_evidence`): per
+    profile, filter, P_D mode and particle count, the likeliest and its lead over the next, paired by log and seed."""
+    from slam_runtime.sweep import by_evidence
+
+    t = Table(title="the varied settings by the log evidence (no ground truth): the likeliest, and its lead over the next, paired by log and seed")
+    for c in ("profile", "filter, P_D mode, particles", "likeliest", "mean log evidence [nats]", "next", "lead ± standard error (pairs in which it is higher)"):
+        t.add_column(c, justify="right" if c.startswith(("mean", "lead")) else "left")
+    for g in by_evidence(rows):
+        lead = "" if g["next"] is None else f"{g['lead']:.1f} ± {g['lead_se']:.1f} ({g['lead_higher']}/{g['pairs']})"
+        t.add_row(g["profile"], f"{g['filter']}, {g['pd_mode']}, {g['particles']}", g["best"], f"{g['best_mean']:.1f}", g["next"] or "", lead)
     return t
 
 
@@ -178,6 +244,7 @@ def slam_sweep_cmd(
     particles: Annotated[list[int] | None, typer.Option("--particles", help="Particle counts (repeat; default: the config's).")] = None,
     seeds: Annotated[str, typer.Option(help="Filter seeds: a count (3), a list (1,3,7) or a range (1-5).")] = "1",
     config: Annotated[Path | None, typer.Option(help="YAML settings shared by every run.")] = None,
+    vary: VaryOpt = None,
     poses: PosesOpt = None,
     frames: Annotated[int | None, typer.Option(help="Only the first N frames of each log.")] = None,
     workers: WorkersOpt = None,
@@ -185,20 +252,22 @@ def slam_sweep_cmd(
     out_dir: Annotated[Path, typer.Option("--out", help="Sweep folder: one run folder per run, runs.csv, summary.csv, paired.csv, timings.csv.")] = Path("runs/sweep"),
     force: Annotated[bool, typer.Option(help="Start the sweep folder anew (without it, the same command resumes an unfinished sweep).")] = False,
 ) -> None:
-    """Monte Carlo sweep: every log x profile x filter x P_D mode x particle count x seed, on Dask workers.
+    """Monte Carlo sweep: every log x profile x filter x P_D mode x particle count x varied setting x seed, on Dask workers.
 
     Each run's folder is moved into the sweep folder as soon as the run ends; a
     failed run is named (log, seed) and the others go on; the same command again
     does only the runs that are missing. runs.csv and summary.csv are the same
     bytes whatever the number of workers. Settings that differ in one label (two
-    P_D modes, filters, particle counts or profiles) are compared run by run on
-    the same log and seed in paired.csv (mean difference, standard error, pairs
-    in which the first is lower).
+    P_D modes, filters, particle counts, profiles or values of a varied setting)
+    are compared run by run on the same log and seed in paired.csv (mean
+    difference, standard error, pairs in which the first is lower). Every run
+    records its log evidence, log p(Z) of the measurements: the values of a
+    varied setting are ranked by it, a choice that needs no ground truth.
     """
     from calib.engine import InProcess, LogSource, check_options, open_engine
     from calib.progress import progress
     from profiles.store import resolve
-    from slam_runtime.config import FILTER_KINDS, override, with_filter
+    from slam_runtime.config import FILTER_KINDS, override, with_filter, with_settings
     from slam_runtime.run import check_inputs, check_poses
     from slam_runtime.sweep import SETTING, SweepJob, make_plan, open_sweep, run_sweep, summarise
 
@@ -214,6 +283,15 @@ def slam_sweep_cmd(
     counts = list(dict.fromkeys(particles or [base.particles]))
     if min(counts) < 1:
         raise UsageError(f"--particles: expected positive integers, got {counts}")
+    varied = variants(vary)
+    configs = {}  # (filter, variant) -> its settings, each checked before any log is read
+    for f in kinds:
+        for label, changes in varied:
+            try:
+                configs[f, label] = with_settings(with_filter(base, f), changes)
+            except UsageError as exc:
+                raise UsageError(f"--vary {label} with --filter {f}: {exc}") from None
+    checked = {c.poses: c for c in configs.values()}  # (a varied setting may put the runs on the truth's poses)
     positive("--frames", frames)
     check_options(workers, scheduler)
     seeds_ = seed_list(seeds)
@@ -223,7 +301,8 @@ def slam_sweep_cmd(
         log = reader.read(p)
         for prof in profs:
             check_inputs(log, prof)
-        check_poses(log, base, frames)  # a log the runs could not be put on the truth of is refused before any run
+        for c in checked.values():  # a log the runs could not be put on the truth of is refused before any run
+            check_poses(log, c, frames)
         src = LogSource.of(log, p, reader.fmt, reader.options)
         refs = [r.model_dump() for r in input_refs(p, log)]
         sources.append((src, refs))
@@ -235,11 +314,13 @@ def slam_sweep_cmd(
             for f in kinds:
                 for m in modes:
                     for n in counts:
-                        cfg = override(with_filter(base, f), particles=n, **{"detection.pd_mode": m})
-                        for sd in seeds_:
-                            name = f"{i:02d}_{src.name}_{prof.ref}_{f}_{m}_p{n}_s{sd}"
-                            labels = {"log": src.name, "profile": prof.ref, "filter": f, "pd_mode": m, "particles": n, "seed": sd}
-                            job_list.append(SweepJob(name, src, prof, cfg, sd, labels, frames, refs))
+                        for v, (label, _) in enumerate(varied):
+                            cfg = override(configs[f, label], particles=n, **{"detection.pd_mode": m})
+                            tag = f"_v{v}" if vary else ""
+                            for sd in seeds_:
+                                name = f"{i:02d}_{src.name}_{prof.ref}_{f}_{m}_p{n}{tag}_s{sd}"
+                                labels = {"log": src.name, "profile": prof.ref, "filter": f, "pd_mode": m, "particles": n, "variant": label, "seed": sd}
+                                job_list.append(SweepJob(name, src, prof, cfg, sd, labels, frames, refs))
     plan = make_plan(job_list, base.model_dump(mode="json"), described)
     done = open_sweep(out_dir, plan, job_list, force=force)  # checked (and created) before any worker starts
     todo = len(job_list) - len(done)
@@ -260,7 +341,8 @@ def slam_sweep_cmd(
     t = Table(title=f"sweep of {res.runs} runs ({attempt}) -> {out_dir}")
     t.add_column("metric")
     for e in summary:
-        t.add_column(f"{e['profile']}\n{e['filter']}, {e['pd_mode']}, {e['particles']} particles\n{e['runs']} runs", justify="right")
+        var = f"\n{e['variant']}" if e.get("variant") else ""
+        t.add_column(f"{e['profile']}\n{e['filter']}, {e['pd_mode']}, {e['particles']} particles{var}\n{e['runs']} runs", justify="right")
     shown = [
         ("trajectory RMSE [m]", "trajectory_rmse_vs_ground_truth_m"),
         ("weighted mean pose RMSE [m]", "mean_trajectory_rmse_vs_ground_truth_m"),
@@ -272,13 +354,17 @@ def slam_sweep_cmd(
         ("RMSE heading [deg]", "rmse_heading_vs_ground_truth_deg"),
         ("map OSPA", "map_ospa"),
         ("map features", "map_features"),
+        ("log evidence [nats]", "log_evidence"),
     ]
     for label, key in shown:
         if f"{key}_mean" in summary[0]:
-            t.add_row(label, *(f"{e[key + '_mean']:.3f} ± {e[key + '_std']:.3f}" for e in summary))
+            digits = 0 if key == "log_evidence" else 3
+            t.add_row(label, *(f"{e[key + '_mean']:.{digits}f} ± {e[key + '_std']:.{digits}f}" for e in summary))
     # timings.csv is apart from runs.csv: its rows take their run's setting to be summarised by the same grouping
     timed = [{**{k: row[k] for k in SETTING}, "ms_per_step": tim["ms_per_step_mean"]} for row, tim in zip(res.rows, res.timings, strict=True)]
     t.add_row("ms per step", *(f"{e['ms_per_step_mean']:.1f}" for e in summarise(timed, SETTING)))
     out.print(t)
     if res.paired:
         out.print(paired_table(res.paired))
+    if len(varied) > 1:
+        out.print(evidence_table(res.rows))

@@ -71,3 +71,71 @@ def test_sweep_over_filters(tmp_path, capsys, paper):
     assert code == 2
     assert_one_line_error(err, "--filter: expected one of rbphd, lmb, glmb, got 'ekf'")
     assert not (tmp_path / "x").exists()
+
+
+def test_varies_returns_every_combination_with_its_label():
+    from calib.cli.slam import variants
+
+    assert variants(None) == [(None, {})]
+    got = variants(["filter.survival=1, 0.99,1.0", "island_match=null,0.5"])  # (1 and 1.0 are one value)
+    assert got == [
+        ("filter.survival=1, island_match=null", {"filter.survival": 1, "island_match": None}),
+        ("filter.survival=1, island_match=0.5", {"filter.survival": 1, "island_match": 0.5}),
+        ("filter.survival=0.99, island_match=null", {"filter.survival": 0.99, "island_match": None}),
+        ("filter.survival=0.99, island_match=0.5", {"filter.survival": 0.99, "island_match": 0.5}),
+    ]
+
+
+def test_sweep_varies_a_setting_and_the_log_evidence_finds_the_simulators_noise(tmp_path, capsys, paper):
+    """``--vary measurement.sigma_range=0.1,0.3,0.9``: one run per value (the label ``variant``, its own run folder,
+    its settings in config.yaml), compared run by run in paired.csv, and ranked by the runs' log evidence. The
+    simulator's range noise is 0.3 m; with the poses given (80 frames, one particle) the evidence of the true value
+    leads both others by tens of nats (measured: 147.6 against 89.5 at 0.1 m and 84.5 at 0.9 m), and the map is no
+    worse with it."""
+    from slam_runtime.sweep import by_evidence
+
+    out = tmp_path / "sw"
+    code, text, err = run(
+        capsys, "slam", "sweep", str(paper / "log.dlog"), "--profile", str(paper / "profile.yaml"), "--filter", "glmb",
+        "--pd-mode", "profile", "--particles", "1", "--frames", "80", "--poses", "ground_truth", "--workers", "0",
+        "--vary", "measurement.sigma_range=0.1,0.3,0.9", "--out", str(out),
+    )  # fmt: skip
+    assert code == 0, err
+    rows = list(csv.DictReader((out / "runs.csv").read_text().splitlines()))
+    labels = [f"measurement.sigma_range={v}" for v in ("0.1", "0.3", "0.9")]
+    assert [r["variant"] for r in rows] == labels
+    folders = sorted(p.name for p in out.iterdir() if p.is_dir())
+    assert [f[-6:] for f in folders] == ["_v0_s0", "_v1_s0", "_v2_s0"]
+    sigma = [yaml.safe_load((out / f / "config.yaml").read_text())["settings"]["measurement"]["sigma_range"] for f in folders]
+    assert sigma == [0.1, 0.3, 0.9]
+    ev = {r["variant"]: float(r["log_evidence"]) for r in rows}
+    assert ev[labels[1]] > max(ev[labels[0]], ev[labels[2]]) + 20.0, ev
+    ospa = {r["variant"]: float(r["map_ospa"]) for r in rows}
+    assert ospa[labels[1]] <= min(ospa.values()) + 1e-9, ospa
+    best = by_evidence([{**r, "log_evidence": float(r["log_evidence"])} for r in rows])
+    assert [(g["best"], g["pairs"], g["lead_higher"]) for g in best] == [(labels[1], 1, 1)]
+    pairs = {(r["a"], r["b"]) for r in csv.DictReader((out / "paired.csv").read_text().splitlines()) if r["varies"] == "variant"}
+    assert pairs == {(labels[0], labels[1]), (labels[0], labels[2]), (labels[1], labels[2])}
+    assert "likeliest" in text and "evidence" in text
+
+
+@pytest.mark.parametrize(
+    ("vary", "needle"),
+    [
+        (["filter.survival=1,0.99", "--filter", "rbphd"], "--vary filter.survival=1 with --filter rbphd: filter.rbphd.survival: unknown key"),
+        (["filter.survival=0.5,2", "--filter", "glmb"], "--vary filter.survival=2 with --filter glmb: filter.glmb.survival: Input should be less than or equal to 1"),
+        (["nosuch.key=1"], "nosuch.key: unknown key (nosuch is not a group of settings)"),
+        (["particles=5,10"], "--vary particles: use --particles (repeat it)"),
+        (["filter.survival"], "--vary: expected KEY=V1,V2,..."),
+        (["filter.survival=1,"], "--vary: expected KEY=V1,V2,..."),
+        (["filter.gate=9", "--vary", "filter.gate=4"], "--vary filter.gate: given twice"),
+    ],
+)
+def test_a_bad_vary_is_refused_before_anything_is_written(tmp_path, capsys, paper, vary, needle):
+    code, _, err = run(
+        capsys, "slam", "sweep", str(paper / "log.dlog"), "--profile", str(paper / "profile.yaml"), "--frames", "3", "--workers", "0",
+        "--out", str(tmp_path / "x"), "--vary", *vary,
+    )  # fmt: skip
+    assert code == 2
+    assert_one_line_error(err, needle)
+    assert not (tmp_path / "x").exists()

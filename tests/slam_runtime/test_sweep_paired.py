@@ -64,3 +64,30 @@ def test_two_logs_of_one_name_are_both_paired():
     out = [r for r in paired(rows) if r["varies"] == "pd_mode" and r["metric"] == "map_ospa"]
     assert [r["pairs"] for r in out] == [6, 6]
     assert out[0]["mean_difference"] == pytest.approx(-0.02, abs=1e-12)
+
+
+def test_the_varied_settings_are_ranked_by_the_runs_log_evidence():
+    """by_evidence: per setting, the variant of the largest mean log evidence and its lead over the next, paired by
+    log and seed (the logs' own evidence, which differs by thousands of nats, cancels within a pair)."""
+    from slam_runtime.sweep import by_evidence
+
+    rows = []
+    for log, off in (("a", 5000.0), ("b", 100.0)):
+        for f in ("glmb", "lmb"):
+            for v, gain in (("filter.survival=1", 0.0), ("filter.survival=0.99", 30.0), ("filter.survival=0.95", 10.0)):
+                for s in range(3):
+                    ev = off + gain + (s if f == "glmb" else -s) * (2.0 if v.endswith("0.99") else 1.0)
+                    rows.append({"log": log, "profile": "p@1", "filter": f, "pd_mode": "profile", "particles": 10, "variant": v, "seed": s, "log_evidence": ev})
+    out = by_evidence(rows)
+    assert [(g["filter"], g["best"], g["next"]) for g in out] == [("glmb", "filter.survival=0.99", "filter.survival=0.95")] * 1 + [
+        ("lmb", "filter.survival=0.99", "filter.survival=0.95")
+    ]
+    glmb, lmb = out
+    assert glmb["pairs"] == 6 and glmb["lead_higher"] == 6
+    assert glmb["lead"] == pytest.approx(20.0 + np.mean([0, 1, 2]), abs=1e-9)  # (30 + 2s) - (10 + s) over s = 0, 1, 2
+    assert glmb["lead_se"] == pytest.approx(np.std([0, 1, 2, 0, 1, 2], ddof=1) / np.sqrt(6), abs=1e-9)
+    assert lmb["lead"] == pytest.approx(20.0 - 1.0, abs=1e-9) and lmb["lead_higher"] == 6
+    assert glmb["best_mean"] == pytest.approx(2550.0 + 30.0 + 2.0 * 1.0, abs=1e-9)
+    # a setting of one variant has no next; runs without the evidence are left out
+    one = [r for r in rows if r["variant"] == "filter.survival=1"] + [{**rows[0], "filter": "rbphd", "log_evidence": None}]
+    assert [(g["best"], g["next"]) for g in by_evidence(one)] == [("filter.survival=1", None)] * 2
