@@ -176,7 +176,7 @@ def paired_table(rows: list[dict]) -> Table:
     present = [(k, head) for k, head in PAIRED_SHOWN if any(r["metric"] == k for r in rows)]
     t = Table(title="paired by log and seed: a - b, mean ± standard error (pairs in which a is lower)")
     for c in ("a - b", "the other settings", "pairs"):
-        t.add_column(c, justify="right" if c == "pairs" else "left")
+        t.add_column(c, justify="right" if c == "pairs" else "left", overflow="fold")
     for _, head in present:
         t.add_column(head, justify="right")
     comps: dict[tuple, dict] = {}
@@ -201,11 +201,11 @@ def evidence_table(rows: list[dict]) -> Table:
     from slam_runtime.sweep import by_evidence
 
     t = Table(title="the varied settings by the log evidence (no ground truth): the likeliest, and its lead over the next, paired by log and seed")
-    for c in ("profile", "filter, P_D mode, particles", "likeliest", "mean log evidence [nats]", "next", "lead ± standard error (pairs in which it is higher)"):
-        t.add_column(c, justify="right" if c.startswith(("mean", "lead")) else "left")
+    for c in ("profile, filter, P_D mode, particles", "likeliest (mean log evidence [nats])", "next", "lead ± standard error (pairs in which it is higher)"):
+        t.add_column(c, justify="right" if c.startswith("lead") else "left", overflow="fold")
     for g in by_evidence(rows):
         lead = "" if g["next"] is None else f"{g['lead']:.1f} ± {g['lead_se']:.1f} ({g['lead_higher']}/{g['pairs']})"
-        t.add_row(g["profile"], f"{g['filter']}, {g['pd_mode']}, {g['particles']}", g["best"], f"{g['best_mean']:.1f}", g["next"] or "", lead)
+        t.add_row(f"{g['profile']}\n{g['filter']}, {g['pd_mode']}, {g['particles']}", f"{g['best']} ({g['best_mean']:.1f})", g["next"] or "", lead)
     return t
 
 
@@ -342,7 +342,7 @@ def slam_sweep_cmd(
     t.add_column("metric")
     for e in summary:
         var = f"\n{e['variant']}" if e.get("variant") else ""
-        t.add_column(f"{e['profile']}\n{e['filter']}, {e['pd_mode']}, {e['particles']} particles{var}\n{e['runs']} runs", justify="right")
+        t.add_column(f"{e['profile']}\n{e['filter']}, {e['pd_mode']}, {e['particles']} particles{var}\n{e['runs']} runs", justify="right", overflow="fold")
     shown = [
         ("trajectory RMSE [m]", "trajectory_rmse_vs_ground_truth_m"),
         ("weighted mean pose RMSE [m]", "mean_trajectory_rmse_vs_ground_truth_m"),
