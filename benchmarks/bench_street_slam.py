@@ -11,14 +11,19 @@ planes' median normal angle and offset error, mapped and true landmarks, ms per 
 The plane detector's output of every frame is computed once per street and shared by all runs (it does not
 depend on the filter), so the timing column is the filter's own.
 
-    python benchmarks/bench_street_slam.py [--streets 3] [--seeds 1] [--filter rbphd] [--particles 20]
+    python benchmarks/bench_street_slam.py [--streets 3] [--seeds 1] [--filter rbphd] [--particles 20] [--set key=value ...]
+
+The last row is the runs' log evidence (``slam_runtime.run.evaluate``): settings of one filter on one street compare
+by it without ground truth.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -28,6 +33,9 @@ from calib.sim.street import StreetConfig, simulate_street
 from slam_runtime.config import FILTER_KINDS, SlamConfig, override, with_filter
 from slam_runtime.run import evaluate, run_slam
 from slam_runtime.sources import CloudPlanes
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.common import parse_set
 
 KEYS = (
     ("trajectory RMSE [m]", "trajectory_rmse_vs_ground_truth_m"),
@@ -39,6 +47,7 @@ KEYS = (
     ("landmarks (truth)", "landmarks_true"),
     ("map features", "map_features"),
     ("ms per step", "ms_per_step_mean"),
+    ("log evidence [nats]", "log_evidence"),
 )
 
 
@@ -65,7 +74,9 @@ def main() -> None:
     ap.add_argument("--filter", action="append", dest="filters", default=None)
     ap.add_argument("--particles", type=int, default=20)
     ap.add_argument("--frames", type=int, default=None)
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a setting of every run (e.g. filter.survival=1)")
     args = ap.parse_args()
+    sets = dict(parse_set(x) for x in args.set)
     filters = args.filters or ["rbphd"]
     for f in filters:
         if f not in FILTER_KINDS:
@@ -82,7 +93,7 @@ def main() -> None:
         log = simulate_street(StreetConfig(frames=args.frames), s).log
         for f in filters:
             for mode in ("profile", "constant"):
-                cfg = override(with_filter(SlamConfig(), f), features="planes", particles=args.particles, **{"detection.pd_mode": mode})
+                cfg = override(with_filter(SlamConfig(), f), features="planes", particles=args.particles, **{"detection.pd_mode": mode}, **sets)
                 for seed in range(args.seeds):
                     t1 = time.perf_counter()
                     res = run_slam(log, prof, cfg, seed)
