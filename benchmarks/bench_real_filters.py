@@ -74,11 +74,11 @@ SETS: dict = {}  # --set overrides, applied to every run
 
 def labelled(cfg, kind: str, survival: float | None):
     """``cfg`` with the filter ``kind``; the labelled filters' survival in view set when given; the ``--set`` overrides."""
-    from slam_runtime.config import override, with_filter
+    from slam_runtime.config import with_filter, with_settings
 
     cfg = with_filter(cfg, kind)
-    cfg = override(cfg, **{"filter.survival": survival}) if survival is not None and kind in ("lmb", "glmb") else cfg
-    return override(cfg, **SETS) if SETS else cfg
+    cfg = with_settings(cfg, {"filter.survival": survival}) if survival is not None and kind in ("lmb", "glmb") else cfg
+    return with_settings(cfg, SETS) if SETS else cfg
 
 
 def utias(root: Path, robots: list[int], filters: list[str], seeds: list[int], survival: float | None) -> None:

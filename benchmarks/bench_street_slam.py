@@ -30,7 +30,7 @@ import numpy as np
 import slam_runtime.run as run_mod
 from calib.planes import PlaneCalibConfig, calibrate_planes
 from calib.sim.street import StreetConfig, simulate_street
-from slam_runtime.config import FILTER_KINDS, SlamConfig, override, with_filter
+from slam_runtime.config import FILTER_KINDS, SlamConfig, with_filter, with_settings
 from slam_runtime.run import evaluate, run_slam
 from slam_runtime.sources import CloudPlanes
 
@@ -93,7 +93,7 @@ def main() -> None:
         log = simulate_street(StreetConfig(frames=args.frames), s).log
         for f in filters:
             for mode in ("profile", "constant"):
-                cfg = override(with_filter(SlamConfig(), f), features="planes", particles=args.particles, **{"detection.pd_mode": mode}, **sets)
+                cfg = with_settings(with_filter(SlamConfig(), f), {"features": "planes", "particles": args.particles, "detection.pd_mode": mode, **sets})
                 for seed in range(args.seeds):
                     t1 = time.perf_counter()
                     res = run_slam(log, prof, cfg, seed)

@@ -61,7 +61,7 @@ from slam_runtime.config import SlamConfig
 
 #: The plan's format tag (config.yaml of a sweep folder).
 FORMAT = "detcal-sweep"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: the label variant (slam sweep --vary) in every run; tables written with 10 digits
 #: What varies between runs (the first columns of runs.csv). ``variant``: the settings a sweep varies besides these
 #: (``detcal slam sweep --vary key=a,b``), written ``key=value`` (several joined by ``, ``); empty when none is varied.
 LABELS = ("log", "profile", "filter", "pd_mode", "particles", "variant", "seed")
@@ -183,8 +183,13 @@ def open_sweep(folder: Path, plan: dict, jobs: list[SweepJob], *, force: bool = 
         old = None
     if not isinstance(old, dict) or old.get("format") != FORMAT:
         raise UsageError(f"{folder}: already exists and is not a sweep detcal can resume (use --force to replace it)")
+    if old.get("version") != plan["version"]:
+        raise UsageError(
+            f"{folder}: holds a sweep of another version of detcal's sweep format ({old.get('version')}, this detcal writes "
+            f"{plan['version']}) and cannot be resumed (use --force to start it anew, or another --out)"
+        )
     if old != plan:
-        what = [k for k in ("version", "settings", "logs", "profiles", "runs") if old.get(k) != plan.get(k)] or ["plan"]
+        what = [k for k in ("settings", "logs", "profiles", "runs") if old.get(k) != plan.get(k)] or ["plan"]
         raise UsageError(
             f"{folder}: holds a sweep with other {', '.join(what)} (the same command resumes a sweep; use --force to start it anew, or another --out)"
         )
@@ -250,7 +255,11 @@ class Failure:
 
     def line(self) -> str:
         lb = self.job.labels
-        return f"{self.job.name} (log {lb.get('log')}, profile {lb.get('profile')}, {lb.get('pd_mode')}, {lb.get('particles')} particles, seed {lb.get('seed')}): {self.error}"
+        var = f", {lb['variant']}" if lb.get("variant") else ""
+        return (
+            f"{self.job.name} (log {lb.get('log')}, profile {lb.get('profile')}, {lb.get('filter')}, {lb.get('pd_mode')}, "
+            f"{lb.get('particles')} particles{var}, seed {lb.get('seed')}): {self.error}"
+        )
 
 
 @dataclass
@@ -329,9 +338,9 @@ def run_sweep(
     outcome.summary = summarise(outcome.rows, by, LABELS)
     outcome.paired = paired(outcome.rows)
     for name, rows in (("runs.csv", outcome.rows), ("summary.csv", outcome.summary), ("timings.csv", outcome.timings)):
-        _write_text(folder / name, pd.DataFrame(rows).to_csv(index=False, float_format="%.6g"))
+        _write_text(folder / name, pd.DataFrame(rows).to_csv(index=False, float_format="%.10g"))
     if outcome.paired:
-        _write_text(folder / "paired.csv", pd.DataFrame(outcome.paired).to_csv(index=False, float_format="%.6g"))
+        _write_text(folder / "paired.csv", pd.DataFrame(outcome.paired).to_csv(index=False, float_format="%.10g"))
     elif (folder / "paired.csv").exists():  # a table of an earlier attempt's plan cannot be left behind
         (folder / "paired.csv").unlink()
     return outcome
@@ -437,7 +446,7 @@ def by_evidence(rows: list[dict]) -> list[dict]:
     measurements the filter takes, or the profile's clutter model, changes the quantity itself."""
     groups: dict[tuple, dict[object, list[dict]]] = {}
     for r in rows:
-        if _numeric(r.get("log_evidence")):
+        if _numeric(r.get("log_evidence")) and np.isfinite(r["log_evidence"]):
             groups.setdefault(tuple(r.get(k) for k in SETTING if k != "variant"), {}).setdefault(r.get("variant"), []).append(r)
     out = []
     for key, by_var in groups.items():

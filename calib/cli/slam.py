@@ -46,6 +46,10 @@ VaryOpt = Annotated[
 _OWN_OPTION = {"filter.kind": "--filter", "particles": "--particles", "detection.pd_mode": "--pd-mode"}
 
 
+def _number(v) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
 def variants(specs: list[str] | None) -> list[tuple[str | None, dict]]:
     """The --vary options as [(label, {dotted key: value})], every combination of their values (one (None, {})
     without the option). A value is read as YAML; the label keeps it as written (``filter.survival=0.99``)."""
@@ -63,8 +67,12 @@ def variants(specs: list[str] | None) -> list[tuple[str | None, dict]]:
         tokens = [t.strip() for t in text.split(",")]
         if not sep or not key or not all(tokens):
             raise UsageError(f"--vary: expected KEY=V1,V2,... (e.g. filter.survival=1,0.99), got {spec!r}")
-        if key in _OWN_OPTION:
-            raise UsageError(f"--vary {key}: use {_OWN_OPTION[key]} (repeat it) to vary this setting")
+        for own, opt in _OWN_OPTION.items():
+            if own == key or own.startswith(key + "."):
+                raise UsageError(f"--vary {key}: use {opt} (repeat it) to vary {own}" + ("" if own == key else f", and name single settings under {key}"))
+        for other in seen:
+            if other.startswith(key + ".") or key.startswith(other + "."):
+                raise UsageError(f"--vary {key}: overlaps --vary {other} (vary single settings, not a group and a setting in it)")
         if key in seen:
             raise UsageError(f"--vary {key}: given twice (list its values in one option: {key}=V1,V2)")
         seen.add(key)
@@ -74,7 +82,12 @@ def variants(specs: list[str] | None) -> list[tuple[str | None, dict]]:
                 v = yaml.safe_load(t)
             except yaml.YAMLError:
                 raise UsageError(f"--vary {key}: cannot read the value {t!r}") from None
-            if v not in values:  # (1 and 1.0 are one value)
+            if isinstance(v, str):  # (YAML 1.1 reads 1e-3 as text)
+                with contextlib.suppress(ValueError):
+                    v = float(v)
+            if isinstance(v, dict | list):
+                raise UsageError(f"--vary {key}: {t!r} is not a single value (vary one setting at a time)")
+            if not any(type(v) is type(w) and v == w or (_number(v) and _number(w) and v == w) for w in values):  # (1 and 1.0 are one value; true is not 1)
                 values.append(v)
                 axis.append((key, t, v))
         axes.append(axis)
@@ -286,11 +299,18 @@ def slam_sweep_cmd(
     varied = variants(vary)
     configs = {}  # (filter, variant) -> its settings, each checked before any log is read
     for f in kinds:
+        plain = with_filter(base, f).model_dump()
         for label, changes in varied:
+            for key in changes:  # a group's whole value would replace the settings in it, which other labels name
+                node = plain
+                for part in key.split("."):
+                    node = node.get(part) if isinstance(node, dict) else None
+                if isinstance(node, dict):
+                    raise UsageError(f"--vary {key}: a group of settings; vary the single settings in it (e.g. {key}.{next(iter(node))})")
             try:
                 configs[f, label] = with_settings(with_filter(base, f), changes)
             except UsageError as exc:
-                raise UsageError(f"--vary {label} with --filter {f}: {exc}") from None
+                raise UsageError(f"--vary {label}, for filter {f}: {exc}") from None
     checked = {c.poses: c for c in configs.values()}  # (a varied setting may put the runs on the truth's poses)
     positive("--frames", frames)
     check_options(workers, scheduler)

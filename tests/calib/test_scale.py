@@ -153,7 +153,7 @@ def test_without_retries_the_lost_run_is_named_and_a_rerun_does_only_it(tmp_path
     assert "Traceback" not in err
     lines = err.splitlines()
     # one warning per failed run naming its log and seed, then the one-line error naming the missing runs
-    assert lines[0].startswith(f"detcal: warning: run {victim} (log park_seed71, profile sim-park-laser@1.0.0, constant, 5 particles, seed 2):")
+    assert lines[0].startswith(f"detcal: warning: run {victim} (log park_seed71, profile sim-park-laser@1.0.0, rbphd, constant, 5 particles, seed 2):")
     assert "worker process died" in lines[0]
     assert_one_line_error("\n".join(lines[1:]), f"1 of 6 runs failed ({victim};")
     failed = yaml.safe_load((sw / "failed.yaml").read_text())["failed"]
@@ -185,6 +185,13 @@ def test_a_sweep_resumes_only_the_same_plan(tmp_path, capsys, park_log, serial):
     assert code == 2
     assert_one_line_error(err, "holds a sweep with other runs (the same command resumes a sweep; use --force")
     assert len(run_names(sw)) == 4
+    # a sweep of an older format (before the label variant) is named as such, not blamed on the command
+    plan = (sw / "config.yaml").read_text()
+    (sw / "config.yaml").write_text(plan.replace("version: 2", "version: 1"))
+    code, _, err = run(capsys, "slam", "sweep", str(park_log), *SWEEP, "--workers", "0", "--out", str(sw))
+    assert code == 2
+    assert_one_line_error(err, "holds a sweep of another version of detcal's sweep format (1, this detcal writes 2)")
+    (sw / "config.yaml").write_text(plan)
     # a folder that is not a sweep is not resumed
     (tmp_path / "other").mkdir()
     code, _, err = run(capsys, "slam", "sweep", str(park_log), *SWEEP, "--workers", "0", "--out", str(tmp_path / "other"))

@@ -84,6 +84,11 @@ def test_varies_returns_every_combination_with_its_label():
         ("filter.survival=0.99, island_match=null", {"filter.survival": 0.99, "island_match": None}),
         ("filter.survival=0.99, island_match=0.5", {"filter.survival": 0.99, "island_match": 0.5}),
     ]
+    # 1e-3 is the number YAML 1.1 reads as text; true is not 1
+    assert variants(["filter.prune=0.001,1e-3", "map_refine=1,true"]) == [
+        ("filter.prune=0.001, map_refine=1", {"filter.prune": 0.001, "map_refine": 1}),
+        ("filter.prune=0.001, map_refine=true", {"filter.prune": 0.001, "map_refine": True}),
+    ]
 
 
 def test_sweep_varies_a_setting_and_the_log_evidence_finds_the_simulators_noise(tmp_path, capsys, paper):
@@ -122,13 +127,18 @@ def test_sweep_varies_a_setting_and_the_log_evidence_finds_the_simulators_noise(
 @pytest.mark.parametrize(
     ("vary", "needle"),
     [
-        (["filter.survival=1,0.99", "--filter", "rbphd"], "--vary filter.survival=1 with --filter rbphd: filter.rbphd.survival: unknown key"),
-        (["filter.survival=0.5,2", "--filter", "glmb"], "--vary filter.survival=2 with --filter glmb: filter.glmb.survival: Input should be less than or equal to 1"),
+        (["filter.survival=1,0.99", "--filter", "rbphd"], "--vary filter.survival=1, for filter rbphd: filter.rbphd.survival: unknown key"),
+        (["filter.survival=0.5,2", "--filter", "glmb"], "--vary filter.survival=2, for filter glmb: filter.glmb.survival: Input should be less than or equal to 1"),
         (["nosuch.key=1"], "nosuch.key: unknown key (nosuch is not a group of settings)"),
         (["particles=5,10"], "--vary particles: use --particles (repeat it)"),
         (["filter.survival"], "--vary: expected KEY=V1,V2,..."),
         (["filter.survival=1,"], "--vary: expected KEY=V1,V2,..."),
         (["filter.gate=9", "--vary", "filter.gate=4"], "--vary filter.gate: given twice"),
+        (["filter={kind: lmb}"], "--vary filter: use --filter (repeat it) to vary filter.kind"),
+        (["filter.survival=0.5", "--vary", "filter=x"], "--vary filter: use --filter"),
+        (["motion=1,2"], "--vary motion: a group of settings; vary the single settings in it (e.g. motion.model)"),
+        (["motion.ackermann.sigma_speed=1", "--vary", "motion.ackermann=2"], "--vary motion.ackermann: overlaps --vary motion.ackermann.sigma_speed"),
+        (["filter.gate=[1,2]"], "--vary filter.gate: cannot read the value '[1'"),
     ],
 )
 def test_a_bad_vary_is_refused_before_anything_is_written(tmp_path, capsys, paper, vary, needle):
