@@ -15,9 +15,9 @@ Run: ``python benchmarks/bench_real_filters.py [--data ../shared/data] [--filter
   ``--vp-profiles shared`` every filter takes RB-PHD's. Scored against GPS after a rigid fit
   (there is no landmark truth), at the laser's position, the point the data set's GPS locates (``calib.io.victoria``).
 
-The labelled filters take their default settings (``slam_runtime.glmb.LabelledSettings``: those of the
-glmb-paper scenario but P_S in view, 0.99 where that scenario's configs set 1): only the filter kind changes (``slam_runtime.config.with_filter``), and with
-``--survival`` their P_S in the field of view (the paper's 0.95; 0.99 by default); ``--set key=value``
+The labelled filters take their default settings (``slam_runtime.glmb.LabelledSettings``, those of the
+glmb-paper scenario): only the filter kind changes (``slam_runtime.config.with_filter``), and with
+``--survival`` their P_S in the field of view (the paper's 0.95; 1 by default); ``--set key=value``
 overrides any setting of every filter run (values parsed as YAML). Each row also prints the runs' log
 marginal likelihood of the measurements (``slam_runtime.run.LogEvidence``, in nats, mean over the seeds):
 settings of one filter on one log compare by it without ground truth. Every figure is one process on one
@@ -136,7 +136,7 @@ def main() -> None:
     ap.add_argument("--seeds", default="0-2", help="filter seeds: 0-2, or 0,3")
     ap.add_argument("--robots", default="1-5", help="UTIAS robots held out in turn")
     ap.add_argument("--skip", choices=("utias", "vp"), action="append", default=[])
-    ap.add_argument("--survival", type=float, default=None, help="LMB and delta-GLMB: P_S in view (default theirs, 0.99; the paper: 0.95)")
+    ap.add_argument("--survival", type=float, default=None, help="LMB and delta-GLMB: P_S in view (default theirs, 1; the paper: 0.95)")
     ap.add_argument("--set", dest="sets", action="append", default=[], help="override a setting of every run: key=value (repeatable)")
     ap.add_argument(
         "--vp-profiles", choices=("own", "shared"), default="own",

@@ -67,10 +67,6 @@ class FeatureModel(ABC):
     angular: tuple[int, ...] = ()
     #: which state components are angles (wrapped when states of one feature are averaged)
     state_angular: tuple[int, ...] = ()
-    #: the labelled filters' P_S in view when their settings leave it open (``survival: null``): 0.99 for
-    #: landmarks seen as points, what the log evidence and the ground truth both choose on the simulated
-    #: park and the real logs with a calibrated P_D (docs/labelled-filters.md)
-    default_survival: float = 0.99
 
     def __init__(self, r: np.ndarray, mount: np.ndarray | None = None) -> None:
         """r (dz, dz): the measurement noise covariance (a floor, when each measurement brings its own);

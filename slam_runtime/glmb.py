@@ -24,16 +24,10 @@ One step (:meth:`GLMB.update`, eqs. 11-17):
   detections and misses (:mod:`slam_runtime.pd_factor`);
 * survival (eqs. 7-8, 14): P_S = ``survival`` for a track in the field of
   view (P_D > 0), ``survival_outside`` (1) out of it, so a mapped landmark
-  stays in the map when it leaves the view; the paper takes 0.95 in view (with
-  0.95 per scan a static landmark missed twice is believed gone with
-  probability 0.42); unset, it is the feature model's (``default_survival``):
-  0.99 for points, the value the log evidence and the ground truth choose on
-  the simulated park and the real logs with a calibrated P_D, where 1 keeps
-  every duplicate and false track that enters all hypotheses; 1 for planes,
-  which 0.99 loses on the simulated streets. The glmb-paper configs set 1:
-  there the landmarks and the detector are the filter's model, and the
-  evidence chooses 1. A track in the buffer zone (thesis eq. 3.21) neither
-  dies nor pays for a miss;
+  stays in the map when it leaves the view; the paper takes 0.95 in view, the
+  default is 1 (static landmarks: with 0.95 per scan a landmark missed twice is
+  believed gone with probability 0.42); a track in the buffer zone (thesis
+  eq. 3.21) neither dies nor pays for a miss;
 * the costs eta (eqs. 5, 13, 15, 27) of every (track, measurement) pair of all
   particles in one numpy pass (only the tracks that can be seen, inside the
   gate); the Gibbs sampler (:mod:`slam_runtime.gibbs`, compiled) draws the
@@ -137,16 +131,14 @@ class LabelledSettings(BaseModel):
     """Settings shared by the labelled map filters (LMB, delta-GLMB)."""
 
     model_config = ConfigDict(extra="forbid")
-    survival: float | None = Field(
-        default=None,
+    survival: float = Field(
+        default=1.0,
         gt=0.0,
         le=1.0,
-        description="P_S of a feature in the field of view (P_D > 0), per step (the paper: 0.95). null: the feature model's "
-        "(points 0.99, planes 1). 1 lets no track, once in every hypothesis, die: right for a simulator whose landmarks and "
-        "detector are exactly the filter's model (glmb-paper: benchmarks/configs/glmb_paper_*.yaml set it); on the simulated "
-        "park and the real logs, with a calibrated P_D, the duplicate and false tracks it keeps cost map OSPA and trajectory, "
-        "and the log evidence and the ground truth choose a value below 1 (docs/labelled-filters.md; compare values on a log "
-        "with detcal slam sweep --vary filter.survival=...)",
+        description="P_S of a feature in the field of view (P_D > 0), per step (the paper: 0.95; landmarks are static). 0.99 "
+        "drops the duplicate and false tracks that 1 keeps, which helps where they abound (the park with bushes, UTIAS, "
+        "Victoria Park) and loses a quarter of the landmarks where they do not (the park without bushes, the streets); the "
+        "log evidence prefers 0.99 in both cases, so it cannot choose this setting (docs/labelled-filters.md)",
     )
     survival_outside: float = Field(default=1.0, gt=0.0, le=1.0, description="P_S of a feature out of the field of view")
     birth_unassociated: float = Field(default=0.01, gt=0.0, lt=1.0, description="birth probability from a measurement outside every track's gate")
@@ -348,8 +340,6 @@ class LabelledFilter(MapFilter):
     def __init__(self, feature: FeatureModel, detection, cfg: LabelledSettings, rng: np.random.Generator | None = None) -> None:
         super().__init__(feature, detection)
         self.cfg = cfg
-        #: P_S in view: the settings', else the feature model's (points 0.99, planes 1)
-        self.survival = feature.default_survival if cfg.survival is None else cfg.survival
         self.r = feature.r * cfg.noise_inflation
         self.rng, self.groups = rng, 1
         self.step = 0
@@ -399,7 +389,7 @@ class LabelledFilter(MapFilter):
         rows = np.arange(p)[:, None]
         in_a = np.arange(a)[None, :] < nact[:, None]
         pd_a, buf_a, r_a, birth_a = pd[rows, act], buf[rows, act], sl.r[rows, act], sl.birth[rows, act]
-        ps = np.where(birth_a | buf_a, 1.0, np.where(pd_a > 0, self.survival, cfg.survival_outside))
+        ps = np.where(birth_a | buf_a, 1.0, np.where(pd_a > 0, cfg.survival, cfg.survival_outside))
         pd_miss = np.where(buf_a, 0.0, pd_a)
         with np.errstate(divide="ignore"):
             l_death = np.log(np.maximum(1.0 - r_a * ps, 0.0))

@@ -47,9 +47,6 @@ class PlaneFeature(FeatureModel):
     dim_z = 3
     angular = (0,)
     state_angular = (0,)
-    #: planes keep P_S 1 in view: on the simulated streets 0.99 loses a third of the planes (105 -> 68 of 107
-    #: mapped, streets 1-3) and raises the map OSPA, though the log evidence prefers it (docs/labelled-filters.md)
-    default_survival = 1.0
 
     def __init__(self, r: np.ndarray, mount: np.ndarray | None = None, *, height: float = 0.0, metric_length: float = 10.0) -> None:
         super().__init__(r, mount)

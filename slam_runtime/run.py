@@ -54,7 +54,6 @@ class SlamResult:
     map_filter_xy: np.ndarray | None = None  # (K, 2) the filter's own map estimate, where map_xy was refined (map_refine)
     refine_iterations: int = 0
     log_evidence: float = float("nan")  # the run's log p(Z_1:T) up to the clutter model's constant (RBSlam.log_evidence)
-    resolved: dict = field(default_factory=dict)  # settings left open in the config and what the run took for them
     odometry: np.ndarray | None = None  # (T, 3) dead reckoning through the same frames (set by evaluate)
     metrics: dict = field(default_factory=dict)
 
@@ -277,7 +276,6 @@ def run_slam(
         resample_ms=rs_ms, step_cpu_ms=cpu, stage_ms=stage, capped_steps=b.mapfilter.capped_steps, per_step=per_step,
         map_all_xy=b.mapfilter.feature.position(all_x), map_all_w=all_w, map_filter_xy=filter_xy, refine_iterations=refine_it,
         log_evidence=slam.log_evidence,
-        resolved={"survival_in_view": float(b.mapfilter.survival)} if hasattr(b.mapfilter, "survival") else {},
     )
 
 
@@ -319,7 +317,6 @@ def evaluate(log: SensorLog, res: SlamResult, c: float = 1.0, p: float = 1.0, cf
         # log p(Z_1:T) [nats] up to a constant of the clutter model (the profile's): runs of one profile on one log compare
         # by it without ground truth, the larger the likelier (LogEvidence)
         "log_evidence": float(res.log_evidence),
-        **res.resolved,  # (the labelled filters' P_S in view, the feature model's when the settings leave it open)
     }
     odo = res.odometry = dead_reckoning(log, res.stamps, res.start, cfg)
     for key in ("ground_truth", "gps"):

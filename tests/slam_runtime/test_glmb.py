@@ -604,15 +604,3 @@ def test_with_the_poses_given_the_calibrated_pd_maps_the_park_better_in_delta_gl
                 trees[mode].append(m["landmarks_mapped"])
     gap = float(np.mean(ospa["constant"]) - np.mean(ospa["profile"]))
     assert gap >= 0.02 and np.mean(trees["profile"]) > np.mean(trees["constant"]), (gap, trees)
-
-
-@pytest.mark.parametrize("cls,cfg_cls", [(GLMB, GLMBConfig), (LMB, LMBConfig)])
-def test_survival_left_open_is_the_feature_models(cls, cfg_cls):
-    """``survival: null`` (the default) takes the feature model's P_S in view: 0.99 for points, 1 for planes; a value
-    set is kept for either."""
-    sensor = SensorModel(kind="camera", fov=np.pi, range_max=20.0)
-    det = DetectionModel(PdTable(covariate="range", edges=[0.0, 20.0], pd=[0.9]), ClutterParams(rate=1.0, volume=10.0), sensor, buffer=False)
-    points, planes = RangeBearing(np.diag([0.05**2, 0.005**2])), PlaneFeature(np.diag([0.01, 0.01, 0.05]))
-    assert cfg_cls().survival is None
-    assert cls(points, det, cfg_cls()).survival == 0.99 and cls(planes, det, cfg_cls()).survival == 1.0
-    assert cls(points, det, cfg_cls(survival=0.95)).survival == 0.95 and cls(planes, det, cfg_cls(survival=0.9)).survival == 0.9

@@ -50,8 +50,7 @@ def _scene(cls, cfg_cls, learn: bool, seed: int, steps: int = 150):
     true_pd = np.array([0.95, 0.5])
     pdt = PdTable(covariate="range", edges=[0.0, 20.0], pd=[0.95])
     det = DetectionModel(pdt, ClutterParams(rate=0.5, volume=SENSOR.field_of_view * 20.0), SENSOR, buffer=False)
-    # static landmarks, as the model says: survival 1 (the default, 0.99, caps a seen track's existence below 1)
-    mf = cls(RangeBearing(np.diag([0.1**2, 0.01**2])), det, cfg_cls(learn_pd=learn, survival=1.0), rng=np.random.default_rng(seed))
+    mf = cls(RangeBearing(np.diag([0.1**2, 0.01**2])), det, cfg_cls(learn_pd=learn), rng=np.random.default_rng(seed))
     maps = mf.empty(2)
     for k in range(steps):
         z, _ = mf.feature.predict(np.zeros(3), lms)
@@ -115,7 +114,7 @@ def test_a_learned_factor_stops_the_weights_preferring_poses_that_hide_the_bush(
         diff = {}
         for learn in (False, True):
             rng = np.random.default_rng(seed)
-            mf = cls(RangeBearing(np.diag([0.1**2, 0.01**2])), det, cfg_cls(learn_pd=learn, survival=1.0), rng=np.random.default_rng(seed))
+            mf = cls(RangeBearing(np.diag([0.1**2, 0.01**2])), det, cfg_cls(learn_pd=learn), rng=np.random.default_rng(seed))
             maps = mf.empty(2)
             for _ in range(100):
                 z, _ = mf.feature.predict(np.zeros(3), lms)
