@@ -368,7 +368,7 @@ def summarise(rows: list[dict], by: tuple[str, ...], labels: tuple[str, ...] = (
     for key, rs in groups.items():
         entry: dict = dict(zip(by, key, strict=True))
         entry["runs"] = len(rs)
-        metrics = [k for k in rs[0] if k not in by and k not in labels and _numeric(rs[0][k])]
+        metrics = [k for k in rs[0] if k not in by and k not in labels and is_number(rs[0][k])]
         for k in metrics:
             vals = np.array([r[k] for r in rs if k in r], dtype=np.float64)
             entry[f"{k}_mean"] = float(vals.mean())
@@ -377,19 +377,19 @@ def summarise(rows: list[dict], by: tuple[str, ...], labels: tuple[str, ...] = (
     return out
 
 
-def _numeric(v) -> bool:
-    """Whether a runs.csv value is a metric's number (not a flag, a label or a missing value)."""
+def is_number(v) -> bool:
+    """Whether a value is a number (not a flag, a label or a missing value): a runs.csv value that is a metric's number (not a flag, a label or a missing value)."""
     return isinstance(v, int | float) and not isinstance(v, bool)
 
 
 def _number(v) -> float:
     """A metric's value as a float; NaN for one a run does not have (None)."""
-    return float(v) if _numeric(v) else float("nan")
+    return float(v) if is_number(v) else float("nan")
 
 
 def _metric_keys(rows: list[dict], labels: tuple[str, ...]) -> list[str]:
     """The numeric metrics of runs.csv rows, in the first row's order (a metric some row lacks is left out)."""
-    keys = [k for k, v in rows[0].items() if k not in labels and _numeric(v)]
+    keys = [k for k, v in rows[0].items() if k not in labels and is_number(v)]
     return [k for k in keys if all(k in r for r in rows)]
 
 
@@ -444,31 +444,28 @@ def by_evidence(rows: list[dict]) -> list[dict]:
     evidence of the logs and seeds) and its lead over the next, paired by log and seed (mean, standard error, pairs
     in which it is higher). The evidence compares settings of the filter's model; a setting that changes which
     measurements the filter takes, or the profile's clutter model, changes the quantity itself."""
+    fixed = tuple(k for k in SETTING if k != "variant")
     groups: dict[tuple, dict[object, list[dict]]] = {}
     for r in rows:
-        if _numeric(r.get("log_evidence")) and np.isfinite(r["log_evidence"]):
-            groups.setdefault(tuple(r.get(k) for k in SETTING if k != "variant"), {}).setdefault(r.get("variant"), []).append(r)
+        if is_number(r.get("log_evidence")) and np.isfinite(r["log_evidence"]):
+            groups.setdefault(tuple(r.get(k) for k in fixed), {}).setdefault(r.get("variant"), []).append(r)
     out = []
     for key, by_var in groups.items():
         means = {v: float(np.mean([r["log_evidence"] for r in rs])) for v, rs in by_var.items()}
         ranked = sorted(means, key=lambda v: -means[v])  # (stable: ties keep the plan's order)
         best = ranked[0]
-        entry = {**dict(zip((k for k in SETTING if k != "variant"), key, strict=True)), "best": best, "best_mean": means[best], "next": None}
+        entry = {**dict(zip(fixed, key, strict=True)), "best": best, "best_mean": means[best], "next": None}
         if len(ranked) > 1:
             nxt = ranked[1]
-            other = {}
-            for r in by_var[nxt]:
-                other.setdefault((r.get("log"), r.get("seed")), []).append(r)
-            pairs = []
-            for r in by_var[best]:
-                mates = other.get((r.get("log"), r.get("seed")))
-                if mates:
-                    pairs.append(r["log_evidence"] - mates.pop(0)["log_evidence"])
-            d = np.array(pairs, dtype=np.float64)
-            entry.update(
-                next=nxt, pairs=int(d.size), lead=float(d.mean()) if d.size else float("nan"),
-                lead_se=float(d.std(ddof=1) / np.sqrt(d.size)) if d.size > 1 else 0.0, lead_higher=int((d > 0).sum()),
-            )
+            runs: dict[tuple, dict[object, list[dict]]] = {}
+            for v in (best, nxt):
+                for r in by_var[v]:
+                    runs.setdefault((r.get("log"), r.get("seed")), {}).setdefault(v, []).append(r)
+            # next - best, so that _differences' "a lower" counts the pairs in which the likeliest is higher
+            pairs = [p for rs in runs.values() for p in zip(rs.get(nxt, []), rs.get(best, []), strict=False)]
+            d = _differences(pairs, ["log_evidence"])
+            entry.update(next=nxt, pairs=0, lead=float("nan"), lead_se=0.0, lead_higher=0)
+            if d:
+                entry.update(pairs=d[0]["pairs"], lead=-d[0]["mean_difference"], lead_se=d[0]["standard_error"], lead_higher=d[0]["a_lower"])
         out.append(entry)
     return out
-

@@ -46,16 +46,14 @@ VaryOpt = Annotated[
 _OWN_OPTION = {"filter.kind": "--filter", "particles": "--particles", "detection.pd_mode": "--pd-mode"}
 
 
-def _number(v) -> bool:
-    return isinstance(v, int | float) and not isinstance(v, bool)
-
-
 def variants(specs: list[str] | None) -> list[tuple[str | None, dict]]:
     """The --vary options as [(label, {dotted key: value})], every combination of their values (one (None, {})
     without the option). A value is read as YAML; the label keeps it as written (``filter.survival=0.99``)."""
     import itertools
 
     import yaml
+
+    from slam_runtime.sweep import is_number
 
     if not specs:
         return [(None, {})]
@@ -76,7 +74,7 @@ def variants(specs: list[str] | None) -> list[tuple[str | None, dict]]:
         if key in seen:
             raise UsageError(f"--vary {key}: given twice (list its values in one option: {key}=V1,V2)")
         seen.add(key)
-        axis, values = [], []
+        axis, same = [], set()
         for t in tokens:
             try:
                 v = yaml.safe_load(t)
@@ -87,8 +85,9 @@ def variants(specs: list[str] | None) -> list[tuple[str | None, dict]]:
                     v = float(v)
             if isinstance(v, dict | list):
                 raise UsageError(f"--vary {key}: {t!r} is not a single value (vary one setting at a time)")
-            if not any(type(v) is type(w) and v == w or (_number(v) and _number(w) and v == w) for w in values):  # (1 and 1.0 are one value; true is not 1)
-                values.append(v)
+            ident = ("number", v) if is_number(v) else (type(v).__name__, v)  # (1 and 1.0 are one value; true is not 1)
+            if ident not in same:
+                same.add(ident)
                 axis.append((key, t, v))
         axes.append(axis)
     return [(", ".join(f"{k}={t}" for k, t, _ in combo), {k: v for k, _, v in combo}) for combo in itertools.product(*axes)]
@@ -171,6 +170,9 @@ def slam_run_cmd(
     out.print(summary_table(f"{res.filter}-SLAM{mode} on {log.name} with {prof.ref} -> {target}", shown))
 
 
+#: decimals of a metric in the sweep's tables (the rest: 3)
+_DIGITS = {"log_evidence": 1}
+
 #: the metrics of the sweep's paired table (metric, heading): those the runs have are shown
 PAIRED_SHOWN = (
     ("map_ospa", "map OSPA"),
@@ -200,9 +202,8 @@ def paired_table(rows: list[dict]) -> Table:
         r0 = next(iter(by_metric.values()))
         ctx = ", ".join(f"{k} {r0[k]}" for k in COMPARED if k != r0["varies"])
         cells = [
-            "" if (r := by_metric.get(k)) is None else f"{r['mean_difference']:+.{d}f} ± {r['standard_error']:.{d}f} ({r['a_lower']}/{r['pairs']})"
+            "" if (r := by_metric.get(k)) is None else f"{r['mean_difference']:+.{_DIGITS.get(k, 3)}f} ± {r['standard_error']:.{_DIGITS.get(k, 3)}f} ({r['a_lower']}/{r['pairs']})"
             for k, _ in present
-            for d in (1 if k == "log_evidence" else 3,)
         ]
         t.add_row(f"{r0['varies']}: {r0['a']} - {r0['b']}", ctx, str(max(r["pairs"] for r in by_metric.values())), *cells)
     return t
@@ -299,16 +300,17 @@ def slam_sweep_cmd(
     varied = variants(vary)
     configs = {}  # (filter, variant) -> its settings, each checked before any log is read
     for f in kinds:
-        plain = with_filter(base, f).model_dump()
+        fcfg = with_filter(base, f)
+        plain = fcfg.model_dump()
+        for key in varied[0][1]:  # (every variant has the same keys) a group's whole value would replace the settings
+            node = plain  # in it, which other labels name
+            for part in key.split("."):
+                node = node.get(part) if isinstance(node, dict) else None
+            if isinstance(node, dict):
+                raise UsageError(f"--vary {key}: a group of settings; vary the single settings in it (e.g. {key}.{next(iter(node))})")
         for label, changes in varied:
-            for key in changes:  # a group's whole value would replace the settings in it, which other labels name
-                node = plain
-                for part in key.split("."):
-                    node = node.get(part) if isinstance(node, dict) else None
-                if isinstance(node, dict):
-                    raise UsageError(f"--vary {key}: a group of settings; vary the single settings in it (e.g. {key}.{next(iter(node))})")
             try:
-                configs[f, label] = with_settings(with_filter(base, f), changes)
+                configs[f, label] = with_settings(fcfg, changes)
             except UsageError as exc:
                 raise UsageError(f"--vary {label}, for filter {f}: {exc}") from None
     checked = {c.poses: c for c in configs.values()}  # (a varied setting may put the runs on the truth's poses)
