@@ -141,6 +141,20 @@ class LabelledSettings(BaseModel):
         "log evidence prefers 0.99 in both cases, so it cannot choose this setting (docs/labelled-filters.md)",
     )
     survival_outside: float = Field(default=1.0, gt=0.0, le=1.0, description="P_S of a feature out of the field of view")
+    survival_duplicate: float = Field(
+        default=1.0,
+        gt=0.0,
+        le=1.0,
+        description="P_S in view of a track that an older track of its particle (an earlier birth, of existence >= 0.5) lies "
+        "within squared Mahalanobis distance duplicate_gate of: a possible second track of one landmark, which the data may "
+        "then end; every other track keeps survival (1: off)",
+    )
+    duplicate_gate: float = Field(
+        default=1.0,
+        gt=0.0,
+        description="survival_duplicate: squared Mahalanobis distance of two tracks' predicted measurements (under both tracks' "
+        "H P H^T and the measurement noise) below which one measurement cannot tell them apart",
+    )
     birth_unassociated: float = Field(default=0.01, gt=0.0, lt=1.0, description="birth probability from a measurement outside every track's gate")
     birth_associated: float = Field(default=0.005, gt=0.0, lt=1.0, description="birth probability from a measurement some track could explain")
     gate: float = Field(default=16.0, gt=0.0, description="squared Mahalanobis distance beyond which a measurement cannot update a track")
@@ -372,11 +386,12 @@ class LabelledFilter(MapFilter):
 
     def _costs(
         self, sl: _Slots, sp: np.ndarray, z: np.ndarray, rz: np.ndarray, own_cov: bool, log_kappa: np.ndarray, pd, buf,
-        shared: np.ndarray | None = None,
+        shared: np.ndarray | None = None, exist: np.ndarray | None = None,
     ) -> _Costs:
         """log eta of every option of the active candidates (module docstring of :mod:`slam_runtime.gibbs`);
         shared (P, S): the slots that are candidates of every hypothesis with the same options (births, released
-        tracks), held out of the sampler when independent of every other candidate (None: only idle births)."""
+        tracks), held out of the sampler when independent of every other candidate (None: only idle births);
+        exist (P, S): each slot's existence probability (for ``survival_duplicate``; None: sl.r)."""
         cfg, fm = self.cfg, self.feature
         p, s = sl.valid.shape
         m = z.shape[0]
@@ -390,6 +405,14 @@ class LabelledFilter(MapFilter):
         in_a = np.arange(a)[None, :] < nact[:, None]
         pd_a, buf_a, r_a, birth_a = pd[rows, act], buf[rows, act], sl.r[rows, act], sl.birth[rows, act]
         ps = np.where(birth_a | buf_a, 1.0, np.where(pd_a > 0, cfg.survival, cfg.survival_outside))
+        if a and (m or (cfg.survival_duplicate < 1.0 and a > 1)):
+            mu_a, cov_a = sl.mu[rows, act], sl.cov[rows, act]
+            zhat, h = fm.predict_sensor(sp[:, None, :], mu_a)
+            hph = matmul(h, matmul(cov_a, transpose(h)))
+            if cfg.survival_duplicate < 1.0 and a > 1:
+                cand = in_a & ~birth_a & ~buf_a & (pd_a > 0)
+                dup = self._duplicates(sl.label[rows, act], cand, (sl.r if exist is None else exist)[rows, act], zhat, hph)
+                ps = np.where(dup, np.minimum(ps, cfg.survival_duplicate), ps)
         pd_miss = np.where(buf_a, 0.0, pd_a)
         with np.errstate(divide="ignore"):
             l_death = np.log(np.maximum(1.0 - r_a * ps, 0.0))
@@ -398,9 +421,6 @@ class LabelledFilter(MapFilter):
         l_det = np.full((p, a, m), -np.inf)
         explained = np.zeros((p, m), dtype=bool)
         if a and m:
-            mu_a, cov_a = sl.mu[rows, act], sl.cov[rows, act]
-            zhat, h = fm.predict_sensor(sp[:, None, :], mu_a)
-            hph = matmul(h, matmul(cov_a, transpose(h)))
             l_det, gated = self._det_costs(zhat, hph, z, rz, own_cov, l_base, log_kappa, in_a, pd_a > 0)
             # a measurement 'can be associated with an existing feature' (the lower birth probability) when it lies in
             # the gate of a track that is more likely there than not: an LMB track of existence >= 0.5, any track a
@@ -424,6 +444,27 @@ class LabelledFilter(MapFilter):
         return _Costs(
             act.astype(np.int64), nact.astype(np.int64), l_death, l_miss, l_det, explained, held, l_held, idle, sl.label[rows, act].astype(np.int64)
         )
+
+    def _duplicates(self, lab: np.ndarray, cand: np.ndarray, exist: np.ndarray, zhat: np.ndarray, hph: np.ndarray) -> np.ndarray:
+        """(P, A) the candidates cand (P, A) that an older candidate of their particle lies near: a possible second
+        track of one landmark (``survival_duplicate``).
+
+        Older: a smaller label (born at an earlier step), of existence (its label's, summed over its versions among
+        the candidates; exist (P, A)) at least 0.5. Near: one measurement cannot tell the two apart, the squared
+        Mahalanobis distance of their predicted measurements zhat (P, A, dz) under H P H^T of both (hph (P, A, dz,
+        dz)) plus the measurement noise below ``duplicate_gate``. In measurement space, not in the map's: on real
+        logs a track's covariance shrinks to centimetres (UTIAS: a median 1.2 cm) where its duplicates lie 6-25 cm
+        away, distinct by the tracks' covariances but not by any measurement. Versions of one label are never each
+        other's duplicates."""
+        same = lab[:, :, None] == lab[:, None, :]  # (P, A, A)
+        lab_ex = np.einsum("pij,pj->pi", (same & cand[:, None, :]).astype(np.float64), np.where(cand, exist, 0.0))
+        older = cand[:, :, None] & cand[:, None, :] & (lab[:, None, :] < lab[:, :, None]) & (lab_ex >= 0.5)[:, None, :]
+        i, j, k = np.nonzero(older)
+        nu = self.feature.innovation(zhat[i, j], zhat[i, k])
+        near = quad(inv(hph[i, j] + hph[i, k] + self.r), nu) < self.cfg.duplicate_gate
+        out = np.zeros(cand.shape, dtype=bool)
+        out[i[near], j[near]] = True
+        return out
 
     def _det_costs(self, zhat, hph, z, rz, own_cov: bool, l_base, log_kappa, in_a, pd_pos, compiled: bool = True):
         """log eta of the detections (P, A, M) (-inf outside the gate or where P_D = 0) and the gate (P, A, M) of the
@@ -693,7 +734,7 @@ class GLMB(LabelledFilter):
                 pd = pd * mean_factor(ab)
         with tm("costs"):
             shared = np.concatenate([np.zeros((p, t), dtype=bool), fr.valid, np.ones((p, s - t - f), dtype=bool)], axis=1)
-            c = self._costs(sl, sp, z, rz, meas.cov is not None, log_kappa, pd, buf, shared if cfg.factor_independent else None)
+            c = self._costs(sl, sp, z, rz, meas.cov is not None, log_kappa, pd, buf, shared if cfg.factor_independent else None, ex)
             active = np.zeros((p, s), dtype=bool)
             in_a = np.arange(c.act.shape[1])[None, :] < c.nact[:, None]
             active[np.nonzero(in_a)[0], c.act[in_a]] = True
