@@ -27,7 +27,10 @@ One step (:meth:`GLMB.update`, eqs. 11-17):
   stays in the map when it leaves the view; the paper takes 0.95 in view, the
   default is 1 (static landmarks: with 0.95 per scan a landmark missed twice is
   believed gone with probability 0.42); a track in the buffer zone (thesis
-  eq. 3.21) neither dies nor pays for a miss;
+  eq. 3.21) neither dies nor pays for a miss; with ``survival_duplicate`` < 1
+  a track in view that an older track lies near (in measurement space:
+  :meth:`LabelledFilter._duplicates`) takes that P_S instead, so that a second
+  track of one landmark can end while the landmark's first stays;
 * the costs eta (eqs. 5, 13, 15, 27) of every (track, measurement) pair of all
   particles in one numpy pass (only the tracks that can be seen, inside the
   gate); the Gibbs sampler (:mod:`slam_runtime.gibbs`, compiled) draws the
@@ -138,7 +141,8 @@ class LabelledSettings(BaseModel):
         description="P_S of a feature in the field of view (P_D > 0), per step (the paper: 0.95; landmarks are static). 0.99 "
         "drops the duplicate and false tracks that 1 keeps, which helps where they abound (the park with bushes, UTIAS, "
         "Victoria Park) and loses a quarter of the landmarks where they do not (the park without bushes, the streets); the "
-        "log evidence prefers 0.99 in both cases, so it cannot choose this setting (docs/labelled-filters.md)",
+        "log evidence prefers 0.99 in both cases, so it cannot choose this setting (docs/labelled-filters.md); survival_duplicate "
+        "ends the duplicates without the landmarks",
     )
     survival_outside: float = Field(default=1.0, gt=0.0, le=1.0, description="P_S of a feature out of the field of view")
     survival_duplicate: float = Field(
