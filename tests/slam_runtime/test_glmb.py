@@ -168,6 +168,29 @@ def test_a_second_track_of_one_landmark_is_ended_by_survival_duplicate(cls, cfg_
     assert out[1.0] > 0.99
 
 
+def test_a_possible_second_track_is_the_younger_of_two_a_measurement_cannot_tell_apart():
+    """LabelledFilter._duplicates on one particle, the sensor at the origin, range noise 0.1 m, bearing 0.01 rad:
+    candidates 0-1 one landmark's two tracks 5 cm apart (labels 10 and 20: the younger, 20, is flagged, never the
+    older); 2 a track 3 m away (not near anything); 3-4 two versions of one label 5 cm apart (never each other's
+    duplicate); 5-6 a younger track near an older one of existence 0.9 (not a confirmed landmark track: not
+    flagged, DUPLICATE_OF 0.99); 7-8 two tracks 0.5 m apart along the beam, squared distance 25 under R: flagged
+    with duplicate_gate 36, not with 16; 9 a candidate not in the set (a birth, or out of view) near 0: not a
+    duplicate and no older track for anyone."""
+    x = np.array([[5.0, 0.0], [5.0, 0.05], [5.0, 3.0], [4.0, -3.0], [4.0, -2.95], [2.0, 4.0], [2.0, 4.05],
+                  [8.0, 0.0], [8.5, 0.0], [5.0, 0.02]])
+    lab = np.array([10, 20, 30, 40, 40, 50, 60, 70, 80, 5])
+    ex = np.array([1.0, 1.0, 1.0, 0.5, 0.5, 0.9, 1.0, 1.0, 1.0, 1.0])
+    cand = np.ones(10, dtype=bool)
+    cand[9] = False
+    for cls, cfg_cls in FILTERS:
+        for gate, flagged in ((36.0, {1, 8}), (16.0, {1})):
+            mf = cls(RangeBearing(np.diag([0.1**2, 0.01**2])), model(), cfg_cls(survival_duplicate=0.9, duplicate_gate=gate))
+            zhat, h = mf.feature.predict_sensor(np.zeros((1, 1, 3)), x[None])
+            hph = np.einsum("...ij,...jk,...lk->...il", h, np.tile(np.eye(2) * 1e-6, (1, 10, 1, 1)), h)
+            dup = mf._duplicates(lab[None], cand[None], ex[None], zhat, hph)
+            assert set(np.flatnonzero(dup[0]).tolist()) == flagged, (cls, gate, np.flatnonzero(dup[0]))
+
+
 def _existence(mf, maps) -> dict:
     if isinstance(mf, GLMB):
         r = np.concatenate([mf.existence(maps, 0), maps.free_r[0]])
