@@ -459,10 +459,14 @@ class LabelledFilter(MapFilter):
         """(P, A) the candidates cand (P, A) that an older candidate of their particle lies near: a possible second
         track of one landmark (``survival_duplicate``).
 
-        Older: a smaller label (born at an earlier step), of existence (its label's, summed over its versions among
-        the candidates; exist (P, A)) at least ``DUPLICATE_OF`` (0.99). Near: one measurement cannot tell the two apart, the squared
-        Mahalanobis distance of their predicted measurements zhat (P, A, dz) under H P H^T of both (hph (P, A, dz,
-        dz)) plus the measurement noise below ``duplicate_gate``. In measurement space, not in the map's: on real
+        Older: a smaller label (born at an earlier step, or at the same step from an earlier measurement), of
+        existence (its label's, summed over its versions among the candidates; exist (P, A)) at least
+        ``DUPLICATE_OF`` (0.99). Near: one measurement cannot tell the two apart, the squared Mahalanobis distance
+        of their predicted measurements zhat (P, A, dz) under H P H^T of both (hph (P, A, dz, dz)) plus the model's
+        measurement noise R below ``duplicate_gate`` (R: where measurements carry their own covariances, as the
+        laser's circle fits and the planes do, the floor that is added to them, so the gate is stricter there than
+        'one measurement' says). While a new track's covariance is still large a distinct landmark near a
+        confirmed one can be inside the gate for its first steps, and takes survival_duplicate then. In measurement space, not in the map's: on real
         logs a track's covariance shrinks to centimetres (UTIAS: a median 1.2 cm) where its duplicates lie 6-25 cm
         away, distinct by the tracks' covariances but not by any measurement. Versions of one label are never each
         other's duplicates."""

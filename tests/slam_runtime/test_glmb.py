@@ -128,7 +128,9 @@ def _plant(mf, maps, src_label: int, new_label: int, offset):
 def test_a_second_track_of_one_landmark_is_ended_by_survival_duplicate(cls, cfg_cls):
     """A certain second track of a landmark, born later, 5 cm from the first (what real logs leave: UTIAS),
     beside a landmark 0.5 m away (0.37 m and 0.061 rad off in range and bearing: a squared Mahalanobis distance
-    of 51 under the measurement noise, outside duplicate_gate 36) and one far away. The sensor at the origin, P_D 0.4 (UTIAS's is
+    of 51 under the measurement noise, outside duplicate_gate 36 once the tracks' covariances are small; in the
+    first scans, with the new tracks' H P H^T added, 25-34, so it takes survival_duplicate then and its
+    detections keep it) and one far away. The sensor at the origin, P_D 0.4 (UTIAS's is
     0.1-0.7), one false alarm per scan, 60 scans. With survival 1 both tracks of the landmark are immortal:
     a track every hypothesis holds cannot die. With survival_duplicate 0.9 the younger may die, and the data
     end it: one detection per scan is explained 2 (1 - P_D) = 1.2 times better by two tracks than by one, a
@@ -174,19 +176,20 @@ def test_a_possible_second_track_is_the_younger_of_two_a_measurement_cannot_tell
     older); 2 a track 3 m away (not near anything); 3-4 two versions of one label 5 cm apart (never each other's
     duplicate); 5-6 a younger track near an older one of existence 0.9 (not a confirmed landmark track: not
     flagged, DUPLICATE_OF 0.99); 7-8 two tracks 0.5 m apart along the beam, squared distance 25 under R: flagged
-    with duplicate_gate 36, not with 16; 9 a candidate not in the set (a birth, or out of view) near 0: not a
-    duplicate and no older track for anyone."""
+    with duplicate_gate 36, not with 16; 9 a candidate not in the set (a birth, or out of view) near 0, older than
+    it: no older track for anyone; 10 one not in the set near 7, younger: not flagged; 11 a younger track near
+    label 40, whose two versions of existence 0.5 each make a confirmed label: flagged."""
     x = np.array([[5.0, 0.0], [5.0, 0.05], [5.0, 3.0], [4.0, -3.0], [4.0, -2.95], [2.0, 4.0], [2.0, 4.05],
-                  [8.0, 0.0], [8.5, 0.0], [5.0, 0.02]])
-    lab = np.array([10, 20, 30, 40, 40, 50, 60, 70, 80, 5])
-    ex = np.array([1.0, 1.0, 1.0, 0.5, 0.5, 0.9, 1.0, 1.0, 1.0, 1.0])
-    cand = np.ones(10, dtype=bool)
-    cand[9] = False
+                  [8.0, 0.0], [8.5, 0.0], [5.0, 0.02], [8.0, 0.03], [4.0, -2.97]])
+    lab = np.array([10, 20, 30, 40, 40, 50, 60, 70, 80, 5, 90, 100])
+    ex = np.array([1.0, 1.0, 1.0, 0.5, 0.5, 0.9, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0])
+    cand = np.ones(12, dtype=bool)
+    cand[[9, 10]] = False
     for cls, cfg_cls in FILTERS:
-        for gate, flagged in ((36.0, {1, 8}), (16.0, {1})):
+        for gate, flagged in ((36.0, {1, 8, 11}), (16.0, {1, 11})):
             mf = cls(RangeBearing(np.diag([0.1**2, 0.01**2])), model(), cfg_cls(survival_duplicate=0.9, duplicate_gate=gate))
             zhat, h = mf.feature.predict_sensor(np.zeros((1, 1, 3)), x[None])
-            hph = np.einsum("...ij,...jk,...lk->...il", h, np.tile(np.eye(2) * 1e-6, (1, 10, 1, 1)), h)
+            hph = np.einsum("...ij,...jk,...lk->...il", h, np.tile(np.eye(2) * 1e-6, (1, 12, 1, 1)), h)
             dup = mf._duplicates(lab[None], cand[None], ex[None], zhat, hph)
             assert set(np.flatnonzero(dup[0]).tolist()) == flagged, (cls, gate, np.flatnonzero(dup[0]))
 
