@@ -125,8 +125,9 @@ LABEL_BITS = 20
 
 #: survival_duplicate: the existence from which an older track makes a younger one near it a possible second
 #: track of its landmark. 0.5 (likelier there than not) was measured first: on the paper's worlds at 15 false alarms
-#: per scan an uncertain older track then made a landmark's younger track mortal, and LMB lost both (0.57 landmarks
-#: missed per run against 0.33); 0.99 (a landmark's confirmed track) spared them (docs/labelled-filters.md)
+#: per scan LMB then missed more landmarks (0.57 per run against 0.33), most likely because an uncertain older track
+#: made a landmark's younger track mortal and LMB lost both; 0.99 (a landmark's confirmed track) missed 0.48
+#: (docs/labelled-filters.md)
 DUPLICATE_OF = 0.99
 
 
