@@ -194,6 +194,39 @@ def test_a_possible_second_track_is_the_younger_of_two_a_measurement_cannot_tell
             assert set(np.flatnonzero(dup[0]).tolist()) == flagged, (cls, gate, np.flatnonzero(dup[0]))
 
 
+def test_an_uncertain_older_track_leaves_a_younger_one_immortal_in_delta_glmb():
+    """survival_duplicate through the whole update, in delta-GLMB, where every track a hypothesis holds is a
+    candidate of existence 1 and a label's existence is the weight of the hypotheses that hold it. A landmark's
+    first track held in hypotheses of weight 0.6 (uncertain) or 1 (confirmed), a second one 5 cm away in every
+    hypothesis; one scan with nothing detected (P_D 0.4). Beside a confirmed first track the second takes P_S 0.9
+    and keeps 0.9 x 0.6 / (0.9 x 0.6 + 0.1) = 0.84 of existence; beside the uncertain one it keeps P_S 1 and its
+    existence stays 1 (the older track's existence is the label's, DUPLICATE_OF 0.99, not the candidate's 1)."""
+    lms = np.array([[5.0, 2.0], [10.0, -3.0]])
+    got = {}
+    for share in (1.0, 0.6):
+        mf = GLMB(RangeBearing(np.diag([0.1**2, 0.01**2])), model(rate=1.0, pd=0.4, buffer=False),
+                  GLMBConfig(survival_duplicate=0.9, duplicate_gate=36.0), rng=np.random.default_rng(1))
+        maps = mf.empty(1)
+        z0, _ = mf.feature.predict(np.zeros(3), lms)
+        for _ in range(6):
+            maps, _ = mf.update(maps, np.zeros((1, 3)), Measurements(z0))
+        ex = _existence(mf, maps)
+        first = {int(np.argmin(np.linalg.norm(lms - _pos(mf, maps, lb), axis=1))): lb for lb, r in ex.items() if r > 0.99}
+        young = 1000 << 20
+        maps = _plant(mf, maps, first[0], young, [0.03, -0.04])
+        best = int(np.argmax(maps.logw[0]))
+        held = maps.member[0, best].copy()
+        without = held & (maps.tracks.label[0] != first[0])
+        member = np.stack([held, without])[None]
+        logw = np.log(np.array([[share, 1.0 - share]]) + 1e-300)
+        maps = GLMBMaps(maps.tracks, logw, member, maps.free, maps.free_r, maps.births)
+        assert _existence(mf, maps)[first[0]] == pytest.approx(share) and _existence(mf, maps)[young] == pytest.approx(1.0)
+        maps, _ = mf.update(maps, np.zeros((1, 3)), Measurements(np.zeros((0, 2))))
+        got[share] = _existence(mf, maps).get(young, 0.0)
+    assert got[1.0] == pytest.approx(0.9 * 0.6 / (0.9 * 0.6 + 0.1), abs=0.01)
+    assert got[0.6] > 1.0 - 1e-9
+
+
 def _existence(mf, maps) -> dict:
     if isinstance(mf, GLMB):
         r = np.concatenate([mf.existence(maps, 0), maps.free_r[0]])
