@@ -416,12 +416,13 @@ class LabelledFilter(MapFilter):
         in_a = np.arange(a)[None, :] < nact[:, None]
         pd_a, buf_a, r_a, birth_a = pd[rows, act], buf[rows, act], sl.r[rows, act], sl.birth[rows, act]
         ps = np.where(birth_a | buf_a, 1.0, np.where(pd_a > 0, cfg.survival, cfg.survival_outside))
-        if a and (m or (cfg.survival_duplicate < 1.0 and a > 1)):
+        dup_on = cfg.survival_duplicate < 1.0 and a > 1
+        if a and (m or dup_on):
             mu_a, cov_a = sl.mu[rows, act], sl.cov[rows, act]
             zhat, h = fm.predict_sensor(sp[:, None, :], mu_a)
             hph = matmul(h, matmul(cov_a, transpose(h)))
-            if cfg.survival_duplicate < 1.0 and a > 1:
-                cand = in_a & ~birth_a & ~buf_a & (pd_a > 0)
+            if dup_on:  # (an active track that is not a birth has P_D > 0)
+                cand = in_a & ~birth_a & ~buf_a
                 dup = self._duplicates(sl.label[rows, act], cand, (sl.r if exist is None else exist)[rows, act], zhat, hph)
                 ps = np.where(dup, np.minimum(ps, cfg.survival_duplicate), ps)
         pd_miss = np.where(buf_a, 0.0, pd_a)
@@ -458,19 +459,20 @@ class LabelledFilter(MapFilter):
 
     def _duplicates(self, lab: np.ndarray, cand: np.ndarray, exist: np.ndarray, zhat: np.ndarray, hph: np.ndarray) -> np.ndarray:
         """(P, A) the candidates cand (P, A) that an older candidate of their particle lies near: a possible second
-        track of one landmark (``survival_duplicate``).
+        track of one landmark (``survival_duplicate``). Versions of one label are never each other's duplicates.
 
         Older: a smaller label (born at an earlier step, or at the same step from an earlier measurement), of
         existence (its label's, summed over its versions among the candidates; exist (P, A)) at least
-        ``DUPLICATE_OF`` (0.99). Near: one measurement cannot tell the two apart, the squared Mahalanobis distance
-        of their predicted measurements zhat (P, A, dz) under H P H^T of both (hph (P, A, dz, dz)) plus the model's
-        measurement noise R below ``duplicate_gate`` (R: where measurements carry their own covariances, as the
-        laser's circle fits and the planes do, the floor that is added to them, so the gate is stricter there than
-        'one measurement' says). While a new track's covariance is still large a distinct landmark near a
-        confirmed one can be inside the gate for its first steps, and takes survival_duplicate then. In measurement space, not in the map's: on real
-        logs a track's covariance shrinks to centimetres (UTIAS: a median 1.2 cm) where its duplicates lie 6-25 cm
-        away, distinct by the tracks' covariances but not by any measurement. Versions of one label are never each
-        other's duplicates."""
+        ``DUPLICATE_OF`` (0.99).
+
+        Near: one measurement cannot tell the two apart, the squared Mahalanobis distance of their predicted
+        measurements zhat (P, A, dz) under H P H^T of both (hph (P, A, dz, dz)) plus the model's measurement noise R
+        below ``duplicate_gate``. In measurement space, not in the map's: on real logs a track's covariance shrinks
+        to centimetres (UTIAS: a median 1.2 cm) where its duplicates lie 6-25 cm away, distinct by the tracks'
+        covariances but not by any measurement. R is the model's: where measurements carry their own covariances
+        (the laser's circle fits, the planes) it is the floor added to them, so the gate is stricter there than
+        'one measurement' says. While a new track's covariance is still large, a distinct landmark near a confirmed
+        one can be inside the gate for its first steps, and takes survival_duplicate then."""
         same = lab[:, :, None] == lab[:, None, :]  # (P, A, A)
         lab_ex = np.einsum("pij,pj->pi", (same & cand[:, None, :]).astype(np.float64), np.where(cand, exist, 0.0))
         older = cand[:, :, None] & cand[:, None, :] & (lab[:, None, :] < lab[:, :, None]) & (lab_ex >= DUPLICATE_OF)[:, None, :]

@@ -378,7 +378,7 @@ def summarise(rows: list[dict], by: tuple[str, ...], labels: tuple[str, ...] = (
 
 
 def is_number(v) -> bool:
-    """Whether a value is a number (not a flag, a label or a missing value): a runs.csv value that is a metric's number (not a flag, a label or a missing value)."""
+    """Whether a value is a number: a metric's, in runs.csv (not a flag, a label or a missing value)."""
     return isinstance(v, int | float) and not isinstance(v, bool)
 
 

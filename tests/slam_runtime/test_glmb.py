@@ -124,6 +124,23 @@ def _plant(mf, maps, src_label: int, new_label: int, offset):
     return LMBMaps(tracks, np.concatenate([maps.r, maps.r[:, k : k + 1]], axis=1), maps.births)
 
 
+#: the label of a planted second track: a birth at a step long after the warm-up's (younger than every track)
+YOUNG = 1000 << 20
+
+
+def _second_track(mf, lms):
+    """Six scans detecting every landmark of lms from the origin (each a certain track), then a second track of the
+    first landmark planted 5 cm from it under the label YOUNG: (maps, {landmark index: its first track's label})."""
+    maps = mf.empty(1)
+    z0, _ = mf.feature.predict(np.zeros(3), lms)
+    for _ in range(6):
+        maps, _ = mf.update(maps, np.zeros((1, 3)), Measurements(z0))
+    ex = _existence(mf, maps)
+    first = {int(np.argmin(np.linalg.norm(lms - _pos(mf, maps, lb), axis=1))): lb for lb, r in ex.items() if r > 0.99}
+    assert sorted(first) == list(range(len(lms)))
+    return _plant(mf, maps, first[0], YOUNG, [0.03, -0.04]), first
+
+
 @pytest.mark.parametrize("cls,cfg_cls", FILTERS)
 def test_a_second_track_of_one_landmark_is_ended_by_survival_duplicate(cls, cfg_cls):
     """A certain second track of a landmark, born later, 5 cm from the first (what real logs leave: UTIAS),
@@ -142,15 +159,7 @@ def test_a_second_track_of_one_landmark_is_ended_by_survival_duplicate(cls, cfg_
         rng = np.random.default_rng(4)
         mf = cls(RangeBearing(np.diag([0.1**2, 0.01**2])), model(rate=1.0, pd=0.4, buffer=False),
                  cfg_cls(survival_duplicate=dup, duplicate_gate=36.0), rng=np.random.default_rng(4))
-        maps = mf.empty(1)
-        z0, _ = mf.feature.predict(np.zeros(3), lms)
-        for _ in range(6):
-            maps, _ = mf.update(maps, np.zeros((1, 3)), Measurements(z0))
-        ex = _existence(mf, maps)
-        first = {int(np.argmin(np.linalg.norm(lms - _pos(mf, maps, lb), axis=1))): lb for lb, r in ex.items() if r > 0.99}
-        assert sorted(first) == [0, 1, 2]
-        young = 1000 << 20
-        maps = _plant(mf, maps, first[0], young, [0.03, -0.04])
+        maps, first = _second_track(mf, lms)
         for _ in range(60):
             z, _ = mf.feature.predict(np.zeros(3), lms)
             z = z[rng.uniform(size=len(lms)) < 0.4]
@@ -160,7 +169,7 @@ def test_a_second_track_of_one_landmark_is_ended_by_survival_duplicate(cls, cfg_
             maps, ll = mf.update(maps, np.zeros((1, 3)), Measurements(np.vstack([z, clutter])))
             assert np.isfinite(ll).all()
         ex = _existence(mf, maps)
-        out[dup] = ex.get(young, 0.0)
+        out[dup] = ex.get(YOUNG, 0.0)
         assert all(ex[first[i]] > 0.99 for i in range(3)), (dup, ex)
         x, _ = mf.estimate(maps, 0)
         near = np.linalg.norm(x[:, None] - lms[None], axis=2) < 0.15
@@ -206,23 +215,16 @@ def test_an_uncertain_older_track_leaves_a_younger_one_immortal_in_delta_glmb():
     for share in (1.0, 0.6):
         mf = GLMB(RangeBearing(np.diag([0.1**2, 0.01**2])), model(rate=1.0, pd=0.4, buffer=False),
                   GLMBConfig(survival_duplicate=0.9, duplicate_gate=36.0), rng=np.random.default_rng(1))
-        maps = mf.empty(1)
-        z0, _ = mf.feature.predict(np.zeros(3), lms)
-        for _ in range(6):
-            maps, _ = mf.update(maps, np.zeros((1, 3)), Measurements(z0))
-        ex = _existence(mf, maps)
-        first = {int(np.argmin(np.linalg.norm(lms - _pos(mf, maps, lb), axis=1))): lb for lb, r in ex.items() if r > 0.99}
-        young = 1000 << 20
-        maps = _plant(mf, maps, first[0], young, [0.03, -0.04])
+        maps, first = _second_track(mf, lms)
         best = int(np.argmax(maps.logw[0]))
         held = maps.member[0, best].copy()
         without = held & (maps.tracks.label[0] != first[0])
         member = np.stack([held, without])[None]
         logw = np.log(np.array([[share, 1.0 - share]]) + 1e-300)
         maps = GLMBMaps(maps.tracks, logw, member, maps.free, maps.free_r, maps.births)
-        assert _existence(mf, maps)[first[0]] == pytest.approx(share) and _existence(mf, maps)[young] == pytest.approx(1.0)
+        assert _existence(mf, maps)[first[0]] == pytest.approx(share) and _existence(mf, maps)[YOUNG] == pytest.approx(1.0)
         maps, _ = mf.update(maps, np.zeros((1, 3)), Measurements(np.zeros((0, 2))))
-        got[share] = _existence(mf, maps).get(young, 0.0)
+        got[share] = _existence(mf, maps).get(YOUNG, 0.0)
     assert got[1.0] == pytest.approx(0.9 * 0.6 / (0.9 * 0.6 + 0.1), abs=0.01)
     assert got[0.6] > 1.0 - 1e-9
 
