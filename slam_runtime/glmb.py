@@ -30,7 +30,9 @@ One step (:meth:`GLMB.update`, eqs. 11-17):
   eq. 3.21) neither dies nor pays for a miss; with ``survival_duplicate`` < 1
   a track in view that an older track lies near (in measurement space:
   :meth:`LabelledFilter._duplicates`) takes that P_S instead, so that a second
-  track of one landmark can end while the landmark's first stays;
+  track of one landmark can end while the landmark's first stays, until the
+  particle sees the two apart: both detected in one scan
+  (:meth:`LabelledFilter._seen_apart`), they are two landmarks from then on;
 * the costs eta (eqs. 5, 13, 15, 27) of every (track, measurement) pair of all
   particles in one numpy pass (only the tracks that can be seen, inside the
   gate); the Gibbs sampler (:mod:`slam_runtime.gibbs`, compiled) draws the
@@ -161,8 +163,9 @@ class LabelledSettings(BaseModel):
         gt=0.0,
         le=1.0,
         description="P_S in view of a track that an older track of its particle (an earlier birth, of existence >= 0.99) lies "
-        "within squared Mahalanobis distance duplicate_gate of: a possible second track of one landmark, which the data may "
-        "then end; every other track keeps survival (1: off)",
+        "within squared Mahalanobis distance duplicate_gate of, unless the particle has seen the two apart (both detected in "
+        "one scan): a possible second track of one landmark, which the data may then end; every other track keeps survival "
+        "(1: off)",
     )
     duplicate_gate: float = Field(
         default=1.0,

@@ -14,7 +14,7 @@ from profiles.errors import UsageError
 from profiles.schema import ClutterParams, MeasurementNoise, PdTable, SensorModel
 from slam_runtime.config import SlamConfig, override
 from slam_runtime.features import RangeBearing, lookup
-from slam_runtime.glmb import GLMB, Apart, Births, GLMBConfig, GLMBMaps, Tracks, label_parts
+from slam_runtime.glmb import GLMB, Apart, Births, GLMBConfig, GLMBMaps, Tracks, _Slots, label_parts
 from slam_runtime.labels import labelled_hooks
 from slam_runtime.lmb import LMB, LMBConfig, LMBMaps
 from slam_runtime.mapfilter import Measurements
@@ -208,6 +208,27 @@ def test_a_possible_second_track_is_the_younger_of_two_a_measurement_cannot_tell
             apart = Apart.empty(1).add(np.array([0]), np.array([80]), np.array([70]))
             _, j, _ = mf._duplicates(lab[None], cand[None], ex[None], zhat, hph, apart)
             assert set(j.tolist()) == flagged - {8}, (cls, gate, j)
+
+
+def test_births_and_buffer_zone_tracks_are_no_ones_duplicates_and_have_none():
+    """_costs decides which candidates the duplicate test sees: not the births (a birth's P_S is its birth) and
+    not the tracks in the buffer zone (they neither die nor pay for a miss), on either side of a pair. One
+    particle, every track certain: 0 (label 10) and 1 (20) a landmark's two tracks 5 cm apart, 1 flagged; 2-3
+    (30, 40) the same with 3 in the buffer zone, 4-5 (60, 70) with the older, 4, in the buffer zone, and 6 a birth
+    (label 50) 5 cm from 0: none of these flagged. The flagged track alone has a death option: log(1 - 0.9)."""
+    x = np.array([[5.0, 0.0], [5.0, 0.05], [8.0, 0.0], [8.0, 0.05], [11.0, 0.0], [11.0, 0.05], [5.0, -0.05]])
+    lab = np.array([[10, 20, 30, 40, 60, 70, 50]])
+    birth = np.array([[False] * 6 + [True]])
+    buf = np.array([[False, False, False, True, True, False, False]])
+    for cls, cfg_cls in FILTERS:
+        mf = cls(RangeBearing(np.diag([0.1**2, 0.01**2])), model(), cfg_cls(survival_duplicate=0.9, duplicate_gate=36.0))
+        sl = _Slots(x[None], np.tile(np.eye(2) * 1e-6, (1, 7, 1, 1)), np.where(birth, 0.01, 1.0), lab, np.ones((1, 7), bool), birth)
+        c = mf._costs(sl, np.zeros((1, 3)), np.zeros((0, 2)), np.zeros((0, 2, 2)), False, np.zeros(0), np.full((1, 7), 0.5), buf)
+        i, j, k = c.near
+        assert c.act[i, j].tolist() == [1] and c.act[i, k].tolist() == [0], (cls, c.act[i, j], c.act[i, k])
+        l_death = dict(zip(c.act[0].tolist(), c.l_death[0].tolist(), strict=True))
+        assert l_death[1] == pytest.approx(np.log(0.1))
+        assert all(np.isneginf(l_death[s]) for s in range(6) if s != 1), l_death
 
 
 def test_an_uncertain_older_track_leaves_a_younger_one_immortal_in_delta_glmb():
