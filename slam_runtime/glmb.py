@@ -564,22 +564,27 @@ class LabelledFilter(MapFilter):
             i, j, k = i[~known], j[~known], k[~known]
         return i, j, k
 
-    def _label_weights(self, sl: _Slots, res: JointResult, c: _Costs):
-        """Each (particle, label) that was a candidate this step: (key (K,) sorted, :func:`store_key`; particle (K,);
-        slot of its first version (K,); the summed weight of the children that hold it detected (K,), and missed (K,)),
-        a candidate updated outside the sampler by its options' shares."""
+    def _label_weights(self, sl: _Slots, res: JointResult, c: _Costs, only: np.ndarray | None = None):
+        """Each (particle, label) that was a candidate this step, or only those of the sorted keys only: (key (K,)
+        sorted, :func:`store_key`; particle (K,); slot of its first version (K,); the summed weight of the children
+        that hold it detected (K,), and missed (K,)), a candidate updated outside the sampler by its options' shares."""
         sp_, _ = res.slot_particle()
         wslot = res.slot_weights()
         det = res.slot_a > 0
         hp, ha = np.nonzero(c.held & ~c.idle)
         l_det = c.l_det[hp, ha] - c.l_held[hp, ha][:, None]
         w_det_h = np.exp(l_det).sum(axis=1) if l_det.shape[1] else np.zeros(hp.size)
+        w_miss_h = np.exp(c.l_miss[hp, ha] - c.l_held[hp, ha])
         pp = np.concatenate([sp_, hp])
         ss = np.concatenate([res.slot_src, c.act[hp, ha]])
-        uniq, first, inv = np.unique(store_key(pp, sl.label[pp, ss]), return_index=True, return_inverse=True)
-        w_det = np.bincount(inv, weights=np.concatenate([wslot * det, w_det_h]), minlength=uniq.size)
-        w_miss_h = np.exp(c.l_miss[hp, ha] - c.l_held[hp, ha])
-        w_miss = np.bincount(inv, weights=np.concatenate([wslot * ~det, w_miss_h]), minlength=uniq.size)
+        key = store_key(pp, sl.label[pp, ss])
+        w_d, w_m = np.concatenate([wslot * det, w_det_h]), np.concatenate([wslot * ~det, w_miss_h])
+        if only is not None:
+            _, hit = lookup(only, key)
+            pp, ss, key, w_d, w_m = pp[hit], ss[hit], key[hit], w_d[hit], w_m[hit]
+        uniq, first, inv = np.unique(key, return_index=True, return_inverse=True)
+        w_det = np.bincount(inv, weights=w_d, minlength=uniq.size)
+        w_miss = np.bincount(inv, weights=w_m, minlength=uniq.size)
         return uniq, pp[first], ss[first], w_det, w_miss
 
     def _seen_apart(self, apart: Apart | None, sl: _Slots, res: JointResult, c: _Costs, label: np.ndarray) -> Apart | None:
@@ -592,8 +597,9 @@ class LabelledFilter(MapFilter):
         out = Apart.empty(label.shape[0]) if apart is None else apart
         if c.near is not None and c.near[0].size:
             i, j, k = c.near
-            keys, _, _, w_det, _ = self._label_weights(sl, res, c)
-            (jy, hy), (jo, ho) = lookup(keys, store_key(i, c.label[i, j])), lookup(keys, store_key(i, c.label[i, k]))
+            ky, ko = store_key(i, c.label[i, j]), store_key(i, c.label[i, k])
+            keys, _, _, w_det, _ = self._label_weights(sl, res, c, np.unique(np.concatenate([ky, ko])))
+            (jy, hy), (jo, ho) = lookup(keys, ky), lookup(keys, ko)
             both = hy & ho & (w_det[jy] + w_det[jo] - 1.0 >= APART_BY)
             out = out.add(i[both], c.label[i[both], j[both]], c.label[i[both], k[both]])
         return out.among(label)
