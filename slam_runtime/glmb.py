@@ -30,9 +30,7 @@ One step (:meth:`GLMB.update`, eqs. 11-17):
   eq. 3.21) neither dies nor pays for a miss; with ``survival_duplicate`` < 1
   a track in view that an older track lies near (in measurement space:
   :meth:`LabelledFilter._duplicates`) takes that P_S instead, so that a second
-  track of one landmark can end while the landmark's first stays, until the
-  particle sees the two apart: both detected in one scan
-  (:meth:`LabelledFilter._seen_apart`), they are two landmarks from then on;
+  track of one landmark can end while the landmark's first stays;
 * the costs eta (eqs. 5, 13, 15, 27) of every (track, measurement) pair of all
   particles in one numpy pass (only the tracks that can be seen, inside the
   gate); the Gibbs sampler (:mod:`slam_runtime.gibbs`, compiled) draws the
@@ -132,10 +130,6 @@ LABEL_BITS = 20
 #: (docs/labelled-filters.md)
 DUPLICATE_OF = 0.99
 
-#: survival_duplicate: the share of a step's weight in which two near tracks must both be detected for their particle
-#: to take them for two landmarks from then on (:meth:`LabelledFilter._seen_apart`)
-APART_BY = 0.5
-
 
 def label_parts(label: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(step, measurement) a label was born from: the filter step whose measurement gave the birth track."""
@@ -163,9 +157,8 @@ class LabelledSettings(BaseModel):
         gt=0.0,
         le=1.0,
         description="P_S in view of a track that an older track of its particle (an earlier birth, of existence >= 0.99) lies "
-        "within squared Mahalanobis distance duplicate_gate of, unless the particle has seen the two apart (both detected in "
-        "one scan): a possible second track of one landmark, which the data may then end; every other track keeps survival "
-        "(1: off)",
+        "within squared Mahalanobis distance duplicate_gate of: a possible second track of one landmark, which the data may "
+        "then end; every other track keeps survival (1: off)",
     )
     duplicate_gate: float = Field(
         default=1.0,
@@ -284,69 +277,11 @@ class Births:
 
 
 @dataclass
-class Apart:
-    """Each particle's pairs of labels (younger, older) seen apart (``survival_duplicate``): two tracks near enough that
-    one measurement could not tell them apart, both detected in one scan, so two landmarks. Padded: young, old (P, K)
-    int64 (-1: an empty entry)."""
-
-    young: np.ndarray
-    old: np.ndarray
-
-    @classmethod
-    def empty(cls, p: int) -> Apart:
-        return cls(np.full((p, 0), -1, np.int64), np.full((p, 0), -1, np.int64))
-
-    def take(self, idx: np.ndarray) -> Apart:
-        return Apart(self.young[idx], self.old[idx])
-
-    def _entries(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        pp, kk = np.nonzero(self.young >= 0)
-        return pp, self.young[pp, kk], self.old[pp, kk]
-
-    def holds(self, particle: np.ndarray, young: np.ndarray, old: np.ndarray) -> np.ndarray:
-        """(N,) whether particle's pair (young, old) is held, for the N pairs given."""
-        pp, yy, oo = self._entries()
-        if not pp.size or not particle.size:
-            return np.zeros(particle.size, dtype=bool)
-        labs, code = np.unique(np.concatenate([yy, oo, young, old]), return_inverse=True)
-        n, m, q = labs.size, pp.size, particle.size
-        stored = (pp * n + code[:m]) * n + code[m : 2 * m]
-        asked = (np.asarray(particle, np.int64) * n + code[2 * m : 2 * m + q]) * n + code[2 * m + q :]
-        return np.isin(asked, stored)
-
-    def add(self, particle: np.ndarray, young: np.ndarray, old: np.ndarray) -> Apart:
-        """These pairs and the pairs given (N,), each once, in (particle, young, old) order."""
-        pp, yy, oo = self._entries()
-        pp, yy, oo = np.concatenate([pp, particle]), np.concatenate([yy, young]), np.concatenate([oo, old])
-        order = np.lexsort((oo, yy, pp))
-        pp, yy, oo = pp[order], yy[order], oo[order]
-        first = np.ones(pp.size, dtype=bool)
-        first[1:] = (pp[1:] != pp[:-1]) | (yy[1:] != yy[:-1]) | (oo[1:] != oo[:-1])
-        return self._build(self.young.shape[0], pp[first], yy[first], oo[first])
-
-    def among(self, label: np.ndarray) -> Apart:
-        """The pairs both of whose labels their particle still holds (label (P, T), -1: an empty slot)."""
-        pp, yy, oo = self._entries()
-        row = label[pp]
-        keep = (row == yy[:, None]).any(axis=1) & (row == oo[:, None]).any(axis=1)
-        return self._build(self.young.shape[0], pp[keep], yy[keep], oo[keep])
-
-    @staticmethod
-    def _build(p: int, pp: np.ndarray, yy: np.ndarray, oo: np.ndarray) -> Apart:
-        cnt = np.bincount(pp, minlength=p)
-        k = np.arange(pp.size) - np.concatenate([[0], np.cumsum(cnt)[:-1]])[pp]
-        out = Apart.empty(p) if not pp.size else Apart(np.full((p, int(cnt.max())), -1, np.int64), np.full((p, int(cnt.max())), -1, np.int64))
-        out.young[pp, k], out.old[pp, k] = yy, oo
-        return out
-
-
-@dataclass
 class GLMBMaps:
     """The delta-GLMB maps of P particles: the tracks of the hypotheses (P, T), the hypotheses' normalised
     log weights logw (P, H) (-inf for an empty slot) and track sets member (P, H, T) bool; the released
     tracks (independent Bernoulli components) free (P, F) with existence free_r (P, F); the births of
-    the next step; with ``learn_pd`` each label's factor on P_D (:mod:`slam_runtime.pd_factor`; None without); with
-    ``survival_duplicate`` < 1 the pairs of labels seen apart (:class:`Apart`; None without)."""
+    the next step; with ``learn_pd`` each label's factor on P_D (:mod:`slam_runtime.pd_factor`; None without)."""
 
     tracks: Tracks
     logw: np.ndarray
@@ -355,12 +290,11 @@ class GLMBMaps:
     free_r: np.ndarray
     births: Births
     pd: LabelFactors | None = None
-    apart: Apart | None = None
 
     def take(self, idx: np.ndarray) -> GLMBMaps:
         return GLMBMaps(
             self.tracks.take(idx), self.logw[idx], self.member[idx], self.free.take(idx), self.free_r[idx], self.births.take(idx),
-            None if self.pd is None else self.pd.take(idx), None if self.apart is None else self.apart.take(idx),
+            None if self.pd is None else self.pd.take(idx),
         )
 
 
@@ -423,9 +357,6 @@ class _Costs:
     l_held: np.ndarray  # (P, A) log of that sum (0 where not held)
     idle: np.ndarray  # (P, A) bool: the held births that gate nothing and are likelier absent (delta-GLMB drops them)
     label: np.ndarray  # (P, A) int64: the label of each active candidate
-    # survival_duplicate: (particle, younger, older) candidate indices (K,) of the pairs within duplicate_gate not yet
-    # seen apart, the younger taking survival_duplicate
-    near: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
 
 class LabelledFilter(MapFilter):
@@ -466,13 +397,12 @@ class LabelledFilter(MapFilter):
 
     def _costs(
         self, sl: _Slots, sp: np.ndarray, z: np.ndarray, rz: np.ndarray, own_cov: bool, log_kappa: np.ndarray, pd, buf,
-        shared: np.ndarray | None = None, exist: np.ndarray | None = None, apart: Apart | None = None,
+        shared: np.ndarray | None = None, exist: np.ndarray | None = None,
     ) -> _Costs:
         """log eta of every option of the active candidates (module docstring of :mod:`slam_runtime.gibbs`);
         shared (P, S): the slots that are candidates of every hypothesis with the same options (births, released
         tracks), held out of the sampler when independent of every other candidate (None: only idle births);
-        exist (P, S): each slot's existence probability (for ``survival_duplicate``; None: sl.r); apart: the pairs of
-        labels seen apart, never each other's duplicates (None: none)."""
+        exist (P, S): each slot's existence probability (for ``survival_duplicate``; None: sl.r)."""
         cfg, fm = self.cfg, self.feature
         p, s = sl.valid.shape
         m = z.shape[0]
@@ -487,16 +417,13 @@ class LabelledFilter(MapFilter):
         pd_a, buf_a, r_a, birth_a = pd[rows, act], buf[rows, act], sl.r[rows, act], sl.birth[rows, act]
         ps = np.where(birth_a | buf_a, 1.0, np.where(pd_a > 0, cfg.survival, cfg.survival_outside))
         dup_on = cfg.survival_duplicate < 1.0 and a > 1
-        near = None
         if a and (m or dup_on):
             mu_a, cov_a = sl.mu[rows, act], sl.cov[rows, act]
             zhat, h = fm.predict_sensor(sp[:, None, :], mu_a)
             hph = matmul(h, matmul(cov_a, transpose(h)))
             if dup_on:  # (an active track that is not a birth has P_D > 0)
                 cand = in_a & ~birth_a & ~buf_a
-                near = self._duplicates(sl.label[rows, act], cand, (sl.r if exist is None else exist)[rows, act], zhat, hph, apart)
-                dup = np.zeros((p, a), dtype=bool)
-                dup[near[0], near[1]] = True
+                dup = self._duplicates(sl.label[rows, act], cand, (sl.r if exist is None else exist)[rows, act], zhat, hph)
                 ps = np.where(dup, np.minimum(ps, cfg.survival_duplicate), ps)
         pd_miss = np.where(buf_a, 0.0, pd_a)
         with np.errstate(divide="ignore"):
@@ -527,17 +454,12 @@ class LabelledFilter(MapFilter):
             mx = opts.max(axis=1)
             l_held[held] = mx + np.log(np.exp(opts - mx[:, None]).sum(axis=1))
         return _Costs(
-            act.astype(np.int64), nact.astype(np.int64), l_death, l_miss, l_det, explained, held, l_held, idle, sl.label[rows, act].astype(np.int64),
-            near,
+            act.astype(np.int64), nact.astype(np.int64), l_death, l_miss, l_det, explained, held, l_held, idle, sl.label[rows, act].astype(np.int64)
         )
 
-    def _duplicates(
-        self, lab: np.ndarray, cand: np.ndarray, exist: np.ndarray, zhat: np.ndarray, hph: np.ndarray, apart: Apart | None = None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(particle, younger, older) (K,): the pairs of candidates cand (P, A) (labels lab (P, A)) in which an older
-        candidate of the particle lies near a younger one, which is then a possible second track of one landmark
-        (``survival_duplicate``). Versions of one label are never each other's duplicates, nor are two labels the
-        particle has seen apart (apart: both detected in one scan, :meth:`_seen_apart`).
+    def _duplicates(self, lab: np.ndarray, cand: np.ndarray, exist: np.ndarray, zhat: np.ndarray, hph: np.ndarray) -> np.ndarray:
+        """(P, A) the candidates cand (P, A) that an older candidate of their particle lies near: a possible second
+        track of one landmark (``survival_duplicate``). Versions of one label are never each other's duplicates.
 
         Older: a smaller label (born at an earlier step, or at the same step from an earlier measurement), of
         existence (its label's, summed over its versions among the candidates; exist (P, A)) at least
@@ -550,59 +472,16 @@ class LabelledFilter(MapFilter):
         covariances but not by any measurement. R is the model's: where measurements carry their own covariances
         (the laser's circle fits, the planes) it is the floor added to them, so the gate is stricter there than
         'one measurement' says. While a new track's covariance is still large, a distinct landmark near a confirmed
-        one can be inside the gate for its first steps, and takes survival_duplicate then, until the two are seen
-        apart."""
+        one can be inside the gate for its first steps, and takes survival_duplicate then."""
         same = lab[:, :, None] == lab[:, None, :]  # (P, A, A)
         lab_ex = np.einsum("pij,pj->pi", (same & cand[:, None, :]).astype(np.float64), np.where(cand, exist, 0.0))
         older = cand[:, :, None] & cand[:, None, :] & (lab[:, None, :] < lab[:, :, None]) & (lab_ex >= DUPLICATE_OF)[:, None, :]
         i, j, k = np.nonzero(older)
         nu = self.feature.innovation(zhat[i, j], zhat[i, k])
         near = quad(inv(hph[i, j] + hph[i, k] + self.r), nu) < self.cfg.duplicate_gate
-        i, j, k = i[near], j[near], k[near]
-        if apart is not None:
-            known = apart.holds(i, lab[i, j], lab[i, k])
-            i, j, k = i[~known], j[~known], k[~known]
-        return i, j, k
-
-    def _label_weights(self, sl: _Slots, res: JointResult, c: _Costs, only: np.ndarray | None = None):
-        """Each (particle, label) that was a candidate this step, or only those of the sorted keys only: (key (K,)
-        sorted, :func:`store_key`; particle (K,); slot of its first version (K,); the summed weight of the children
-        that hold it detected (K,), and missed (K,)), a candidate updated outside the sampler by its options' shares."""
-        sp_, _ = res.slot_particle()
-        wslot = res.slot_weights()
-        det = res.slot_a > 0
-        hp, ha = np.nonzero(c.held & ~c.idle)
-        l_det = c.l_det[hp, ha] - c.l_held[hp, ha][:, None]
-        w_det_h = np.exp(l_det).sum(axis=1) if l_det.shape[1] else np.zeros(hp.size)
-        w_miss_h = np.exp(c.l_miss[hp, ha] - c.l_held[hp, ha])
-        pp = np.concatenate([sp_, hp])
-        ss = np.concatenate([res.slot_src, c.act[hp, ha]])
-        key = store_key(pp, sl.label[pp, ss])
-        w_d, w_m = np.concatenate([wslot * det, w_det_h]), np.concatenate([wslot * ~det, w_miss_h])
-        if only is not None:
-            _, hit = lookup(only, key)
-            pp, ss, key, w_d, w_m = pp[hit], ss[hit], key[hit], w_d[hit], w_m[hit]
-        uniq, first, inv = np.unique(key, return_index=True, return_inverse=True)
-        w_det = np.bincount(inv, weights=w_d, minlength=uniq.size)
-        w_miss = np.bincount(inv, weights=w_m, minlength=uniq.size)
-        return uniq, pp[first], ss[first], w_det, w_miss
-
-    def _seen_apart(self, apart: Apart | None, sl: _Slots, res: JointResult, c: _Costs, label: np.ndarray) -> Apart | None:
-        """``survival_duplicate``: the pairs of labels seen apart after this step, of the particles' new labels (label
-        (P, T)): those before and the pairs near each other this step (c.near) that the children held both detected
-        with at least ``APART_BY`` of the weight (Frechet's lower bound from the two labels' detection weights, d_young
-        + d_older - 1: the joint is not kept). None while the setting is off."""
-        if self.cfg.survival_duplicate >= 1.0:
-            return apart
-        out = Apart.empty(label.shape[0]) if apart is None else apart
-        if c.near is not None and c.near[0].size:
-            i, j, k = c.near
-            ky, ko = store_key(i, c.label[i, j]), store_key(i, c.label[i, k])
-            keys, _, _, w_det, _ = self._label_weights(sl, res, c, np.unique(np.concatenate([ky, ko])))
-            (jy, hy), (jo, ho) = lookup(keys, ky), lookup(keys, ko)
-            both = hy & ho & (w_det[jy] + w_det[jo] - 1.0 >= APART_BY)
-            out = out.add(i[both], c.label[i[both], j[both]], c.label[i[both], k[both]])
-        return out.among(label)
+        out = np.zeros(cand.shape, dtype=bool)
+        out[i[near], j[near]] = True
+        return out
 
     def _det_costs(self, zhat, hph, z, rz, own_cov: bool, l_base, log_kappa, in_a, pd_pos, compiled: bool = True):
         """log eta of the detections (P, A, M) (-inf outside the gate or where P_D = 0) and the gate (P, A, M) of the
@@ -817,8 +696,20 @@ class GLMB(LabelledFilter):
         """Each label's factor on P_D after this step (:mod:`slam_runtime.pd_factor`): (particle (K,), label (K,),
         density (K, 2)) of every label that was a candidate, from the summed weights of the hypotheses that hold its
         detected and its missed versions (a candidate updated outside the sampler: its options' shares)."""
-        _, fp, fs, w_det, w_miss = self._label_weights(sl, res, c)
+        sp_, _ = res.slot_particle()
+        wslot = res.slot_weights()
+        det = res.slot_a > 0
+        hp, ha = np.nonzero(c.held & ~c.idle)
+        l_det = c.l_det[hp, ha] - c.l_held[hp, ha][:, None]
+        w_det_h = np.exp(l_det).sum(axis=1) if l_det.shape[1] else np.zeros(hp.size)
+        pp = np.concatenate([sp_, hp])
+        ss = np.concatenate([res.slot_src, c.act[hp, ha]])
+        uniq, first, inv = np.unique(store_key(pp, sl.label[pp, ss]), return_index=True, return_inverse=True)
+        w_det = np.bincount(inv, weights=np.concatenate([wslot * det, w_det_h]), minlength=uniq.size)
+        w_miss_h = np.exp(c.l_miss[hp, ha] - c.l_held[hp, ha])
+        w_miss = np.bincount(inv, weights=np.concatenate([wslot * ~det, w_miss_h]), minlength=uniq.size)
         pd_miss = self._miss_pd(sl, pd_model, buf)  # (and where the sensor could not see, pd_model is 0)
+        fp, fs = pp[first], ss[first]
         return fp, sl.label[fp, fs], beta_update(ab[fp, fs], pd_miss[fp, fs], w_det, w_miss)
 
     def _store(self, old: LabelFactors, learned, tracks: Tracks, free: Tracks) -> LabelFactors:
@@ -860,7 +751,7 @@ class GLMB(LabelledFilter):
                 pd = pd * mean_factor(ab)
         with tm("costs"):
             shared = np.concatenate([np.zeros((p, t), dtype=bool), fr.valid, np.ones((p, s - t - f), dtype=bool)], axis=1)
-            c = self._costs(sl, sp, z, rz, meas.cov is not None, log_kappa, pd, buf, shared if cfg.factor_independent else None, ex, maps.apart)
+            c = self._costs(sl, sp, z, rz, meas.cov is not None, log_kappa, pd, buf, shared if cfg.factor_independent else None, ex)
             active = np.zeros((p, s), dtype=bool)
             in_a = np.arange(c.act.shape[1])[None, :] < c.nact[:, None]
             active[np.nonzero(in_a)[0], c.act[in_a]] = True
@@ -912,10 +803,9 @@ class GLMB(LabelledFilter):
             factors = None
             if ab is not None:
                 factors = self._store(self._factors(maps), self._learn(sl, ab, pd_model, buf, res, c), tracks, free)
-            apart = self._seen_apart(maps.apart, sl, res, c, np.concatenate([tracks.label, free.label], axis=1))
         births = self._births(sp, z, rz, c.explained)
         self.step += 1
-        return GLMBMaps(tracks, logw, member, free, free_r, births, factors, apart), res.loglik
+        return GLMBMaps(tracks, logw, member, free, free_r, births, factors), res.loglik
 
     @staticmethod
     def _slot_existence(maps: GLMBMaps) -> np.ndarray:

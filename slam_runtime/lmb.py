@@ -42,7 +42,7 @@ import numpy as np
 from pydantic import Field
 
 from slam_runtime.features import FeatureModel
-from slam_runtime.glmb import Apart, Births, LabelledFilter, LabelledSettings, Tracks
+from slam_runtime.glmb import Births, LabelledFilter, LabelledSettings, Tracks
 from slam_runtime.gm import moment_match
 from slam_runtime.mapfilter import Measurements
 from slam_runtime.pd_factor import beta_update, mean_factor, prior_ab
@@ -64,20 +64,15 @@ class LMBConfig(LabelledSettings):
 @dataclass
 class LMBMaps:
     """The LMB maps of P particles: tracks (P, T), existence r (P, T) (0 for an empty slot), the births of the next step;
-    with ``learn_pd`` each track's Beta density of its factor on P_D, pd_ab (P, T, 2) = (a, b) (None without); with
-    ``survival_duplicate`` < 1 the pairs of labels seen apart (:class:`slam_runtime.glmb.Apart`; None without)."""
+    with ``learn_pd`` each track's Beta density of its factor on P_D, pd_ab (P, T, 2) = (a, b) (None without)."""
 
     tracks: Tracks
     r: np.ndarray
     births: Births
     pd_ab: np.ndarray | None = None
-    apart: Apart | None = None
 
     def take(self, idx: np.ndarray) -> LMBMaps:
-        return LMBMaps(
-            self.tracks.take(idx), self.r[idx], self.births.take(idx), None if self.pd_ab is None else self.pd_ab[idx],
-            None if self.apart is None else self.apart.take(idx),
-        )
+        return LMBMaps(self.tracks.take(idx), self.r[idx], self.births.take(idx), None if self.pd_ab is None else self.pd_ab[idx])
 
 
 class LMB(LabelledFilter):
@@ -134,8 +129,7 @@ class LMB(LabelledFilter):
             if ab is not None:
                 pd = pd * mean_factor(ab)
             # one hypothesis: every candidate is a candidate of every hypothesis, with the same options
-            shared = np.ones((p, s), dtype=bool) if self.cfg.factor_independent else None
-            c = self._costs(sl, sp, z, rz, meas.cov is not None, log_kappa, pd, buf, shared, apart=maps.apart)
+            c = self._costs(sl, sp, z, rz, meas.cov is not None, log_kappa, pd, buf, np.ones((p, s), dtype=bool) if self.cfg.factor_independent else None)
             member = np.zeros((p, 1, s), dtype=bool)
             in_a = np.arange(c.act.shape[1])[None, :] < c.nact[:, None]
             member[np.nonzero(in_a)[0], 0, c.act[in_a]] = True
@@ -189,10 +183,9 @@ class LMB(LabelledFilter):
             )
             r = np.where(held, r_all[rows, order], 0.0)
             pd_ab = None if ab is None else np.where(held[..., None], ab[rows, order], prior_ab(self.cfg))
-            apart = self._seen_apart(maps.apart, sl, res, c, tracks.label)
         births = self._births(sp, z, rz, c.explained)
         self.step += 1
-        return LMBMaps(tracks, r, births, pd_ab, apart), res.loglik
+        return LMBMaps(tracks, r, births, pd_ab), res.loglik
 
     def _map_states(self, maps: LMBMaps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return maps.tracks.mu, maps.tracks.label, maps.r
