@@ -41,11 +41,16 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 
-from slam_runtime.features import FeatureModel
-from slam_runtime.glmb import Births, LabelledFilter, LabelledSettings, Tracks
+from slam_runtime.features import FeatureModel, lookup
+from slam_runtime.gibbs import reduce_hypotheses
+from slam_runtime.glmb import Births, JointResult, LabelledFilter, LabelledSettings, Tracks
 from slam_runtime.gm import moment_match
 from slam_runtime.mapfilter import Measurements
-from slam_runtime.pd_factor import beta_update, mean_factor, prior_ab
+from slam_runtime.pd_factor import beta_update, mean_factor, prior_ab, store_key
+
+#: merge_alternatives: the squared Mahalanobis distance within which two labels' updated densities are alternatives
+#: of one landmark (delta-GLMB's default merge)
+ALTERNATIVES_GATE = 4.0
 
 
 class LMBConfig(LabelledSettings):
@@ -58,6 +63,15 @@ class LMBConfig(LabelledSettings):
         description="tracks and births that share no gated measurement with another candidate are updated exactly outside the "
         "sampler (existence the share of their options in which they exist, density the moment match of their versions: the "
         "grouping of Reuter et al. 2014); false: every candidate in view joins the sampler's one chain (the fast LMB update)",
+    )
+    merge_alternatives: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=1.0,
+        description="before the LMB approximation, labels whose updated densities lie within squared Mahalanobis distance "
+        "ALTERNATIVES_GATE (4, delta-GLMB's merge) of each other and that the update's hypotheses hold together with at "
+        "most this share of the lighter's weight become one track under the heavier's label, existence the weight of the "
+        "hypotheses that held either: alternative labels of one landmark, as delta-GLMB's merge_alternatives (0: none)",
     )
 
 
@@ -137,11 +151,14 @@ class LMB(LabelledFilter):
             # the whole delta-GLMB of the joint update is kept for the LMB approximation
             res = self._sample(np.zeros((p, 1)), member, c, 0.0, 1 << 30)
         with tm("update"):
-            sp_, _, mu, cov, _ = self._updated(sl, sp, z, rz, res)
+            sp_, _, mu, cov, label = self._updated(sl, sp, z, rz, res)
             wslot = res.slot_weights()
             # the LMB approximation: per label (source slot), existence and the moment-matched Gaussian
             key = sp_ * s + res.slot_src  # each new slot's source slot, over all particles
-            r_new, m_new, c_new = moment_match(key, wslot, mu, cov, p * s)
+            if self.cfg.merge_alternatives > 0.0:
+                r_new, m_new, c_new = self._merged(sl, res, label, mu, cov)
+            else:
+                r_new, m_new, c_new = moment_match(key, wslot, mu, cov, p * s)
             active = np.zeros((p, s), dtype=bool)
             active[np.nonzero(in_a)[0], c.act[in_a]] = True
             r_all = np.where(active, r_new.reshape(p, s), sl.r)
@@ -186,6 +203,31 @@ class LMB(LabelledFilter):
         births = self._births(sp, z, rz, c.explained)
         self.step += 1
         return LMBMaps(tracks, r, births, pd_ab), res.loglik
+
+    def _merged(self, sl, res: JointResult, label: np.ndarray, mu: np.ndarray, cov: np.ndarray):
+        """The LMB approximation (per source slot, flat (P S,): existence, mean, covariance) of the update's
+        delta-GLMB (res; the new slots' label, mu, cov) after its alternative labels of one landmark are merged
+        (``merge_alternatives``; :func:`slam_runtime.gibbs.reduce_hypotheses`, which also merges each label's versions
+        within ALTERNATIVES_GATE: the moment match of merged versions is the moment match of them all). A label merged
+        into another leaves its slot empty (existence 0)."""
+        p, s = sl.label.shape
+        out = reduce_hypotheses(
+            res.slot_count, label, np.ascontiguousarray(mu), np.ascontiguousarray(cov), np.zeros(label.size, dtype=bool),
+            res.hyp_count, res.hyp_logw, res.mem_count, res.mem_slot, ALTERNATIVES_GATE, float(self.cfg.merge_alternatives),
+            0.0, 1 << 30,
+        )
+        slot_count, o_label, o_mu, o_cov, hyp_count, hyp_logw, mem_count, mem_slot = out[1:9]
+        red = JointResult(res.loglik, False, hyp_count, hyp_logw, mem_count, mem_slot, slot_count, np.zeros(0, np.int64), np.zeros(0, np.int64))
+        sp2, _ = red.slot_particle()
+        # each reduced slot's source slot: the slot of its label in its particle (an LMB holds a label once)
+        vp, vs = np.nonzero(sl.valid)
+        keys = store_key(vp, sl.label[vp, vs])
+        order = np.argsort(keys, kind="stable")
+        j, hit = lookup(keys[order], store_key(sp2, o_label))
+        if not hit.all():
+            raise AssertionError("merge_alternatives: a merged track's label is not a candidate's")
+        src = vs[order][j]
+        return moment_match(sp2 * s + src, red.slot_weights(), o_mu, o_cov, p * s)
 
     def _map_states(self, maps: LMBMaps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return maps.tracks.mu, maps.tracks.label, maps.r
