@@ -745,3 +745,36 @@ def test_with_the_poses_given_the_calibrated_pd_maps_the_park_better_in_delta_gl
                 trees[mode].append(m["landmarks_mapped"])
     gap = float(np.mean(ospa["constant"]) - np.mean(ospa["profile"]))
     assert gap >= 0.02 and np.mean(trees["profile"]) > np.mean(trees["constant"]), (gap, trees)
+
+
+def test_lmb_merges_alternative_labels_of_one_landmark():
+    """Two young tracks of one landmark 3 cm apart (existence 0.2 each, 5 cm standard deviation: alternative labels
+    of it, as two births from its returns), one return of the landmark at P_D 0.9 under the paper's noise (0.3 m,
+    2 deg) and 15 false alarms per scan. The update's hypotheses hold one or the other, rarely both (one detected
+    and the other missed: about 2 % of the weight). The plain LMB approximation splits the landmark between the two
+    labels (0.49 and 0.49), so whether it is in the map (existence >= 0.5) is a coin's toss; with
+    merge_alternatives 0.1 it is one track under one of the two labels, at the landmark, of existence the weight of
+    the hypotheses that hold either (0.96): above 0.95, at least the larger of the two and at most their sum. 1 m
+    apart the same two tracks are not merged, and their update is the plain one."""
+    for gap, alternatives in ((0.03, True), (1.0, False)):
+        got = {}
+        for share in (0.0, 0.1):
+            mf = LMB(RangeBearing(np.diag([0.3**2, 0.035**2])), model(rate=15.0, pd=0.9, buffer=False), LMBConfig(merge_alternatives=share),
+                     rng=np.random.default_rng(0))
+            mu = np.array([[[5.0, 0.0], [5.0, gap]]])
+            maps = LMBMaps(Tracks(mu, np.tile(np.eye(2) * 0.05**2, (1, 2, 1, 1)), np.array([[10, 20]])), np.full((1, 2), 0.2), Births.empty(1, 2))
+            z, _ = mf.feature.predict(np.zeros(3), np.array([[5.0, 0.0]]))
+            out, ll = mf.update(maps, np.zeros((1, 3)), Measurements(z))
+            assert np.isfinite(ll).all()
+            got[share] = {int(lb): (float(r), out.tracks.mu[0, k]) for k, (lb, r) in enumerate(zip(out.tracks.label[0], out.r[0], strict=True)) if lb in (10, 20)}
+        plain, merged = got[0.0], got[0.1]
+        assert sorted(plain) == [10, 20], plain
+        if alternatives:
+            ra, rb = plain[10][0], plain[20][0]
+            assert 0.3 < ra < 0.7 and 0.3 < rb < 0.7, plain
+            assert len(merged) == 1, merged
+            (r, m), = merged.values()
+            assert max(ra, rb) <= r <= ra + rb + 1e-9 and r > 0.95, (r, ra, rb)
+            assert np.linalg.norm(m - [5.0, 0.0]) < 0.03, m
+        else:
+            assert sorted(merged) == [10, 20] and all(abs(merged[lb][0] - plain[lb][0]) < 1e-9 for lb in (10, 20)), (plain, merged)
