@@ -257,8 +257,9 @@ def with_settings(cfg: SlamConfig, changes: dict) -> SlamConfig:
 
 #: Settings whose name two filters share but whose meaning or default differs: never carried from one filter to another
 #: (RB-PHD's ``prune`` drops Gaussian components of weight below it, delta-GLMB's drops hypotheses; ``factor_independent``
-#: is on by default for delta-GLMB and off for LMB, whose comparison runs keep the fast LMB update unless asked).
-_NOT_CARRIED = frozenset({"kind", "prune", "factor_independent"})
+#: is on by default for delta-GLMB and off for LMB, whose comparison runs keep the fast LMB update unless asked; so is
+#: ``merge_alternatives``, 0.1 for delta-GLMB and off for LMB).
+_NOT_CARRIED = frozenset({"kind", "prune", "factor_independent", "merge_alternatives"})
 
 
 def with_filter(cfg: SlamConfig, kind: str | None) -> SlamConfig:

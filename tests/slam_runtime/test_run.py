@@ -72,8 +72,9 @@ def test_a_frame_no_particle_explains_is_a_data_error_naming_it(monkeypatch):
 
 
 def test_switching_the_filter_carries_only_the_settings_that_mean_the_same():
-    """RB-PHD's prune (component weight) must not become delta-GLMB's (hypothesis weight); the gate, the noise
-    inflation and the labelled filters' survival and birth carry over."""
+    """RB-PHD's prune (component weight) must not become delta-GLMB's (hypothesis weight), nor delta-GLMB's
+    defaults of factor_independent and merge_alternatives LMB's (off there); the gate, the noise inflation and the
+    labelled filters' survival and birth carry over."""
     from slam_runtime.config import SlamConfig, override, with_filter
 
     rb = override(SlamConfig(), **{"filter.prune": 0.01, "filter.gate": 9.0, "filter.noise_inflation": 2.0})
@@ -81,6 +82,7 @@ def test_switching_the_filter_carries_only_the_settings_that_mean_the_same():
     assert g.kind == "glmb" and g.prune == 1e-5 and g.gate == 9.0 and g.noise_inflation == 2.0
     lm = with_filter(override(with_filter(SlamConfig(), "glmb"), **{"filter.survival": 0.95, "filter.prune": 1e-3}), "lmb").filter
     assert lm.kind == "lmb" and lm.survival == 0.95
+    assert lm.merge_alternatives == 0.0 and lm.factor_independent is False, lm
     assert with_filter(override(with_filter(SlamConfig(), "glmb"), **{"filter.prune": 1e-3}), "rbphd").filter.prune == SlamConfig().filter.prune
 
 
