@@ -49,14 +49,14 @@ from pydantic import Field
 
 from slam_runtime.features import FeatureModel, lookup
 from slam_runtime.gibbs import reduce_hypotheses
-from slam_runtime.glmb import Births, JointResult, LabelledFilter, LabelledSettings, Tracks
+from slam_runtime.glmb import Births, GLMBConfig, JointResult, LabelledFilter, LabelledSettings, Tracks
 from slam_runtime.gm import moment_match
 from slam_runtime.mapfilter import Measurements
 from slam_runtime.pd_factor import beta_update, mean_factor, prior_ab, store_key
 
 #: merge_alternatives: the squared Mahalanobis distance within which two labels' updated densities are alternatives
 #: of one landmark (delta-GLMB's default merge)
-ALTERNATIVES_GATE = 4.0
+ALTERNATIVES_GATE = GLMBConfig.model_fields["merge"].default
 
 
 class LMBConfig(LabelledSettings):
@@ -215,7 +215,10 @@ class LMB(LabelledFilter):
         delta-GLMB (res; the new slots' label, mu, cov) after its alternative labels of one landmark are merged
         (``merge_alternatives``; :func:`slam_runtime.gibbs.reduce_hypotheses`, which also merges each label's versions
         within ALTERNATIVES_GATE: the moment match of merged versions is the moment match of them all). A label merged
-        into another leaves its slot empty (existence 0)."""
+        into another leaves its slot empty (existence 0). The existence is the weight of the children that hold the
+        track, each once: a child may hold two slots of it (the reduction merges a label into another held beside
+        one of the other's versions, up to merge_alternatives of its weight), which a sum over slots would count
+        twice, above 1."""
         p, s = sl.label.shape
         out = reduce_hypotheses(
             res.slot_count, label, np.ascontiguousarray(mu), np.ascontiguousarray(cov), np.zeros(label.size, dtype=bool),
@@ -232,8 +235,15 @@ class LMB(LabelledFilter):
         j, hit = lookup(keys[order], store_key(sp2, o_label))
         if not hit.all():
             raise AssertionError("merge_alternatives: a merged track's label is not a candidate's")
-        src = vs[order][j]
-        return moment_match(sp2 * s + src, red.slot_weights(), o_mu, o_cov, p * s)
+        key = sp2 * s + vs[order][j]
+        _, mean, cov_ = moment_match(key, red.slot_weights(), o_mu, o_cov, p * s)
+        # existence: each (child, track) once
+        mp, _, ms = red.memberships()
+        hyp = np.repeat(np.arange(hyp_logw.size), mem_count)
+        first = np.concatenate([[0], np.cumsum(slot_count)[:-1]])
+        held = np.unique(np.column_stack([hyp, key[first[mp] + ms]]), axis=0)
+        r = np.bincount(held[:, 1], weights=np.exp(hyp_logw)[held[:, 0]], minlength=p * s)
+        return np.minimum(r, 1.0), mean, cov_
 
     def _map_states(self, maps: LMBMaps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return maps.tracks.mu, maps.tracks.label, maps.r
