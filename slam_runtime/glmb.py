@@ -318,12 +318,29 @@ class JointResult:
         start = np.concatenate([[0], np.cumsum(self.slot_count)[:-1]])
         return p, np.arange(p.size) - start[p]
 
-    def slot_weights(self) -> np.ndarray:
-        """(sum slot_count,) the summed weight of the children (hypotheses) that hold each new slot."""
+    @classmethod
+    def of_reduction(cls, loglik: np.ndarray, out: tuple) -> JointResult:
+        """The hypotheses and slots that :func:`slam_runtime.gibbs.reduce_hypotheses` returned (out), without sources."""
+        capped, slot_count, _, _, _, hyp_count, hyp_logw, mem_count, mem_slot = out[:9]
+        return cls(loglik, bool(capped), hyp_count, hyp_logw, mem_count, mem_slot, slot_count, np.zeros(0, np.int64), np.zeros(0, np.int64))
+
+    def _held(self) -> tuple[np.ndarray, np.ndarray]:
+        """(new slot (flat), hypothesis (flat)) of every membership."""
         off = np.concatenate([[0], np.cumsum(self.slot_count)[:-1]])
         mp, _, ms = self.memberships()
-        hyp = np.repeat(np.arange(self.hyp_logw.size), self.mem_count)
-        return np.bincount(off[mp] + ms, weights=np.exp(self.hyp_logw)[hyp], minlength=int(self.slot_count.sum()))
+        return off[mp] + ms, np.repeat(np.arange(self.hyp_logw.size), self.mem_count)
+
+    def slot_weights(self) -> np.ndarray:
+        """(sum slot_count,) the summed weight of the children (hypotheses) that hold each new slot."""
+        slot, hyp = self._held()
+        return np.bincount(slot, weights=np.exp(self.hyp_logw)[hyp], minlength=int(self.slot_count.sum()))
+
+    def group_weights(self, group: np.ndarray, n: int) -> np.ndarray:
+        """(n,) the summed weight of the children that hold some slot of each group (group (sum slot_count,): each new
+        slot's group, 0..n-1), a child that holds several slots of one group counted once."""
+        slot, hyp = self._held()
+        pair = np.unique(hyp * n + group[slot])
+        return np.bincount(pair % n, weights=np.exp(self.hyp_logw)[pair // n], minlength=n)
 
     def memberships(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(particle, hypothesis index within the particle, slot index within the particle) of every membership."""
@@ -772,10 +789,11 @@ class GLMB(LabelledFilter):
                 res.slot_count, label, np.ascontiguousarray(mu), np.ascontiguousarray(cov), release, res.hyp_count, res.hyp_logw,
                 res.mem_count, res.mem_slot, float(cfg.merge), float(cfg.merge_alternatives), float(cfg.prune), int(cfg.max_hypotheses),
             )
-            capped, slot_count, o_label, o_mu, o_cov, hyp_count, hyp_logw, mem_count, mem_slot = out[:9]
+            red = JointResult.of_reduction(res.loglik, out)
+            o_label, o_mu, o_cov = out[2:5]
             free_count, f_label, f_r, f_mu, f_cov = out[9:]
-            self.capped_steps += int(capped)
-            red = JointResult(res.loglik, bool(capped), hyp_count, hyp_logw, mem_count, mem_slot, slot_count, np.zeros(0, np.int64), np.zeros(0, np.int64))
+            self.capped_steps += int(red.capped)
+            hyp_count, hyp_logw = red.hyp_count, red.hyp_logw
             sp2, sk = red.slot_particle()
             tracks = self._pad_tracks(p, d, sp2, sk, o_mu, o_cov, o_label)
             logw = np.full((p, max(int(hyp_count.max()) if p else 0, 1)), -np.inf)

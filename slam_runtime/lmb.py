@@ -225,25 +225,18 @@ class LMB(LabelledFilter):
             res.hyp_count, res.hyp_logw, res.mem_count, res.mem_slot, ALTERNATIVES_GATE, float(self.cfg.merge_alternatives),
             0.0, 1 << 30,
         )
-        slot_count, o_label, o_mu, o_cov, hyp_count, hyp_logw, mem_count, mem_slot = out[1:9]
-        red = JointResult(res.loglik, False, hyp_count, hyp_logw, mem_count, mem_slot, slot_count, np.zeros(0, np.int64), np.zeros(0, np.int64))
+        o_label, o_mu, o_cov = out[2:5]
+        red = JointResult.of_reduction(res.loglik, out)
         sp2, _ = red.slot_particle()
-        # each reduced slot's source slot: the slot of its label in its particle (an LMB holds a label once)
+        # each reduced slot's source slot: the slot of its label in its particle (an LMB holds a label once; the
+        # reduction keeps only labels it was given)
         vp, vs = np.nonzero(sl.valid)
         keys = store_key(vp, sl.label[vp, vs])
         order = np.argsort(keys, kind="stable")
-        j, hit = lookup(keys[order], store_key(sp2, o_label))
-        if not hit.all():
-            raise AssertionError("merge_alternatives: a merged track's label is not a candidate's")
+        j, _ = lookup(keys[order], store_key(sp2, o_label))
         key = sp2 * s + vs[order][j]
         _, mean, cov_ = moment_match(key, red.slot_weights(), o_mu, o_cov, p * s)
-        # existence: each (child, track) once
-        mp, _, ms = red.memberships()
-        hyp = np.repeat(np.arange(hyp_logw.size), mem_count)
-        first = np.concatenate([[0], np.cumsum(slot_count)[:-1]])
-        held = np.unique(np.column_stack([hyp, key[first[mp] + ms]]), axis=0)
-        r = np.bincount(held[:, 1], weights=np.exp(hyp_logw)[held[:, 0]], minlength=p * s)
-        return np.minimum(r, 1.0), mean, cov_
+        return np.minimum(red.group_weights(key, p * s), 1.0), mean, cov_
 
     def _map_states(self, maps: LMBMaps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return maps.tracks.mu, maps.tracks.label, maps.r

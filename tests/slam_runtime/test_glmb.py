@@ -30,6 +30,17 @@ def model(rate=2.0, pd=0.7, sensor=SENSOR, **kw):
     return DetectionModel(pdt, ClutterParams(rate=rate, volume=sensor.field_of_view * rmax), sensor, **kw)
 
 
+def _scan(mf, rng, lms, pd, rate) -> Measurements:
+    """One scan from the origin: each landmark of lms detected with probability pd (noise 0.1 m, 0.01 rad), then
+    Poisson(rate) false alarms uniform over 0-20 m and the half-plane ahead."""
+    z, _ = mf.feature.predict(np.zeros(3), lms)
+    z = z[rng.uniform(size=len(lms)) < pd]
+    z = z + rng.normal(0, 1, z.shape) * [0.1, 0.01]
+    nc = rng.poisson(rate)
+    clutter = np.column_stack([rng.uniform(0, 20, nc), rng.uniform(-np.pi / 2, np.pi / 2, nc)])
+    return Measurements(np.vstack([z, clutter]))
+
+
 def _static_run(cls, cfg_cls, seed, *, rate=2.0, steps=60, pd=0.7, **cfg):
     """A sensor at the origin looking at five landmarks, P_D 0.7, Poisson clutter: (filter, maps)."""
     rng = np.random.default_rng(seed)
@@ -37,12 +48,7 @@ def _static_run(cls, cfg_cls, seed, *, rate=2.0, steps=60, pd=0.7, **cfg):
     mf = cls(RangeBearing(np.diag([0.1**2, 0.01**2])), model(rate=rate, pd=pd, buffer=False), cfg_cls(**cfg), rng=np.random.default_rng(seed))
     maps = mf.empty(2)
     for _ in range(steps):
-        z, _ = mf.feature.predict(np.zeros(3), lms)
-        z = z[rng.uniform(size=len(lms)) < pd]
-        z = z + rng.normal(0, 1, z.shape) * [0.1, 0.01]
-        nc = rng.poisson(rate)
-        clutter = np.column_stack([rng.uniform(0, 20, nc), rng.uniform(-np.pi / 2, np.pi / 2, nc)])
-        maps, ll = mf.update(maps, np.zeros((2, 3)), Measurements(np.vstack([z, clutter])))
+        maps, ll = mf.update(maps, np.zeros((2, 3)), _scan(mf, rng, lms, pd, rate))
         assert np.isfinite(ll).all()
     return mf, maps, lms
 
@@ -161,12 +167,7 @@ def test_a_second_track_of_one_landmark_is_ended_by_survival_duplicate(cls, cfg_
                  cfg_cls(survival_duplicate=dup, duplicate_gate=36.0), rng=np.random.default_rng(4))
         maps, first = _second_track(mf, lms)
         for _ in range(60):
-            z, _ = mf.feature.predict(np.zeros(3), lms)
-            z = z[rng.uniform(size=len(lms)) < 0.4]
-            z = z + rng.normal(0, 1, z.shape) * [0.1, 0.01]
-            nc = rng.poisson(1.0)
-            clutter = np.column_stack([rng.uniform(0, 20, nc), rng.uniform(-np.pi / 2, np.pi / 2, nc)])
-            maps, ll = mf.update(maps, np.zeros((1, 3)), Measurements(np.vstack([z, clutter])))
+            maps, ll = mf.update(maps, np.zeros((1, 3)), _scan(mf, rng, lms, 0.4, 1.0))
             assert np.isfinite(ll).all()
         ex = _existence(mf, maps)
         out[dup] = ex.get(YOUNG, 0.0)
@@ -344,12 +345,7 @@ def _cluttered_scans(mf, poses: np.ndarray):
     lms = np.array([[5.0, 2.0], [8.0, -3.0], [12.0, 1.0], [15.0, 5.0], [6.0, -1.0]])
     maps, lls = mf.empty(len(poses)), []
     for _ in range(10):
-        z, _ = mf.feature.predict(np.zeros(3), lms)
-        z = z[rng.uniform(size=len(lms)) < 0.7]
-        z = z + rng.normal(0, 1, z.shape) * [0.1, 0.01]
-        nc = rng.poisson(10.0)
-        clutter = np.column_stack([rng.uniform(0, 20, nc), rng.uniform(-np.pi / 2, np.pi / 2, nc)])
-        maps, ll = mf.update(maps, poses, Measurements(np.vstack([z, clutter])))
+        maps, ll = mf.update(maps, poses, _scan(mf, rng, lms, 0.7, 10.0))
         lls.append(ll)
     return maps, np.array(lls)
 
