@@ -743,8 +743,12 @@ def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, 
       with at most ``together`` x the lighter's weight, become one group under
       the heavier's label: the moment match of its members, a released one of
       existence the weight of the hypotheses that hold any member; a kept one
-      is held once by each hypothesis that held any. ``together`` <= 0 merges
-      none.
+      is held once by each hypothesis that held any. A hypothesis that held a
+      merged alternative beside another version of the head's label, or beside
+      an alternative merged under another version of it (both counted in the
+      ``together`` share), keeps one: its own version of the label, else the
+      group of the label's heavier version. Every hypothesis holds a label
+      once. ``together`` <= 0 merges none.
     * Hypotheses that then hold the same versions are one hypothesis (weights
       added); those below ``prune`` are dropped (the heaviest is kept), at most
       ``cap`` are kept, the weights renormalised, and versions no hypothesis
@@ -868,13 +872,18 @@ def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, 
                     if dd2 > merge * gtr[i] or _maha2(gcov, i, gmu, j, i, work) > merge:
                         continue
                     # held together: j beside any version of a label already in i's group (also a version
-                    # too far from i to be in it), so that no hypothesis ends up with one label twice
+                    # too far from i to be in it) or beside an alternative merged under another version of i's
+                    # label; within the allowance such a hypothesis keeps one of them (the drop below), so that
+                    # the tracks it loses are at most ``together`` of j's weight
                     inl[:] = False
                     for m in range(ng):
                         if head[m] == i:
                             for k in range(ng):
                                 if glab[k] == glab[m]:
                                     inl[k] = True
+                    for k in range(ng):
+                        if glab[head[k]] == glab[i]:
+                            inl[k] = True
                     both = 0.0
                     for h in range(nh):
                         if hg[h, j]:
@@ -916,14 +925,18 @@ def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, 
         hl = np.empty(hm0[nh] - m0, np.int64)
         hn = np.zeros(nh, np.int64)
         hkey = np.empty(nh, np.int64)
+        own = np.full(ng, -1, np.int64)  # own[g] == h: hypothesis h holds group g through a version of g's label
         for h in range(nh):
             a0 = hm0[h] - m0
             n = 0
             for q in range(hm0[h + 1] - hm0[h]):
-                g = head[grp[mem_slot[hm0[h] + q]]]
+                k = grp[mem_slot[hm0[h] + q]]
+                g = head[k]
                 if not gfree[g]:
                     hl[a0 + n] = g
                     n += 1
+                    if glab[k] == glab[g]:
+                        own[g] = h
             for q in range(1, n):  # sorted in place (insertion sort: a hypothesis holds a few groups)
                 t = hl[a0 + q]
                 r = q - 1
@@ -937,6 +950,25 @@ def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, 
                     hl[a0 + u] = hl[a0 + q]
                     u += 1
             n = u
+            if merged:
+                # a label once: an alternative merged into a group of label l, held beside a version of l outside
+                # that group (within the ``together`` allowance), leaves the hypothesis, which keeps its own version
+                # of l (of two alternatives' groups of one label, the first: the group of l's heavier head version;
+                # a label's groups are numbered by their head versions' weights, heaviest first)
+                u = 0
+                for q in range(n):
+                    g = hl[a0 + q]
+                    drop = False
+                    if own[g] != h:
+                        for x in range(n):
+                            o = hl[a0 + x]
+                            if o != g and glab[o] == glab[g] and (own[o] == h or o < g):
+                                drop = True
+                                break
+                    if not drop:
+                        hl[a0 + u] = g
+                        u += 1
+                n = u
             hn[h] = n
             hh = np.int64(n)
             for q in range(n):

@@ -58,7 +58,9 @@ One step (:meth:`GLMB.update`, eqs. 11-17):
   together with at most ``merge_alternatives`` (0.1) of the lighter's weight
   are alternative labels of one landmark (two births of it, either of which
   the hypotheses took for it) and become one track under the heavier's label,
-  existence the weight of the hypotheses that held either (released one by one,
+  existence the weight of the hypotheses that held either, each holding a label
+  once (one that held the lighter beside another version of the heavier's label
+  keeps that version; see the reduction) (released one by one,
   a landmark split 0.4 / 0.35 / 0.25 between three labels was in no map
   estimate, measured on glmb-paper);
 * births and released tracks that share no gated measurement with another

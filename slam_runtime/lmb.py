@@ -216,9 +216,8 @@ class LMB(LabelledFilter):
         (``merge_alternatives``; :func:`slam_runtime.gibbs.reduce_hypotheses`, which also merges each label's versions
         within ALTERNATIVES_GATE: the moment match of merged versions is the moment match of them all). A label merged
         into another leaves its slot empty (existence 0). The existence is the weight of the children that hold the
-        track, each once: a child may hold two slots of it (the reduction merges a label into another held beside
-        one of the other's versions, up to merge_alternatives of its weight), which a sum over slots would count
-        twice, above 1."""
+        track, each once (the reduction leaves every child each label once; counted by child, the existence stays
+        at most 1 by construction)."""
         p, s = sl.label.shape
         out = reduce_hypotheses(
             res.slot_count, label, np.ascontiguousarray(mu), np.ascontiguousarray(cov), np.zeros(label.size, dtype=bool),

@@ -781,10 +781,10 @@ def test_lmb_merged_alternatives_exist_with_the_weight_of_the_hypotheses_that_ho
     """A merged track's existence is the weight of the update's hypotheses that hold either label, each hypothesis
     once, checked against an enumeration of every association. Two tracks at one place (existence 0.5, 0.5 m
     standard deviation; and 0.3), one return 1 m beyond them, P_D 0.9: the reduction merges the lighter into the
-    heavier although a few hypotheses hold both (the heavier missed beside the lighter detected), and such a
-    hypothesis then holds two slots of the merged track. Summed slot by slot its existence came to 1.016; the union
-    of the enumeration is 0.987, and the sampler's 60 draws find every hypothesis of weight (the merged existence
-    within 1e-3 of it)."""
+    heavier although a few hypotheses hold both (the heavier missed beside the lighter detected); such a hypothesis
+    keeps the heavier's own version alone (before, it held two slots of the merged track, and summed slot by slot
+    the existence came to 1.016). The union of the enumeration is 0.987, and the sampler's 60 draws find every
+    hypothesis of weight (the merged existence within 1e-3 of it)."""
     mf = LMB(RangeBearing(np.diag([0.1**2, 0.01**2])), model(rate=0.5, pd=0.9, buffer=False), LMBConfig(merge_alternatives=0.1),
              rng=np.random.default_rng(0))
     r0 = np.array([[0.5, 0.3]])
