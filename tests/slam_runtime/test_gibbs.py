@@ -488,22 +488,25 @@ def test_alternatives_held_together_once_are_held_once():
     np.testing.assert_allclose(np.exp(out[6]), [1.0], atol=1e-12)
 
 
+def _held_slots(out):
+    """Each hypothesis's slots (indices), one particle."""
+    off = np.concatenate([[0], np.cumsum(out[7])])
+    return [out[8][off[h] : off[h + 1]].tolist() for h in range(out[5][0])]
+
+
+def _held_labels(out):
+    """Each hypothesis's labels, one particle."""
+    return [out[2][slots].tolist() for slots in _held_slots(out)]
+
+
 def test_no_merge_that_would_give_a_hypothesis_one_label_twice():
     """Label 1 has two versions 1 m apart (missed, and updated with z) that do not merge; label 2 (a birth that took
     z) lies at the first and is held beside the second in 30 % of the weight: it is no alternative of label 1 (merged,
     that hypothesis would hold label 1 twice)."""
     out = _reduce([[0.0, 0.0], [1.0, 0.0], [0.05, 0.0]], [(0.5, [0]), (0.3, [1, 2]), (0.2, [1])], release=False, labels=[1, 1, 2])
     assert sorted(out[2].tolist()) == [1, 1, 2]
-    off = np.concatenate([[0], np.cumsum(out[7])])
-    for h in range(out[5][0]):
-        held = out[2][out[8][off[h] : off[h + 1]]]
-        assert len(set(held.tolist())) == held.size
-
-
-def _held_labels(out):
-    """Each hypothesis's labels, one particle."""
-    off = np.concatenate([[0], np.cumsum(out[7])])
-    return [out[2][out[8][off[h] : off[h + 1]]].tolist() for h in range(out[5][0])]
+    for held in _held_labels(out):
+        assert len(set(held)) == len(held)
 
 
 def test_a_merged_alternative_held_beside_its_labels_other_version_leaves_that_hypothesis():
@@ -516,10 +519,8 @@ def test_a_merged_alternative_held_beside_its_labels_other_version_leaves_that_h
     for hyps in ([(0.5, [0]), (0.02, [1, 2]), (0.2, [1]), (0.28, [2])], [(0.02, [1, 2]), (0.5, [0]), (0.2, [1]), (0.28, [2])]):
         out = _reduce(mu, hyps, release=False, labels=[1, 1, 2])
         assert out[2].tolist() == [1, 1] and out[5][0] == 2
-        off = np.concatenate([[0], np.cumsum(out[7])])
-        held = [out[8][off[h] : off[h + 1]].tolist() for h in range(out[5][0])]
         np.testing.assert_allclose(np.exp(out[6]), [0.78, 0.22], atol=1e-12)
-        assert held == [[0], [1]]
+        assert _held_slots(out) == [[0], [1]]
         np.testing.assert_allclose(out[3][1], [1.0, 0.0], atol=1e-12)
 
 
