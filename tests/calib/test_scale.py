@@ -205,6 +205,7 @@ def test_a_sweep_resumes_only_the_same_plan(tmp_path, capsys, park_log, serial):
 
 def test_execution_options_are_checked_before_any_work(tmp_path, capsys, park_log):
     import dask
+    import distributed  # noqa: F401  (before dask.config.set: see below)
 
     base = ["slam", "sweep", str(park_log), *SWEEP, "--out", str(tmp_path / "sw")]
     code, _, err = run(capsys, *base, "--workers", "-1")
@@ -214,6 +215,9 @@ def test_execution_options_are_checked_before_any_work(tmp_path, capsys, park_lo
     assert code == 2
     assert_one_line_error(err, "--workers: the cluster at --scheduler has its own workers")
     assert not (tmp_path / "sw").exists()
+    # distributed writes its defaults into dask's config when first imported. Had the command below imported it
+    # inside this block, leaving the block would delete the whole "distributed" key that the block created, defaults
+    # and all, and every later cluster in this test process would fail (KeyError: 'require-encryption').
     with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):
         code, _, err = run(capsys, *base, "--scheduler", "tcp://127.0.0.1:1")
     assert code == 2
