@@ -110,6 +110,7 @@ The filter is generic in the feature model (``dim_x``, ``dim_z``,
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cached_property
 from typing import Literal
 
 import numpy as np
@@ -326,21 +327,23 @@ class JointResult:
         capped, slot_count, _, _, _, hyp_count, hyp_logw, mem_count, mem_slot = out[:9]
         return cls(loglik, bool(capped), hyp_count, hyp_logw, mem_count, mem_slot, slot_count, np.zeros(0, np.int64), np.zeros(0, np.int64))
 
+    @cached_property
     def _held(self) -> tuple[np.ndarray, np.ndarray]:
-        """(new slot (flat), hypothesis (flat)) of every membership."""
+        """(new slot (flat), hypothesis (flat)) of every membership (computed once: slot_weights and group_weights
+        both read it)."""
         off = np.concatenate([[0], np.cumsum(self.slot_count)[:-1]])
         mp, _, ms = self.memberships()
         return off[mp] + ms, np.repeat(np.arange(self.hyp_logw.size), self.mem_count)
 
     def slot_weights(self) -> np.ndarray:
         """(sum slot_count,) the summed weight of the children (hypotheses) that hold each new slot."""
-        slot, hyp = self._held()
+        slot, hyp = self._held
         return np.bincount(slot, weights=np.exp(self.hyp_logw)[hyp], minlength=int(self.slot_count.sum()))
 
     def group_weights(self, group: np.ndarray, n: int) -> np.ndarray:
         """(n,) the summed weight of the children that hold some slot of each group (group (sum slot_count,): each new
         slot's group, 0..n-1), a child that holds several slots of one group counted once."""
-        slot, hyp = self._held()
+        slot, hyp = self._held
         pair = np.unique(hyp * n + group[slot])
         return np.bincount(pair % n, weights=np.exp(self.hyp_logw)[pair // n], minlength=n)
 
