@@ -29,7 +29,7 @@ from typing import Literal
 
 import numpy as np
 import pandas as pd
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from calib import __version__
 from calib.clutter import ClutterModelConfig, density_summary, fit_density, time_folds
@@ -61,7 +61,7 @@ DescriptorName = Literal["fit_error", "radius", "convexity", "points", "mse", "l
 class CalibrateConfig(BaseModel):
     """Everything ``detcal calibrate --config`` accepts; the defaults follow the thesis."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     detector: CircleDetectorParams = CircleDetectorParams()
     # log mean-square residual, log radius, convexity / radius: the thesis's three descriptors
     # in coordinates where a Gaussian fits (see detectors.circle.DESCRIPTOR_NAMES); the raw
@@ -84,6 +84,14 @@ class CalibrateConfig(BaseModel):
     range_noise: RangeNoiseConfig = Field(
         default=RangeNoiseConfig(), description="how sigma_r is estimated when the log does not state it and --range-sigma is not given"
     )
+
+    @field_validator("descriptors")
+    @classmethod
+    def _distinct(cls, names: list[str]) -> list[str]:
+        seen = [n for i, n in enumerate(names) if n in names[:i]]
+        if seen:
+            raise ValueError(f"{seen[0]} is named twice (a descriptor twice makes the Hotelling covariance singular)")
+        return names
 
 
 @dataclass
@@ -208,10 +216,17 @@ def read_landmarks_csv(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     missing = {"id", "x", "y", "radius"} - set(t.columns)
     if missing:
         raise DataError(f"{path}: missing columns {sorted(missing)} (need id, x, y, radius)")
+    if len(t) == 0:
+        raise DataError(f"{path}: holds no landmarks (a header line only)")
     num = t[["id", "x", "y", "radius"]].apply(pd.to_numeric, errors="coerce")
-    bad = ~np.isfinite(num.to_numpy(np.float64)).all(axis=1) | (num["radius"] <= 0).to_numpy() | (num["id"] % 1 != 0).to_numpy()
+    bad = (
+        ~np.isfinite(num.to_numpy(np.float64)).all(axis=1)
+        | (num["radius"] <= 0).to_numpy()
+        | (num["id"] % 1 != 0).to_numpy()
+        | (num["id"].abs() > 2**53).to_numpy()  # past this a float id is not one integer
+    )
     if bad.any():
-        raise DataError(f"{path}:{int(np.flatnonzero(bad)[0]) + 2}: id must be an integer, x, y numbers and radius > 0")
+        raise DataError(f"{path}:{int(np.flatnonzero(bad)[0]) + 2}: id must be an integer, x, y numbers and radius > 0 (ids up to 2^53)")
     ids = num["id"].to_numpy(np.int64)
     if np.unique(ids).size != ids.size:
         raise DataError(f"{path}: landmark ids are not unique")

@@ -49,7 +49,7 @@ from profiles.schema import ClutterDensity, CountTest, Selection
 class ClutterModelConfig(BaseModel):
     """How clutter counts and the clutter density are modelled."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     dispersion_level: float = Field(default=0.05, gt=0.0, lt=1.0, description="negative binomial when the dispersion test rejects the Poisson at this level")
     density: Literal["auto", "always", "never"] = Field(
         default="auto",

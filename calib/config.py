@@ -17,18 +17,30 @@ def validation_message(exc: ValidationError, where: str) -> str:
     """One line: ``where: a.b.c: what was wrong`` for the first error (and how many more)."""
     errs = exc.errors()
     e = errs[0]
-    loc = ".".join(str(p) for p in e["loc"]) or "(top level)"
+    loc = ".".join(str(p) for p in e["loc"])
     msg = e["msg"]
     if e["type"] == "extra_forbidden":
         msg = "unknown key"
+    elif e["type"] == "union_tag_not_found" and "discriminator" in e.get("ctx", {}):
+        msg = f"missing the key {e['ctx']['discriminator']}, which says which kind it is"
+    elif e["type"] == "value_error" and "error" in e.get("ctx", {}):
+        msg = str(e["ctx"]["error"])  # a model's own check: its text names the fields, without pydantic's "Value error, "
     more = f" (and {len(errs) - 1} more)" if len(errs) > 1 else ""
+    if not loc:
+        return f"{where}: {msg}{more}"
     return f"{where}: {loc}: {msg}{more}"
 
 
-def load_yaml_model(model: type[M], path: str | Path | None) -> M:
-    """Defaults when ``path`` is None; otherwise the YAML file validated against ``model``."""
+def load_yaml_model(model: type[M], path: str | Path | None, updates: dict | None = None) -> M:
+    """Defaults when ``path`` is None; otherwise the YAML file validated against ``model``. ``updates`` (top-level keys;
+    None: not given) replace the file's values before validation, so that checks across fields see the command line's
+    values (``--particles`` beside a file's ``islands``)."""
+    given = {k: v for k, v in (updates or {}).items() if v is not None}
     if path is None:
-        return model()
+        try:
+            return model.model_validate(given)
+        except ValidationError as exc:
+            raise UsageError(validation_message(exc, "the command line")) from None
     path = Path(path)
     if not path.is_file():
         raise UsageError(f"{path}: no such config file")
@@ -46,6 +58,7 @@ def load_yaml_model(model: type[M], path: str | Path | None) -> M:
         raise UsageError(f"{path}: cannot read ({exc.strerror or exc})") from None
     if not isinstance(data, dict):
         raise UsageError(f"{path}: expected a mapping at the top level")
+    data = {**data, **given}
     try:
         return model.model_validate(data)
     except ValidationError as exc:

@@ -38,7 +38,7 @@ CHUNK = 500
 class DetectConfig(BaseModel):
     """What ``detcal detect --config`` reads."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     detector: CircleDetectorParams = CircleDetectorParams()
     hotelling: HotellingParams | None = None
     k_sigma: float = Field(default=3.0, gt=0.0, description="occlusion tolerance of the ray tracer, in sigma_r")

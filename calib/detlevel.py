@@ -55,14 +55,14 @@ from profiles.schema import MeasurementNoise, SensorModel
 class IdentityAudit(BaseModel):
     """When a landmark identity's detections are taken to belong to another landmark."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     enabled: bool = True
     share: float = Field(default=0.9, gt=0.5, le=1.0, description="share of its detections on one other landmark (and at most 1 - share on its own)")
     min_detections: int = Field(default=20, ge=1)
 
 
 class DetectionCalibConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     gate: float = Field(default=1.0, gt=0.0, description="true detection: within this of the landmark [m]")
     frame_period: float | None = Field(default=None, gt=0.0, description="camera frame period [s] (default: estimated)")
     fov: float | None = Field(default=None, gt=0.0, description="field of view [rad] (default: from the true detections)")
@@ -78,7 +78,7 @@ def frame_period(logs: list[SensorLog]) -> float:
     gaps = np.concatenate([np.diff(lg.detections.frame_stamp) / 1e9 for lg in logs])
     gaps = gaps[(gaps > 0.05) & (gaps < 0.5)]
     if gaps.size < 10:
-        raise DataError("too few detection frames to estimate the camera's frame period; pass frame_period")
+        raise DataError("too few detection frames to estimate the camera's frame period; set frame_period in the --config file")
     return float(np.median(gaps))
 
 

@@ -292,6 +292,8 @@ def check_options(workers: int | None, scheduler: str | None) -> None:
         raise UsageError("--workers: the cluster at --scheduler has its own workers; give one of the two")
     if scheduler is not None and not scheduler.strip():
         raise UsageError("--scheduler: expected a Dask scheduler address such as tcp://10.0.0.5:8786")
+    if scheduler is not None:
+        _probe(scheduler)
 
 
 def versions() -> dict[str, str]:
@@ -412,6 +414,26 @@ def open_engine(workers: int | None, scheduler: str | None, tasks: int) -> Itera
                 yield DaskEngine(client, f"on {n} local worker{'s' if n > 1 else ''}")
         finally:
             cluster.close()
+
+
+def _probe(scheduler: str, timeout: float = 5.0) -> None:
+    """Refuse a TCP scheduler address that is malformed or that nothing listens at, before a Client is made: a Client
+    that fails to connect is closed when it is collected, which waits 60 s and prints a traceback at exit."""
+    import socket
+
+    from distributed.comm import parse_address, parse_host_port
+
+    try:
+        scheme, location = parse_address(scheduler)
+        if scheme != "tcp":
+            return  # tls, ucx, inproc: the Client checks them
+        host, port = parse_host_port(location)
+    except (ValueError, TypeError) as exc:
+        raise UsageError(f"--scheduler {scheduler}: not a scheduler address ({' '.join(str(exc).split())}; e.g. tcp://10.0.0.5:8786)") from None
+    try:
+        socket.create_connection((host, port), timeout=timeout).close()
+    except OSError as exc:
+        raise UsageError(f"--scheduler {scheduler}: no Dask scheduler answered ({exc.strerror or type(exc).__name__})") from None
 
 
 def _check_workers(client, scheduler: str) -> None:

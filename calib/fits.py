@@ -52,7 +52,7 @@ class PdFitConfig(BaseModel):
     that are out of view.
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     min_count: int = Field(default=200, ge=1)
     tail: str = Field(default="pool", pattern="^(pool|last)$")
     zero_below: float = Field(default=0.1, ge=0.0, lt=1.0)
@@ -86,7 +86,7 @@ def fit_pd_table(values: np.ndarray, detected: np.ndarray, covariate: str, cfg: 
     per_run = " per run" if runs > 1 else ""
     well = np.flatnonzero(n >= cfg.min_count * runs)
     if well.size == 0:
-        raise DataError(f"no P_D bin holds {cfg.min_count} pairs{per_run}; lower --min-count or calibrate on more data")
+        raise DataError(f"no P_D bin holds {cfg.min_count} pairs{per_run}; lower pd.min_count in the --config file or calibrate on more data")
     last = int(well[-1])
     if cfg.tail == "pool":
         n[last] = n[last:].sum()

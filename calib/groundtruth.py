@@ -33,6 +33,7 @@ def score_against_truth(log: SensorLog, res: IcpResult) -> dict:
 
 
 def write_icp_run(log: SensorLog, out: Path, *, relations: Path | None = None, overwrite: bool = False) -> dict:
+    rel = read_relations(relations) if relations is not None else None  # a bad file is refused before the ICP's work
     t0 = time.perf_counter()
     res = icp_ground_truth(log, progress=progress)
     dt = time.perf_counter() - t0
@@ -46,8 +47,7 @@ def write_icp_run(log: SensorLog, out: Path, *, relations: Path | None = None, o
     }
     if "ground_truth" in log.reference:
         summary.update(score_against_truth(log, res))
-    if relations is not None:
-        rel = read_relations(relations)
+    if rel is not None:
         for name, poses in (("icp", res.poses), ("odometry", res.odometry)):
             et, er = relation_errors(log.scans.stamp, poses, rel)
             summary[f"{name}_relations"] = int(et.size)

@@ -34,7 +34,7 @@ from profiles.errors import DataError
 
 
 class IcpConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     max_corr: float = Field(default=1.0, gt=0.0, description="largest point-map distance used at the first iteration [m]")
     min_corr: float = Field(default=0.3, gt=0.0, description="the distance it shrinks to [m]")
     cauchy: float = Field(default=0.05, gt=0.0, description="scale of the Cauchy weights [m]")
@@ -312,6 +312,8 @@ def read_relations(path) -> np.ndarray:
     from calib.io.common import read_table
 
     t = read_table(Path(path), 8, "t1 t2 x y z roll pitch yaw")
+    if t.shape[0] == 0:
+        raise DataError(f"{path}: holds no relations")
     return np.column_stack([t[:, 0], t[:, 1], t[:, 2], t[:, 3], t[:, 7]])
 
 

@@ -30,7 +30,7 @@ from profiles.schema import CircleDetectorParams
 
 
 class CloudLandmarkConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     min_scans: int = Field(default=10, ge=1, description="scans a landmark must be detected in")
     merge: float = Field(default=0.3, gt=0.0, description="detections closer than this are the same landmark [m]")
     min_radius: float = Field(default=0.03, gt=0.0)

@@ -47,7 +47,7 @@ Candidate = Literal["range", "additive_logit", "cells_shrunk"]
 class PdModelConfig(BaseModel):
     """Candidates and their resolution for a detection-level P_D model."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     candidates: list[Candidate] = Field(default=["range", "additive_logit", "cells_shrunk"], min_length=1)
     # no zero clamp: inside the field of view a low P_D is real, not a sign of being out of view
     # (on UTIAS robots 1-3 -> 4-5 the thesis's clamp below 0.1 raised the ECE from 0.046 to 0.053)

@@ -34,7 +34,7 @@ from profiles.planes import PlaneDetectorParams
 class PlaneDetectConfig(BaseModel):
     """What ``detcal detect --config`` reads for point clouds."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     detector: PlaneDetectorParams = PlaneDetectorParams()
 
 

@@ -60,7 +60,7 @@ ANGLE_EDGES = [0.0, 30.0, 50.0, 65.0, 75.0, 90.0]
 class PlaneCalibConfig(BaseModel):
     """Everything ``detcal calibrate --config`` accepts for a lidar log (planes)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     detector: PlaneDetectorParams = PlaneDetectorParams()
     gate_angle_deg: float = Field(default=5.0, gt=0.0, le=45.0, description="detection-truth gate on the normal angle")
     gate_offset: float = Field(default=0.3, gt=0.0, description="detection-truth gate on the offset [m]")

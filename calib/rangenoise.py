@@ -54,7 +54,7 @@ MAD_TO_SIGMA = 1.4826
 class RangeNoiseConfig(BaseModel):
     """How sigma_r is estimated from registered scans (defaults suit indoor and park lasers)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     bands: list[float] = Field(default=[0.0, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0], min_length=1, description="lower edges of the range bands [m]")
     query_scans: int = Field(default=1500, ge=1, description="scans (evenly spread) whose returns are scored")
     map_move: float = Field(default=0.3, ge=0.0, description="a scan joins the map after the sensor moved this far [m] ...")

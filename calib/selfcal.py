@@ -46,7 +46,7 @@ from profiles.schema import MeasurementNoise, SensorModel
 
 
 class SelfCalConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     gate: float = Field(default=1.5, gt=0.0, description="a detection matches a map feature within this [m]")
     map_weight: float = Field(
         default=0.2, gt=0.0, description="map components of this weight or more are features (a feature missed twice at P_D 0.6 keeps 0.16 of its weight)"

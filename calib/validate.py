@@ -146,7 +146,8 @@ def held_out_laser(profile: DetectorProfile, log: SensorLog, *, landmarks_csv: P
         gated = hotelling_maha2(desc, h) <= h.gamma
     true = dets["landmark"].to_numpy() >= 0
     det_idx = pairs["det"].to_numpy()
-    observed = (det_idx >= 0) & gated[np.maximum(det_idx, 0)]
+    observed = det_idx >= 0
+    observed[observed] = gated[det_idx[observed]]
     could = pairs["n_expected"].to_numpy() > 0
     t = (log.scans.stamp - log.scans.stamp[0]) / 1e9
     pairs = pairs.assign(

@@ -278,6 +278,12 @@ class Landmarks:
         object.__setattr__(self, "radius", _check_rows(np.reshape(radius, (-1,)), n, None, "landmarks.radius"))
         sigma = np.full((n, 2), np.nan) if self.sigma is None else self.sigma
         object.__setattr__(self, "sigma", _check_rows(sigma, n, 2, "landmarks.sigma"))
+        bad = np.flatnonzero(~np.isfinite(self.xy).all(axis=1))
+        if bad.size:
+            raise DataError(f"landmarks.xy[{int(bad[0])}]: position is not finite")
+        bad = np.flatnonzero(np.isinf(self.radius) | (self.radius <= 0))  # NaN: unknown
+        if bad.size:
+            raise DataError(f"landmarks.radius[{int(bad[0])}]: expected a positive finite radius or NaN (unknown), got {self.radius[bad[0]]}")
 
     def __len__(self) -> int:
         return int(self.ids.size)

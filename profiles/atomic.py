@@ -82,6 +82,9 @@ def check_replaceable(path: str | Path, *, overwrite: bool, directory: bool, own
     if not directory and path.is_dir():
         raise UsageError(f"{path}: is a folder; --force replaces only a file detcal wrote (remove it yourself)")
     if not written_by_detcal(path, directory, owned):
+        kind = getattr(owned, "kind", None)  # what the recogniser accepts, e.g. "profile"
+        if not directory and kind is not None and path.is_file():
+            raise UsageError(f"{path}: is not a {kind} detcal wrote; --force replaces only a {kind} (remove it yourself)")
         hint = f" (no {MARKER} inside)" if directory else ""
         raise UsageError(f"{path}: was not written by detcal{hint}; --force does not replace it (remove it yourself)")
 

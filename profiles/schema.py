@@ -177,6 +177,12 @@ class CircleDetectorParams(Strict):
         default=100.0, gt=0.0, description="LM stops refining a circle whose radius exceeds this [m]: the cluster is a straight line"
     )
 
+    @model_validator(mode="after")
+    def _points(self) -> CircleDetectorParams:
+        if self.max_points is not None and self.max_points < self.min_points:
+            raise ValueError(f"max_points ({self.max_points}) is below min_points ({self.min_points}): no cluster could be kept")
+        return self
+
 
 class HotellingParams(Strict):
     """Hotelling ellipsoid of true detections' descriptors (thesis eq. 5.4).

@@ -137,6 +137,9 @@ def looks_like_profile(path: Path) -> bool:
     return isinstance(data, dict) and {"schema_version", "name", "version"} <= set(data)
 
 
+looks_like_profile.kind = "profile"  # named when --force is refused (profiles.atomic.check_replaceable)
+
+
 def dump_profile(profile: DetectorProfile, fmt: str = "yaml") -> str:
     """Deterministic text: schema order, floats written exactly (round trip is lossless).
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator
+from pydantic import AllowInfNan, BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator
 from pydantic_core import PydanticCustomError
 
 from profiles.errors import DataError, UsageError
@@ -24,7 +24,7 @@ from slam_runtime.rbphd import RBPHDConfig
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class IncrementNoise(_Strict):
@@ -101,7 +101,7 @@ class DetectionOptions(_Strict):
     descriptor_likelihood: bool = Field(
         default=True, description="weigh each detection by g_x(d) / g_FA(d) of its descriptors (eqs. 2.26, 5.6) when the profile has a Hotelling model"
     )
-    occlusion_sigmas: float | Literal["profile"] | None = Field(
+    occlusion_sigmas: Annotated[float, AllowInfNan(True)] | Literal["profile"] | None = Field(
         default=None,
         description="n_p profiles: a return occludes a map feature when it is shorter than the feature's surface by more than "
         "this many range sigmas ('profile': the profile's k_sigma, the tolerance its P_D table was measured with; .inf: no return "

@@ -143,7 +143,7 @@ def label_parts(label: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 class LabelledSettings(BaseModel):
     """Settings shared by the labelled map filters (LMB, delta-GLMB)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     survival: float = Field(
         default=1.0,
         gt=0.0,

@@ -41,7 +41,7 @@ from slam_runtime.mapfilter import MapFilter, Measurements
 class RBPHDConfig(BaseModel):
     """Settings of the RB-PHD map filter (``filter: {kind: rbphd, ...}``)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     kind: Literal["rbphd"] = "rbphd"
     noise_inflation: float = Field(default=1.0, ge=1.0, description="factor on the measurement noise covariance")
     birth_weight: float = Field(default=0.03, gt=0.0, le=1.0, description="weight of a birth component per unexplained measurement")

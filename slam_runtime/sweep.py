@@ -46,6 +46,7 @@ import itertools
 import os
 import tempfile
 import traceback
+from collections import Counter
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -164,12 +165,19 @@ def _same_run(folder: Path, job: SweepJob) -> bool:
         return False
 
 
+def _distinct_names(jobs: list[SweepJob]) -> None:
+    twice = sorted(n for n, k in Counter(j.name for j in jobs).items() if k > 1)
+    if twice:
+        raise UsageError(f"two runs of the sweep have the same name ({twice[0]}): a setting is given twice")
+
+
 def open_sweep(folder: Path, plan: dict, jobs: list[SweepJob], *, force: bool = False) -> set[str]:
     """Create the sweep folder with its plan, or reopen one with the same plan; the names of the runs already done.
 
     ``force`` replaces an existing sweep folder (one detcal wrote) by an empty one.
     """
     folder = Path(folder)
+    _distinct_names(jobs)
     if force or not os.path.lexists(folder):
         with atomic_output(folder, overwrite=force, directory=True) as tmp:
             tmp.mkdir()
@@ -306,9 +314,8 @@ def run_sweep(
     (to check it before starting an engine).
     """
     folder = Path(folder)
+    _distinct_names(jobs)
     names = [j.name for j in jobs]
-    if len(set(names)) != len(names):
-        raise UsageError("two runs of the sweep have the same name")
     if done is None:
         done = open_sweep(folder, plan if plan is not None else make_plan(jobs, {}, []), jobs, force=force)
     todo = [j for j in jobs if j.name not in done]

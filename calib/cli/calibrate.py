@@ -96,6 +96,8 @@ def calibrate_cmd(
 
         log, path = default_log()
         loaded, paths, prof_name, fmt = [log], [path], name or DEFAULT_PROFILE_NAME, "native"
+    if out_dir is not None and force:  # (without --force the run folder of the same request is reused: the pipeline checks)
+        fresh(out_dir, force, inputs=[*paths, config, landmarks])
     refs = unique_refs([r for p, lg in zip(paths, loaded, strict=True) for r in input_refs(p, lg)] + landmark_ref)
     sources = [(p, fmt, reader.options_of(lg)) for p, lg in zip(paths, loaded, strict=True)]
     job = CalibrationJob(
@@ -180,7 +182,7 @@ def validate_cmd(
     prof = resolve(args[0])
     loaded, _ = reader.read_many([Path(a) for a in args[1:]], robot)
     target = out_dir or Path("runs") / f"validate_{prof.ref}_{loaded[0].name}"
-    fresh(target, force)
+    fresh(target, force, inputs=[*args, landmarks])
     v, notes = run_validation(prof, loaded, landmarks=landmarks, poses=poses, out=target, force=force)
     for note in notes:
         warn(note)
@@ -218,11 +220,11 @@ def _cross_validate(args, reader, cv, config, adapt, landmarks, poses, out_dir, 
         raise UsageError(f"--cv: expected robots or time, got {cv!r}")
     if not args:
         raise UsageError("--cv needs the logs to cross-validate")
-    if adapt is not None and adapt <= 0:
+    if adapt is not None and not 0 < adapt < float("inf"):
         raise UsageError(f"--adapt: expected a positive number of seconds, got {adapt:g}")
     loaded, _ = reader.read_many([Path(a) for a in args], robot)
     target = out_dir or Path("runs") / f"cv_{cv}_{loaded[0].name}"
-    fresh(target, force)
+    fresh(target, force, inputs=[*args, config, landmarks])
     detection = all(lg.scans is None and lg.detections is not None for lg in loaded)
     if detection:
         from calib.detlevel import DetectionCalibConfig
@@ -253,6 +255,6 @@ def icp_cmd(
 
     log = reader.read(log_path)
     target = out_dir or Path("runs") / f"icp_{log.name}"
-    fresh(target, force)
+    fresh(target, force, inputs=[log_path, relations])
     summary = write_icp_run(log, target, relations=relations, overwrite=force)
     out.print(summary_table(f"ICP ground truth of {log.name} -> {target}", summary))

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import os
 import sys
 import typing
 from collections.abc import Callable
@@ -21,7 +22,7 @@ from pydantic import ValidationError
 from rich.console import Console
 from rich.table import Table
 
-from profiles.errors import UsageError
+from profiles.errors import DataError, UsageError
 
 out = Console(highlight=False, markup=False)  # file names may hold brackets
 
@@ -94,12 +95,15 @@ class ReaderArgs:
             flag = "--" + str(e["loc"][0]).replace("_", "-")
             raise UsageError(f"{flag}: {e['msg']}") from None
 
-    def read(self, path: Path, robot: int | None = None):
-        """The log at ``path`` (``robot`` overrides the UTIAS robot)."""
+    def read(self, path: Path, robot: int | None = None, *, empty_ok: bool = False):
+        """The log at ``path`` (``robot`` overrides the UTIAS robot). A log whose sensor stream is empty (no scans, no
+        detections, no point clouds) is refused unless ``empty_ok`` (``log info``: it says so)."""
         from calib.io.registry import read_log
 
         opts = self.options if robot is None else self.options.model_copy(update={"robot": robot})
         log = read_log(path, self.fmt, opts)
+        if not empty_ok:
+            refuse_empty(path, log)
         warn_untimed(path, log)
         return log
 
@@ -121,6 +125,16 @@ class ReaderArgs:
         return loaded, used
 
 
+def refuse_empty(path: Path, log) -> None:
+    """A clear error for a log whose sensor stream holds nothing: every command but ``log info`` needs some."""
+    for what, stream in (("scans", log.scans), ("point clouds", log.clouds)):
+        if stream is not None and len(stream) == 0:
+            raise DataError(f"{path}: the log holds no {what}")
+    if log.detections is not None and len(log.detections) == 0:
+        robot = log.source.get("robot")
+        raise DataError(f"{path}: the log holds no detections" + (f" (robot {robot})" if robot is not None else ""))
+
+
 def warn(message: str) -> None:
     """One plain-text warning line on stderr."""
     sys.stderr.write(f"detcal: warning: {' '.join(message.split())}\n")
@@ -133,14 +147,24 @@ def warn_untimed(path: Path, log) -> None:
         warn(f"{path}: {n} {stream} records are stamped 0 (no time); placed by their order in the file")
 
 
-def fresh(target: Path, force: bool, *, directory: bool = True, owned=None) -> None:
-    """Refuse an existing output unless --force was given and it is of the same kind and written by detcal.
+def fresh(target: Path, force: bool, *, directory: bool = True, owned=None, inputs=()) -> None:
+    """Refuse an existing output unless --force was given and it is of the same kind and written by detcal, and one
+    that is or holds one of the command's ``inputs`` (files it reads: --force would delete them).
 
     Checked before any work; the writer checks again when it moves its output into place.
     """
     from profiles.atomic import check_replaceable
 
     check_replaceable(target, overwrite=force, directory=directory, owned=owned)
+    if force and os.path.lexists(target):
+        t = Path(target).resolve()
+        for given in inputs:
+            if given is None or not os.path.lexists(given):
+                continue  # a profile given by name, an option not given
+            p = Path(given).resolve()
+            if p == t or t in p.parents:
+                what = "is the input," if p == t else f"holds the input {given},"
+                raise UsageError(f"{target}: {what} which --force would delete; write elsewhere")
 
 
 def positive(flag: str, value: int | None) -> None:

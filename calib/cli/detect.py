@@ -32,12 +32,12 @@ def detect_cmd(
 
         pcfg = plane_detect_config(profile, config)
         target = out_dir or Path("runs") / f"detect_{log.name}"
-        fresh(target, force)
+        fresh(target, force, inputs=[log_path, profile, config])
         summary = write_plane_detect_run(log, pcfg, target, plot_frame=plot, overwrite=force)
         out.print(summary_table(f"planes -> {target}", summary))
         return
     cfg, pd_table = detect_config(profile, config)
     target = out_dir or Path("runs") / f"detect_{log.name}"
-    fresh(target, force)
+    fresh(target, force, inputs=[log_path, profile, config])
     summary = write_detect_run(log, cfg, target, plot_scan=plot, pd_table=pd_table, overwrite=force)
     out.print(summary_table(f"detections -> {target}", summary))

@@ -18,7 +18,7 @@ app = typer.Typer(help="Inspect and convert sensor logs.", no_args_is_help=True,
 @reader_options()
 def log_info(path: Annotated[Path, typer.Argument(help="A log file or folder.")], reader: ReaderArgs) -> None:
     """Print a summary of a log: streams, counts, duration, beam geometry."""
-    log = reader.read(path)
+    log = reader.read(path, empty_ok=True)
     out.print(info_table(log, path))
 
 
@@ -117,9 +117,9 @@ def log_convert(
 
     kind = output_format(dst, to)  # check before the (possibly long) read
     if kind == "native":
-        fresh(dst, force, directory=False, owned=is_detcal_log)
+        fresh(dst, force, directory=False, owned=is_detcal_log, inputs=[src])
     else:
-        fresh(dst, force)
+        fresh(dst, force, inputs=[src])
     log = reader.read(src)
     write_log(log, dst, kind, overwrite=force)
     out.print(f"wrote {dst} ({kind}): {', '.join(log.streams())}")

@@ -10,6 +10,7 @@ import typer
 from rich.table import Table
 
 from calib.cli.common import out
+from profiles.errors import UsageError
 
 app = typer.Typer(help="List, show, validate, compare and export detector profiles.", no_args_is_help=True, rich_markup_mode=None)
 
@@ -84,9 +85,16 @@ def profile_export(
 ) -> None:
     """Export a profile as YAML or JSON."""
     from profiles.atomic import atomic_output
-    from profiles.store import dump_profile, looks_like_profile, resolve
+    from profiles.store import dump_profile, looks_like_profile, profile_filename, resolve
 
-    text = dump_profile(resolve(ref), export_fmt)
+    prof = resolve(ref)
+    text = dump_profile(prof, export_fmt)
+    if dest is not None and dest.suffix == ".yaml" and "@" in dest.stem and dest.name != profile_filename(prof):
+        # the registry reads a profile file as the name@version its file name says
+        raise UsageError(
+            f"{dest}: a file named {dest.stem} would hold {prof.name}@{prof.version}, and the profile store reads a file as the "
+            f"profile its name says; name it {profile_filename(prof)} or without '@'"
+        )
     if dest is None:
         sys.stdout.write(text)
         return

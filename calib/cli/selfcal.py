@@ -56,11 +56,13 @@ def selfcal_cmd(
     positive("--particles", particles)
     if seed < 0:
         raise UsageError(f"--seed: expected a non-negative integer, got {seed}")
+    if average_from is not None and iterations < 2:
+        raise UsageError(f"--average-from: averaging needs at least two runs, so --iterations 2 or more (got --iterations {iterations})")
     if average_from is not None and not 0 <= average_from <= iterations - 2:
         raise UsageError(
             f"--average-from: expected an iteration from 0 to {iterations - 2} (--iterations {iterations}: at least two runs to average), got {average_from}"
         )
-    if tolerance <= 0:
+    if not 0 < tolerance < float("inf"):
         raise UsageError(f"--tolerance: expected a positive number, got {tolerance}")
     if not SEMVER_RE.match(version):
         raise UsageError(f"--version: {version!r} is not MAJOR.MINOR.PATCH")
@@ -76,9 +78,9 @@ def selfcal_cmd(
     if not NAME_RE.match(prof_name):
         raise UsageError(f"--name: {prof_name!r} must match [a-z0-9][a-z0-9._-]*")
     target = out_dir or Path("runs") / f"selfcal_{prof_name}@{version}"
-    fresh(target, force)  # both outputs decided before any work
+    fresh(target, force, inputs=[log_path, profile_ref, config])  # both outputs decided before any work
     saved, status = check_new_version(prof_name, version, profiles_dir, force=force)
-    fresh(saved, force, directory=False, owned=looks_like_profile)
+    fresh(saved, force, directory=False, owned=looks_like_profile, inputs=[profile_ref])
     refs = input_refs(log_path, log)
     command = typed_command("selfcal")
     scfg = SelfCalConfig()

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import contextlib
+import os
+import shutil
 from pathlib import Path
 from typing import Annotated
 
@@ -35,8 +37,8 @@ VaryOpt = Annotated[
     list[str] | None,
     typer.Option(
         "--vary",
-        help="Vary a setting: KEY=V1,V2,... (a dotted path of the settings file, e.g. filter.survival=1,0.99; values read "
-        "as YAML). Every run is made with each value (repeat the option to cross several settings), labelled `variant` "
+        help="Vary a setting: KEY=V1,V2,... (a dotted path of the settings file, e.g. filter.noise_inflation=1,2, a setting "
+        "of every filter; values read as YAML). Every run is made with each value (repeat the option to cross several settings), labelled `variant` "
         "in runs.csv and compared run by run in paired.csv; the last table ranks the values by the runs' log evidence, "
         "which needs no ground truth.",
     ),
@@ -64,7 +66,7 @@ def variants(specs: list[str] | None) -> list[tuple[str | None, dict]]:
         key = key.strip()
         tokens = [t.strip() for t in text.split(",")]
         if not sep or not key or not all(tokens):
-            raise UsageError(f"--vary: expected KEY=V1,V2,... (e.g. filter.survival=1,0.99), got {spec!r}")
+            raise UsageError(f"--vary: expected KEY=V1,V2,... (e.g. filter.noise_inflation=1,2), got {spec!r}")
         for own, opt in _OWN_OPTION.items():
             if own == key or own.startswith(key + "."):
                 raise UsageError(f"--vary {key}: use {opt} (repeat it) to vary {own}" + ("" if own == key else f", and name single settings under {key}"))
@@ -109,7 +111,7 @@ def slam_config(
         raise UsageError(f"--features: expected one of {', '.join(FEATURES)}, got {features!r}")
     if poses is not None and poses not in POSES:
         raise UsageError(f"--poses: expected one of {', '.join(POSES)}, got {poses!r}")
-    cfg = load_yaml_model(SlamConfig, config)
+    cfg = load_yaml_model(SlamConfig, config, {"particles": particles})
     return override(with_filter(cfg, filter_), particles=particles, features=features, poses=poses, **{"detection.pd_mode": pd_mode})
 
 
@@ -145,7 +147,7 @@ def slam_run_cmd(
     log = reader.read(log_path)
     check_inputs(log, prof)
     target = out_dir or Path("runs") / f"slam_{log.name}_{prof.ref}_{seed}"
-    fresh(target, force)
+    fresh(target, force, inputs=[log_path, profile_ref, config])
     m = cfg.metric
     hooks = (MapOSPA(log.landmarks.xy, m.ospa_c, m.ospa_p),) if log.landmarks is not None else ()
     labelled = labelled_hooks() if cfg.filter.kind != "rbphd" else ()
@@ -235,8 +237,13 @@ def seed_list(text: str) -> list[int]:
             seeds = list(range(int(text)))
     except ValueError:
         raise UsageError(f"--seeds: expected a count (5), a list (1,3,7) or a range (1-5), got {text!r}") from None
-    if not seeds or min(seeds) < 0:
+    if not seeds:
+        what = "a count of at least 1" if "-" not in text else "a range whose end is not below its start"
+        raise UsageError(f"--seeds: expected {what} (a count of 3 is seeds 0-2; seed 0 alone is --seeds 0-0), got {text!r}")
+    if min(seeds) < 0:
         raise UsageError(f"--seeds: expected non-negative seeds, got {text!r}")
+    if len(set(seeds)) != len(seeds):
+        raise UsageError(f"--seeds: a seed is listed twice in {text!r}")
     return seeds
 
 
@@ -289,7 +296,7 @@ def slam_sweep_cmd(
     for m in modes:
         if m not in PD_MODES:
             raise UsageError(f"--pd-mode: expected one of {', '.join(PD_MODES)}, got {m!r}")
-    base = slam_config(config, None, None, None, poses=poses)
+    base = slam_config(config, None, particles[0] if particles else None, None, poses=poses)
     kinds = list(dict.fromkeys(filters or [base.filter.kind]))
     for f in kinds:
         if f not in FILTER_KINDS:
@@ -344,10 +351,19 @@ def slam_sweep_cmd(
                                 labels = {"log": src.name, "profile": prof.ref, "filter": f, "pd_mode": m, "particles": n, "variant": label, "seed": sd}
                                 job_list.append(SweepJob(name, src, prof, cfg, sd, labels, frames, refs))
     plan = make_plan(job_list, base.model_dump(mode="json"), described)
+    if force:
+        fresh(out_dir, force, inputs=[*logs, *profile_refs, config])
+    made = force or not os.path.lexists(out_dir)
     done = open_sweep(out_dir, plan, job_list, force=force)  # checked (and created) before any worker starts
     todo = len(job_list) - len(done)
     engine_cm = open_engine(workers, scheduler, todo) if todo else contextlib.nullcontext(InProcess())
-    with engine_cm as engine:
+    with contextlib.ExitStack() as stack:
+        try:
+            engine = stack.enter_context(engine_cm)
+        except BaseException:
+            if made:  # the cluster refused before any run: leave no empty sweep folder behind
+                shutil.rmtree(out_dir, ignore_errors=True)
+            raise
         res = run_sweep(job_list, out_dir, engine, done=done, progress=progress)
         where = engine.label
     if res.failed:

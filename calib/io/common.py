@@ -8,6 +8,7 @@ import hashlib
 import io
 import lzma
 import math
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -148,7 +149,9 @@ def read_table(path: Path, ncols: int, what: str) -> np.ndarray:
     """
     require_file(path)
     try:
-        table = np.loadtxt(path, comments="#", ndmin=2, dtype=np.float64)
+        with warnings.catch_warnings():  # an empty file: numpy warns, the caller says what it needed
+            warnings.simplefilter("ignore", UserWarning)
+            table = np.loadtxt(path, comments="#", ndmin=2, dtype=np.float64)
     except ValueError:
         table = None
     if table is None or (table.size and table.shape[1] != ncols):
@@ -167,6 +170,13 @@ def read_table(path: Path, ncols: int, what: str) -> np.ndarray:
         lineno = _data_line(path, int(bad[0]))
         raise DataError(f"{path}:{lineno}: {what}: NaN or infinite value")
     return table
+
+
+def require_rows(path: Path, table: np.ndarray, ok: np.ndarray, what: str, rule: str) -> None:
+    """Refuse the first row of ``table`` (read by :func:`read_table`) where ``ok`` is False, naming its line."""
+    bad = np.flatnonzero(~np.asarray(ok, dtype=bool))
+    if bad.size:
+        raise DataError(f"{path}:{_data_line(path, int(bad[0]))}: {what}: {rule}")
 
 
 def _data_line(path: Path, row: int) -> int:

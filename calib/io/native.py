@@ -210,6 +210,9 @@ def is_detcal_log(path: Path) -> bool:
     return isinstance(meta, dict) and meta.get("format") == FORMAT
 
 
+is_detcal_log.kind = "native log"  # named when --force is refused (profiles.atomic.check_replaceable)
+
+
 def content_digest(path: Path) -> str:
     """sha256 of a native log's content: every member's name and uncompressed bytes, in the file's order.
 

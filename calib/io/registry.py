@@ -24,7 +24,7 @@ OUTPUT_FORMATS = ("native", "ros2")
 class ReadOptions(BaseModel):
     """Reader options; each reader uses the ones that concern it."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     max_backstep: float = Field(default=DEFAULT_MAX_BACKSTEP, ge=0.0, allow_inf_nan=False)
     laser: str = "front"
     range_max: float | None = Field(default=None, gt=0.0, allow_inf_nan=False)

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.io.common import DEFAULT_MAX_BACKSTEP, file_digest, index_of, read_table, table_stamps, table_time_order
+from calib.io.common import DEFAULT_MAX_BACKSTEP, file_digest, index_of, read_table, require_rows, table_stamps, table_time_order
 from detectors.logs import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel
 from profiles.errors import DataError, UsageError
 
@@ -50,6 +50,7 @@ def read_utias(path: str | Path, *, robot: int = 1, max_backstep: float = DEFAUL
     odometry = Odometry("velocity", ostamp[perm], odo[perm, 1:])
 
     meas = read_table(files["Measurement"], 4, "t barcode range bearing")
+    require_rows(files["Measurement"], meas, meas[:, 2] >= 0, "t barcode range bearing", "negative range")
     mstamp = table_stamps(meas[:, 0], files["Measurement"], "t barcode range bearing")
     perm, moved_m = table_time_order(mstamp, files["Measurement"], "measurement", max_backstep)
     meas, mstamp = meas[perm], mstamp[perm]

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.io.common import DEFAULT_MAX_BACKSTEP, file_digest, read_table, table_stamps, table_time_order
+from calib.io.common import DEFAULT_MAX_BACKSTEP, file_digest, read_table, require_rows, table_stamps, table_time_order
 from detectors.logs import Detections, Mount, Odometry, ReferencePoses, SensorLog, SensorModel, Vehicle
 from profiles.errors import UsageError
 
@@ -41,11 +41,16 @@ def looks_like_victoria(path: Path) -> bool:
 def read_victoria(path: str | Path, *, max_backstep: float = DEFAULT_MAX_BACKSTEP) -> SensorLog:
     path = Path(path)
     if not path.is_dir():
-        raise UsageError(f"{path}: expected the Victoria Park folder (with {', '.join(FILES)})")
+        raise UsageError(f"{path}: expected the Victoria Park folder (with {FILES[0]}, {FILES[1]} and optionally {FILES[2]})")
     for f in FILES[:2]:
         if not (path / f).is_file():
-            raise UsageError(f"{path / f}: missing; a Victoria Park folder needs {', '.join(FILES)}")
+            raise UsageError(f"{path / f}: missing; a Victoria Park folder needs {FILES[0]} and {FILES[1]} ({FILES[2]} is optional)")
     meas = read_table(path / "measurements.dat", 4, "t range bearing diameter")
+    what = "t range bearing diameter"
+    require_rows(path / "measurements.dat", meas, meas[:, 1] >= 0, what, "negative range")
+    # the laser's bearings run from 0 to pi (0: to the right); a little slack for rounding
+    require_rows(path / "measurements.dat", meas, np.abs(meas[:, 2] - np.pi / 2) <= np.pi / 2 + 1e-3, what, "bearing outside 0..pi rad")
+    require_rows(path / "measurements.dat", meas, meas[:, 3] >= 0, what, "negative diameter")
     stamp = table_stamps(meas[:, 0], path / "measurements.dat", "t range bearing diameter")
     perm, moved_m = table_time_order(stamp, path / "measurements.dat", "measurement", max_backstep)
     meas, stamp = meas[perm], stamp[perm]

@@ -54,7 +54,7 @@ WAYPOINTS = [[24.0, 0.0], [24.0, 16.0], [0.0, 16.0], [0.0, 0.0], [14.0, 0.0]]
 
 
 class GlmbPaperConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     landmarks: list[tuple[float, float]] = Field(default_factory=lambda: [tuple(x) for x in LANDMARKS], min_length=1)
     waypoints: list[tuple[float, float]] = Field(default_factory=lambda: [tuple(x) for x in WAYPOINTS], min_length=1)
     speed: float = Field(default=1.0, gt=0.0, description="[m/s]")
@@ -71,7 +71,7 @@ class GlmbPaperConfig(BaseModel):
     range_min: float = Field(default=0.0, ge=0.0)
     range_max: float = Field(default=3.0, gt=0.0)
     pd: float = Field(default=0.7, gt=0.0, le=1.0)
-    clutter: float = Field(default=5.0, ge=0.0, description="false alarms per scan (Poisson mean)")
+    clutter: float = Field(default=5.0, ge=0.0, le=10_000.0, description="false alarms per scan (Poisson mean)")
     sigma_range: float = Field(default=0.3, gt=0.0, description="[m]")
     sigma_bearing: float = Field(default=float(np.radians(2.0)), gt=0.0, description="[rad]")
 
@@ -79,6 +79,10 @@ class GlmbPaperConfig(BaseModel):
     def _ranges(self) -> GlmbPaperConfig:
         if self.range_min >= self.range_max:
             raise ValueError("range_min must be below range_max")
+        if len(self.waypoints) == 1 and float(np.hypot(*self.waypoints[0])) < self.arrive:
+            raise ValueError(
+                f"waypoints: the only waypoint is within arrive ({self.arrive} m) of the start (0, 0): the path would have no step"
+            )
         return self
 
 

@@ -34,7 +34,13 @@ from profiles.errors import DataError
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+def _ordered(model: BaseModel, low: str, high: str) -> None:
+    """``low`` must not exceed ``high`` (a range drawn uniformly between them)."""
+    if getattr(model, low) > getattr(model, high):
+        raise ValueError(f"{low} ({getattr(model, low)}) must not exceed {high} ({getattr(model, high)})")
 
 
 class RadiusDist(_Strict):
@@ -73,6 +79,11 @@ class BushesConfig(_Strict):
     vertices: int = Field(default=10, ge=3)
     irregularity: float = Field(default=0.35, ge=0.0, lt=1.0, description="radial jitter as a fraction of the radius")
 
+    @model_validator(mode="after")
+    def _order(self) -> BushesConfig:
+        _ordered(self, "min_radius", "max_radius")
+        return self
+
 
 class WallsConfig(_Strict):
     count: int = Field(default=8, ge=0)
@@ -80,11 +91,21 @@ class WallsConfig(_Strict):
     max_length: float = Field(default=30.0, gt=0.0)
     fence_fraction: float = Field(default=0.5, ge=0.0, le=1.0, description="share of walls that are open fences (short panels)")
 
+    @model_validator(mode="after")
+    def _order(self) -> WallsConfig:
+        _ordered(self, "min_length", "max_length")
+        return self
+
 
 class PostsConfig(_Strict):
     count: int = Field(default=40, ge=0)
     min_radius: float = Field(default=0.02, gt=0.0)
     max_radius: float = Field(default=0.04, gt=0.0)
+
+    @model_validator(mode="after")
+    def _order(self) -> PostsConfig:
+        _ordered(self, "min_radius", "max_radius")
+        return self
 
 
 class PathConfig(_Strict):
@@ -133,6 +154,16 @@ class ParkConfig(_Strict):
     path: PathConfig = PathConfig()
     laser: LaserConfig = LaserConfig()
     odometry: OdometryConfig = OdometryConfig()
+
+    @model_validator(mode="after")
+    def _room(self) -> ParkConfig:
+        """The path's margin must leave room inside the park (checked here so that the message names the config)."""
+        if self.path.kind == "figure8" and self.path.margin >= min(self.width, self.height) / 2:
+            raise ValueError(
+                f"path.margin ({self.path.margin} m) leaves no room for the figure-eight in a {self.width} x {self.height} m park "
+                "(it must be below half the smaller side)"
+            )
+        return self
 
 
 @dataclass(frozen=True, eq=False)

@@ -28,14 +28,14 @@ calibration of these logs should recover. Same config and seed, same bytes.
 from __future__ import annotations
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from detectors.geometry import compose
 from detectors.logs import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, wrap_angle
 
 
 class RfsSimConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     steps: int = Field(default=1000, ge=60, le=1_000_000)
     dt: float = Field(default=0.1, gt=0.0)
     segments: int = Field(default=20, ge=1)
@@ -53,6 +53,17 @@ class RfsSimConfig(BaseModel):
     var_range: float = Field(default=5e-4, gt=0.0, description="[m^2]")
     var_bearing: float = Field(default=5e-5, gt=0.0, description="[rad^2]")
 
+    @model_validator(mode="after")
+    def _order(self) -> RfsSimConfig:
+        if self.min_dx > self.max_dx:
+            raise ValueError(f"min_dx ({self.min_dx}) must not exceed max_dx ({self.max_dx})")
+        if self.range_min >= self.range_max:
+            raise ValueError(f"range_min ({self.range_min}) must be below range_max ({self.range_max})")
+        lam = self.clutter_intensity * (self.range_max - self.range_min) * 2 * np.pi
+        if lam > 10_000:
+            raise ValueError(f"clutter_intensity ({self.clutter_intensity}) gives {lam:.3g} false alarms per step; at most 10,000 are simulated")
+        return self
+
 
 def sensor_model(cfg: RfsSimConfig) -> SensorModel:
     return SensorModel(kind="detector", range_min=cfg.range_min, range_max=cfg.range_max, fov=2 * np.pi, range_sigma=float(np.sqrt(cfg.var_range)))
@@ -60,8 +71,6 @@ def sensor_model(cfg: RfsSimConfig) -> SensorModel:
 
 def simulate_rfs(cfg: RfsSimConfig, seed: int) -> SensorLog:
     """One run of the scenario as a detection-level log with truth (poses at every step, landmarks)."""
-    if cfg.min_dx > cfg.max_dx:
-        raise ValueError("min_dx must not exceed max_dx")
     rng = np.random.default_rng(seed)
     n, dt = cfg.steps, cfg.dt
     # the true increments: still, then piecewise constant

@@ -41,7 +41,7 @@ from profiles.schema import LidarGeometry
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class Segment(_Strict):
@@ -108,7 +108,9 @@ class StreetObjects(_Strict):
 class LidarSimConfig(_Strict):
     """An HDL-64E-like spinning lidar."""
 
-    vertical_angles_deg: list[float] | None = Field(default=None, description="ring elevations [deg]; default: HDL-64E-like, +2 to -24.8")
+    vertical_angles_deg: list[float] | None = Field(
+        default=None, min_length=1, description="ring elevations [deg]; default: HDL-64E-like, +2 to -24.8"
+    )
     azimuth_increment_deg: float = Field(default=0.1728, gt=0.0, le=10.0)
     range_max: float = Field(default=120.0, gt=0.0)
     range_min: float = Field(default=0.9, ge=0.0)
@@ -117,6 +119,12 @@ class LidarSimConfig(_Strict):
     rate_hz: float = Field(default=10.0, gt=0.0)
     height: float = Field(default=1.73, gt=0.0, description="sensor height above the ground [m] (KITTI's Velodyne)")
     mount: Mount = Mount(x=0.8, y=0.0, theta=0.0)
+
+    @model_validator(mode="after")
+    def _ranges(self) -> LidarSimConfig:
+        if self.range_min >= self.range_max:
+            raise ValueError(f"range_min ({self.range_min}) must be below range_max ({self.range_max})")
+        return self
 
 
 class StreetOdometry(_Strict):

@@ -93,6 +93,31 @@ def _utias_big_time(d: Path) -> None:
     p.write_text("\n".join(lines) + "\n")
 
 
+def _edit_row(name: str, row: int, column: int, value: str):
+    """An edit of a copied data folder: data row ``row`` (0-based, after the comments) of ``name`` gets ``value`` in ``column``."""
+
+    def edit(d: Path) -> None:
+        p = d / name
+        lines = p.read_text().splitlines()
+        i = [k for k, ln in enumerate(lines) if ln and not ln.startswith("#")][row]
+        cells = lines[i].split()
+        cells[column] = value
+        lines[i] = " ".join(cells)
+        p.write_text("\n".join(lines) + "\n")
+
+    return edit
+
+
+def vp_copy(tmp: Path, edit=None) -> str:
+    import shutil
+
+    dst = tmp / "vp"
+    shutil.copytree(VENDORED / "victoria_park", dst)
+    if edit:
+        edit(dst)
+    return str(dst)
+
+
 def interlaced_log(tmp: Path) -> str:
     from calib.io.carmen import read_carmen
     from calib.io.native import write_native
@@ -132,6 +157,10 @@ CASES = [
     ("native-bad-sensor", "sensor model with NaN angle_min", lambda t: ["log", "info", native(t, lambda m: {**m, "sensor": {**m["sensor"], "angle_min": float("nan")}})], 1, "f.dlog: meta.json sensor.angle_min: Input should be a finite number"),
     # ---- table logs
     ("utias-1e300", "UTIAS odometry time of 1e300 s", lambda t: ["log", "info", utias_copy(t, _utias_big_time)], 1, "Robot1_Odometry.dat:6: t v omega: time 1e+300 s is out of range"),
+    ("utias-negative-range", "UTIAS measurement of negative range", lambda t: ["log", "info", utias_copy(t, _edit_row("Robot1_Measurement.dat", 3, 2, "-1.5"))], 1, "Robot1_Measurement.dat:4: t barcode range bearing: negative range"),
+    ("utias-no-measurements", "UTIAS robot without measurements", lambda t: ["slam", "run", utias_copy(t, lambda d: (d / "Robot1_Measurement.dat").write_text("")), "--profile", "sim-park-laser"], 1, "utias: the log holds no detections (robot 1)"),
+    ("vp-bearing", "Victoria Park bearing of 7.5 rad", lambda t: ["log", "info", vp_copy(t, _edit_row("measurements.dat", 2, 2, "7.5"))], 1, "measurements.dat:3: t range bearing diameter: bearing outside 0..pi rad"),
+    ("vp-diameter", "Victoria Park negative diameter", lambda t: ["log", "info", vp_copy(t, _edit_row("measurements.dat", 0, 3, "-0.3"))], 1, "measurements.dat:1: t range bearing diameter: negative diameter"),
     ("utias-robot", "UTIAS robot 9", lambda t: ["log", "info", str(VENDORED / "utias_dataset1"), "--robot", "9"], 2, "--robot: expected 1..5, got 9"),
     # ---- configs
     ("config-utf8", "config that is not UTF-8", lambda t: ["simulate", "park", "--out", str(t / "s"), "--config", text(t, "c.yaml", b"width: \xff\xfe\n")], 2, "c.yaml: not UTF-8 text (byte 7)"),
@@ -177,12 +206,37 @@ CASES = [
     ("input-folder", "a folder that holds no log", lambda t: ["log", "info", str(t)], 2, "cannot tell the log format from the path"),
     ("input-brackets", "file name with brackets and console markup", lambda t: ["log", "info", _bracketed(t)], 1, "run[v2]/line 100 :100: [b]a[/b].dlog: not a detcal log or truncated"),
     ("slam-geometry", "slam run on a laser of two beam layouts the profile was not calibrated for", lambda t: ["slam", "run", interlaced_log(t), "--profile", "sim-park-laser"], 2, "was calibrated for 361 beams from -90.00 deg every 0.5000 deg; this log's laser has 180"),
+    # ---- values that are not finite, settings that contradict each other, streams that hold nothing
+    ("opt-clutter-inf", "--clutter inf", lambda t: ["simulate", "glmb-paper", "--out", str(t / "s"), "--clutter", "inf"], 2, "--clutter: Input should be a finite number"),
+    ("opt-clutter-huge", "--clutter 1e20", lambda t: ["simulate", "glmb-paper", "--out", str(t / "s"), "--clutter", "1e20"], 2, "--clutter: Input should be less than or equal to 10000"),
+    ("config-inf", "simulation config with .inf", lambda t: ["simulate", "park", "--out", str(t / "s"), "--config", text(t, "c.yaml", "width: .inf\n")], 2, "c.yaml: width: Input should be a finite number"),
+    ("config-margin", "park path margin wider than the park", lambda t: ["simulate", "park", "--out", str(t / "s"), "--config", text(t, "c.yaml", "path: {margin: 100}\n")], 2, "c.yaml: path.margin (100.0 m) leaves no room for the figure-eight"),
+    ("config-min-max", "bushes' smallest radius above their largest", lambda t: ["simulate", "park", "--out", str(t / "s"), "--config", text(t, "c.yaml", "bushes: {min_radius: 2, max_radius: 1}\n")], 2, "c.yaml: bushes: min_radius (2.0) must not exceed max_radius (1.0)"),
+    ("config-rfs-ranges", "rfs-sim range_min above range_max", lambda t: ["simulate", "rfs-sim", "--out", str(t / "s"), "--config", text(t, "c.yaml", "range_min: 3\nrange_max: 1\n")], 2, "c.yaml: range_min (3.0) must be below range_max (1.0)"),
+    ("config-rfs-speeds", "rfs-sim min_dx above max_dx", lambda t: ["simulate", "rfs-sim", "--out", str(t / "s"), "--config", text(t, "c.yaml", "min_dx: 1\nmax_dx: 0.5\n")], 2, "c.yaml: min_dx (1.0) must not exceed max_dx (0.5)"),
+    ("config-waypoint", "glmb-paper path of one waypoint at the start", lambda t: ["simulate", "glmb-paper", "--out", str(t / "s"), "--config", text(t, "c.yaml", "waypoints: [[0, 0]]\n")], 2, "c.yaml: waypoints: the only waypoint is within arrive (1.0 m) of the start"),
+    ("config-street-rings", "street lidar with no rings", lambda t: ["simulate", "street", "--out", str(t / "s"), "--config", text(t, "c.yaml", "lidar: {vertical_angles_deg: []}\n")], 2, "c.yaml: lidar.vertical_angles_deg: List should have at least 1 item"),
+    ("config-calibrate-inf", "calibration gate .inf", lambda t: ["calibrate", small_log(t), "--config", text(t, "c.yaml", "gate: .inf\n"), "--out", str(t / "r")], 2, "c.yaml: gate: Input should be a finite number"),
+    ("config-descriptors-twice", "a descriptor named twice", lambda t: ["calibrate", small_log(t), "--config", text(t, "c.yaml", "descriptors: [log_mse, log_mse]\n"), "--out", str(t / "r")], 2, "c.yaml: descriptors: log_mse is named twice"),
+    ("config-detector-points", "detector max_points below min_points", lambda t: ["detect", small_log(t), "--config", text(t, "c.yaml", "detector: {min_points: 10, max_points: 3}\n"), "--out", str(t / "r")], 2, "c.yaml: detector: max_points (3) is below min_points (10)"),
+    ("config-slam-inf", "SLAM OSPA cut-off .inf", lambda t: ["slam", "run", small_log(t), "--profile", "sim-park-laser", "--config", text(t, "c.yaml", "metric: {ospa_c: .inf}\n")], 2, "c.yaml: metric.ospa_c: Input should be a finite number"),
+    ("config-slam-no-kind", "SLAM filter settings without their kind", lambda t: ["slam", "run", small_log(t), "--profile", "sim-park-laser", "--config", text(t, "c.yaml", "filter: {gate: 4}\n")], 2, "c.yaml: filter: missing the key 'kind'"),
+    ("opt-tolerance-nan", "--tolerance nan", lambda t: ["selfcal", small_log(t), "--profile", "sim-park-laser", "--tolerance", "nan"], 2, "--tolerance: expected a positive number, got nan"),
+    ("opt-seeds-zero", "--seeds 0 (a count of none)", lambda t: ["slam", "sweep", small_log(t), "--profile", "sim-park-laser", "--seeds", "0"], 2, "--seeds: expected a count of at least 1"),
+    ("opt-seeds-twice", "--seeds 1,1", lambda t: ["slam", "sweep", small_log(t), "--profile", "sim-park-laser", "--seeds", "1,1"], 2, "--seeds: a seed is listed twice in '1,1'"),
+    ("opt-scheduler-address", "--scheduler without a port", lambda t: ["slam", "sweep", small_log(t), "--profile", "sim-park-laser", "--scheduler", "notanaddress", "--out", str(t / "sw")], 2, "--scheduler notanaddress: not a scheduler address"),
+    ("input-relations-empty", "benchmark relations file with no relation", lambda t: ["icp", small_log(t), "--relations", text(t, "l.csv", ""), "--out", str(t / "r")], 1, "l.csv: holds no relations"),
+    ("input-no-scans", "log whose scan stream is empty", lambda t: ["detect", empty_scans_log(t), "--out", str(t / "r")], 1, "e.dlog: the log holds no scans"),
+    ("input-landmarks-empty", "landmark CSV with a header only", lambda t: ["calibrate", small_log(t), "--landmarks", text(t, "l.csv", "id,x,y,radius\n")], 1, "l.csv: holds no landmarks"),
+    ("input-landmark-nan", "native log with a NaN landmark position", lambda t: ["log", "info", native(t, arrays={"landmarks/xy": np.array([[np.nan, 0.0], [1.0, 2.0]])})], 1, "f.dlog: landmarks.xy[0]: position is not finite"),
     # ---- outputs
     ("out-exists", "existing output without --force", lambda t: ["log", "convert", small_log(t), small_log(t)], 2, "ok.dlog: already exists (use --force to replace it)"),
     ("out-foreign-dir", "--force over a folder detcal did not write", lambda t: ["simulate", "park", "--out", _foreign_dir(t), "--force"], 2, "mine: was not written by detcal (no .detcal-output inside); --force does not replace it"),
     ("out-dir-for-file", "--force where a folder stands and a file goes", lambda t: ["log", "convert", small_log(t), _foreign_dir(t, "d.dlog"), "--force"], 2, "d.dlog: is a folder; --force replaces only a file detcal wrote"),
     ("out-file-for-dir", "--force where a file stands and a folder goes", lambda t: ["simulate", "park", "--out", text(t, "plain", "x"), "--force"], 2, "plain: exists and is not a folder; --force replaces only a folder detcal wrote"),
-    ("out-foreign-file", "--force over a file detcal did not write", lambda t: ["profile", "export", "sim-park-laser", "--out", text(t, "notes.yaml", "my: notes\n"), "--force"], 2, "notes.yaml: was not written by detcal; --force does not replace it"),
+    ("out-foreign-file", "--force over a file detcal did not write", lambda t: ["profile", "export", "sim-park-laser", "--out", text(t, "notes.yaml", "my: notes\n"), "--force"], 2, "notes.yaml: is not a profile detcal wrote; --force replaces only a profile"),
+    ("out-other-kind", "--force over a file detcal wrote, of another kind", lambda t: ["profile", "export", "sim-park-laser", "--out", small_log(t), "--force"], 2, "ok.dlog: is not a profile detcal wrote; --force replaces only a profile"),
+    ("out-holds-input", "--force over the folder that holds the input log", lambda t: ["detect", _run_with_log(t), "--out", str(t / "run"), "--force"], 2, "run: holds the input"),
     ("out-unwritable", "output folder under a plain file", lambda t: ["log", "convert", small_log(t), str(Path(text(t, "plain", "x")) / "o.dlog")], 2, "plain/o.dlog: cannot write here ("),
     ("out-export-dir", "profile export onto a folder", lambda t: ["profile", "export", "sim-park-laser", "--out", str(t)], 2, "already exists (use --force to replace it)"),
 ]  # fmt: skip
@@ -202,6 +256,31 @@ def _bracketed(t: Path) -> str:
     d = t / "run[v2]" / "line 100 :100: [b]a["
     d.mkdir(parents=True)
     return text(d, "b].dlog", "x")
+
+
+def empty_scans_log(t: Path) -> str:
+    """A native log whose scan stream holds no scan (the other streams as full_log's)."""
+    import dataclasses
+
+    from calib.io.native import write_native
+    from detectors.logs import ScanBatch
+    from tests.calib.io.test_native import full_log
+
+    log = full_log()
+    empty = ScanBatch(np.zeros(0, np.int64), np.zeros((0, log.sensor.n_beams), np.float32))
+    write_native(dataclasses.replace(log, scans=empty), t / "e.dlog")
+    return str(t / "e.dlog")
+
+
+def _run_with_log(t: Path) -> str:
+    """A folder detcal wrote (its marker inside) that holds a log: the input of a run whose --out it is."""
+    from profiles.atomic import MARKER
+
+    d = t / "run"
+    d.mkdir()
+    (d / MARKER).write_text("")
+    (d / "ok.dlog").write_bytes(Path(small_log(t)).read_bytes())
+    return str(d / "ok.dlog")
 
 
 def _foreign_dir(t: Path, name: str = "mine") -> str:
@@ -245,7 +324,7 @@ def _inputs_of(case: str) -> set[str]:
     """Files a case builds as its input (everything else must not appear)."""
     return {
         "t.clf", "x.clf.bz2", "c.clf.bz2", "i.clf", "i.dlog", "x.dlog", "cut.dlog", "ok.dlog", "src.dlog", "f.dlog", "h.dlog", "c.yaml",
-        "p.yaml", "p.json", "l.csv", "utias", "run[v2]", "mine", "d.dlog", "plain", "notes.yaml",
+        "p.yaml", "p.json", "l.csv", "utias", "run[v2]", "mine", "d.dlog", "plain", "notes.yaml", "e.dlog", "run", "vp",
     }  # fmt: skip
 
 

@@ -1,5 +1,7 @@
+import dataclasses
 import json
 
+import numpy as np
 import yaml
 
 from calib.io.native import write_native
@@ -38,6 +40,14 @@ def test_calibrate_validate_and_profile_commands(tmp_path, capsys):
     assert code == 0, err
     summary = yaml.safe_load((tmp_path / "val/summary.yaml").read_text())
     assert summary["ece"] < 0.05 and (tmp_path / "val/reliability.png").exists()
+    # a log in which the laser saw nothing (every range NaN): no detection where the profile predicts many (n_p is
+    # ray-traced from the truth, not read from the ranges); a report that says so, not a crash
+    log = park(41, 1.0)
+    blind = dataclasses.replace(log, scans=dataclasses.replace(log.scans, ranges=np.full_like(log.scans.ranges, np.nan)))
+    code, out, err = run(capsys, "validate", str(prof_dir / "small@1.1.0.yaml"), str(write_native(blind, tmp_path / "blind.dlog")), "--out", str(tmp_path / "val_blind"))
+    assert code == 0, err
+    summary = yaml.safe_load((tmp_path / "val_blind/summary.yaml").read_text())
+    assert summary["detections_observed"] == 0 and summary["detections_predicted"] > 100
     code, out, _ = run(capsys, "profile", "diff", str(saved), str(prof_dir / "small@1.1.0.yaml"))
     assert code == 0 and "clutter.rate" in out and "version" in out
     code, out, _ = run(capsys, "profile", "export", str(saved), "--format", "json")

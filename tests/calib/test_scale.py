@@ -222,6 +222,10 @@ def test_execution_options_are_checked_before_any_work(tmp_path, capsys, park_lo
         code, _, err = run(capsys, *base, "--scheduler", "tcp://127.0.0.1:1")
     assert code == 2
     assert_one_line_error(err, "--scheduler tcp://127.0.0.1:1: no Dask scheduler answered")
+    code, _, err = run(capsys, *base, "--scheduler", "notanaddress")
+    assert code == 2
+    assert_one_line_error(err, "--scheduler notanaddress: not a scheduler address (missing port number")
+    assert not (tmp_path / "sw").exists()  # refused before the sweep folder is made
 
 
 def test_a_worker_refuses_a_log_with_other_content_at_the_same_path(tmp_path, park_log):

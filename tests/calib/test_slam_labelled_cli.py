@@ -149,3 +149,19 @@ def test_a_bad_vary_is_refused_before_anything_is_written(tmp_path, capsys, pape
     assert code == 2
     assert_one_line_error(err, needle)
     assert not (tmp_path / "x").exists()
+
+
+def test_particles_given_on_the_command_line_meet_the_files_islands(tmp_path, capsys, paper):
+    """--particles replaces the file's count before the islands are checked against it: 3 islands of 1 is a valid run
+    although the file's default 20 particles would not split into 3; 4 particles are refused, naming both."""
+    cfg = tmp_path / "islands.yaml"
+    cfg.write_text("islands: 3\nfilter: {kind: lmb}\n")
+    base = ["slam", "run", str(paper / "log.dlog"), "--profile", str(paper / "profile.yaml"), "--frames", "5", "--config", str(cfg)]
+    code, _, err = run(capsys, *base, "--particles", "3", "--out", str(tmp_path / "ok"))
+    assert code == 0, err
+    settings = yaml.safe_load((tmp_path / "ok/config.yaml").read_text())["settings"]
+    assert (settings["particles"], settings["islands"]) == (3, 3)
+    code, _, err = run(capsys, *base, "--particles", "4", "--out", str(tmp_path / "bad"))
+    assert code == 2
+    assert_one_line_error(err, "islands: 3 islands cannot share 4 particles equally")
+    assert not (tmp_path / "bad").exists()

@@ -91,7 +91,7 @@ def test_existing_file_not_overwritten_without_force(tmp_path):
         write_native(full_log(), p)
     assert p.read_text() == "keep me"
     # --force replaces only a log detcal wrote, never another file or a folder
-    with pytest.raises(UsageError, match="a.dlog: was not written by detcal; --force does not replace it"):
+    with pytest.raises(UsageError, match="a.dlog: is not a native log detcal wrote; --force replaces only a native log"):
         write_native(full_log(), p, overwrite=True)
     assert p.read_text() == "keep me"
     (tmp_path / "d.dlog").mkdir()
