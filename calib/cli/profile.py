@@ -19,14 +19,25 @@ ProfileArg = Annotated[str, typer.Argument(metavar="PROFILE", help="name or name
 
 @app.command("list")
 def profile_list() -> None:
-    """List the bundled and user profiles (name@version, origin, file, and which file wins when several share a name@version)."""
-    from profiles.store import registry, user_dirs
+    """List the bundled and user profiles (name@version, origin, file, and which file wins when several share a
+    name@version); a file that does not load, or holds another profile than its name says, is marked so."""
+    from profiles.errors import DetcalError
+    from profiles.store import load_profile_file, registry, user_dirs
 
     t = Table(title="detector profiles (user folders: " + ", ".join(str(d) for d in user_dirs()) + ")")
     for col in ("profile", "origin", "file", "status"):
         t.add_column(col, overflow="fold")
     for e in registry():
-        t.add_row(f"{e.name}@{e.version}", e.origin, str(e.path), "active" if e.shadowed_by is None else f"shadowed by {e.shadowed_by}")
+        status = "active" if e.shadowed_by is None else f"shadowed by {e.shadowed_by}"
+        try:
+            held = load_profile_file(e.path).ref
+        except DetcalError as exc:
+            msg = " ".join(str(exc).split())
+            status = f"unreadable ({msg.removeprefix(f'{e.path}: ')})"
+        else:
+            if held != f"{e.name}@{e.version}":
+                status = f"holds {held}, not what its file name says"
+        t.add_row(f"{e.name}@{e.version}", e.origin, str(e.path), status)
     out.print(t)
 
 
