@@ -36,11 +36,18 @@ def load_yaml_model(model: type[M], path: str | Path | None, updates: dict | Non
     None: not given) replace the file's values before validation, so that checks across fields see the command line's
     values (``--particles`` beside a file's ``islands``)."""
     given = {k: v for k, v in (updates or {}).items() if v is not None}
+
+    def refuse(exc: ValidationError, where: str):
+        loc = exc.errors()[0]["loc"]
+        if loc and loc[0] in given:  # the command line's value: name its option
+            return UsageError(f"--{str(loc[0]).replace('_', '-')}: {exc.errors()[0]['msg']}")
+        return UsageError(validation_message(exc, where))
+
     if path is None:
         try:
             return model.model_validate(given)
         except ValidationError as exc:
-            raise UsageError(validation_message(exc, "the command line")) from None
+            raise refuse(exc, "the command line") from None
     path = Path(path)
     if not path.is_file():
         raise UsageError(f"{path}: no such config file")
@@ -62,7 +69,7 @@ def load_yaml_model(model: type[M], path: str | Path | None, updates: dict | Non
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        raise UsageError(validation_message(exc, str(path))) from None
+        raise refuse(exc, str(path)) from None
 
 
 def dump_yaml(data: object) -> str:

@@ -417,11 +417,14 @@ def open_engine(workers: int | None, scheduler: str | None, tasks: int) -> Itera
 
 
 def _probe(scheduler: str, timeout: float = 5.0) -> None:
-    """Refuse a TCP scheduler address that is malformed or that nothing listens at, before a Client is made: a Client
-    that fails to connect is closed when it is collected, which waits 60 s and prints a traceback at exit."""
+    """Refuse a TCP scheduler address that is malformed, that nothing listens at, or whose listener does not answer as
+    a Dask scheduler (a dashboard's port, say), before a Client is made: a Client that fails to connect is closed when
+    it is collected, which waits 60 s and prints a traceback at exit."""
+    import asyncio
     import socket
 
     from distributed.comm import parse_address, parse_host_port
+    from distributed.core import rpc
 
     try:
         scheme, location = parse_address(scheduler)
@@ -434,6 +437,22 @@ def _probe(scheduler: str, timeout: float = 5.0) -> None:
         socket.create_connection((host, port), timeout=timeout).close()
     except OSError as exc:
         raise UsageError(f"--scheduler {scheduler}: no Dask scheduler answered ({exc.strerror or type(exc).__name__})") from None
+
+    async def identity() -> dict:
+        r = rpc(scheduler, timeout=timeout)
+        try:
+            return await asyncio.wait_for(r.identity(), timeout)
+        finally:
+            await r.close_rpc()
+
+    try:
+        with _quiet_dask():
+            who = asyncio.run(identity())
+    except (OSError, TimeoutError, ValueError, TypeError) as exc:
+        who = {"error": " ".join(str(exc).split()) or type(exc).__name__}
+    if not isinstance(who, dict) or who.get("type") != "Scheduler":
+        why = who.get("error") if isinstance(who, dict) and "error" in who else f"it answered as {who.get('type') if isinstance(who, dict) else who!r}"
+        raise UsageError(f"--scheduler {scheduler}: something listens there but it is not a Dask scheduler ({why})")
 
 
 def _check_workers(client, scheduler: str) -> None:

@@ -29,7 +29,7 @@ class PlaneDetectorParams(Strict):
     then every region is refitted with the MSSE robust estimator.
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     cell_azimuth_deg: float = Field(default=1.0, gt=0.0, le=20.0, description="cell width in azimuth [deg]")
     cell_elevation_deg: float = Field(default=1.2, gt=0.0, le=20.0, description="cell height in elevation [deg]")
     cell_range_ratio: float = Field(default=1.25, gt=1.0, le=2.0, description="ratio of a cell's far and near range")

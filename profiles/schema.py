@@ -21,7 +21,7 @@ class Strict(BaseModel):
 class Mount(Strict):
     """Sensor pose in the vehicle frame: (x [m] forward, y [m] left, theta [rad])."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     x: float = 0.0
     y: float = 0.0
     theta: float = 0.0
@@ -34,7 +34,7 @@ class Vehicle(Strict):
     lateral distance of the speed encoder (rear left wheel) from that centre.
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     wheelbase: float = Field(gt=0.0)
     encoder_offset: float = Field(default=0.0, ge=0.0)
 
@@ -47,7 +47,7 @@ class LidarGeometry(Strict):
     (the ground under the vehicle), so planes in the sensor frame can be placed in 3D.
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     vertical_angles_deg: list[float] = Field(min_length=1, description="elevation of each ring [deg], sensor frame")
     azimuth_increment_deg: float = Field(gt=0.0, le=10.0, description="azimuth step between columns [deg]")
     height: float = Field(default=0.0, description="sensor height above the vehicle frame origin [m]")
@@ -56,7 +56,7 @@ class LidarGeometry(Strict):
 class BeamGeometry(Strict):
     """One beam layout of a 2D laser: beam ``i`` points at ``angle_min + i * angle_increment`` (sensor frame, radians)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     n_beams: int = Field(ge=1)
     angle_min: float = Field(allow_inf_nan=False)
     angle_increment: float = Field(allow_inf_nan=False)
@@ -86,7 +86,7 @@ class SensorModel(Strict):
     (written only when present).
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     kind: Literal["laser2d", "lidar3d", "camera", "detector"] = "laser2d"
     n_beams: int | None = Field(default=None, ge=1)
     angle_min: float | None = Field(default=None, allow_inf_nan=False)
@@ -168,6 +168,7 @@ class SensorModel(Strict):
 class CircleDetectorParams(Strict):
     """Parameters of the circle detector (thesis sec. 5.3)."""
 
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)  # parameters a config file sets too
     jump: float = Field(default=0.5, gt=0.0, description="distance between consecutive returns that breaks a cluster [m]")
     min_points: int = Field(default=3, ge=3, description="fewest returns in a cluster (a circle needs 3)")
     max_points: int | None = Field(default=None, ge=3, description="most returns in a cluster (None: no limit)")
@@ -191,6 +192,7 @@ class HotellingParams(Strict):
     (x - mean)^T covariance^-1 (x - mean) <= gamma.
     """
 
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)  # parameters a config file sets too
     names: list[str] = Field(min_length=1)
     mean: list[float]
     covariance: list[list[float]]

@@ -359,12 +359,13 @@ def registry() -> list[Entry]:
     return sorted(out, key=lambda e: (e.origin != "builtin", e.name, semver_key(e.version), str(e.path)))
 
 
-def resolve(ref: str | Path) -> DetectorProfile:
-    """A profile from a file path or ``name[@version]`` (newest version when omitted)."""
+def _lookup(ref: str | Path) -> tuple[Path, Entry | None]:
+    """The file ``ref`` names: a path as given, or the registry's entry of ``name[@version]`` (newest version when
+    omitted)."""
     ref_s = str(ref)
     p = Path(ref_s)
     if p.suffix in (".yaml", ".yml", ".json") and (p.exists() or os.sep in ref_s):
-        return load_profile_file(p)
+        return p, None
     name, _, version = ref_s.partition("@")
     entries = registry()
     cands = [e for e in entries if e.name == name and (not version or e.version == version) and e.shadowed_by is None]
@@ -372,6 +373,19 @@ def resolve(ref: str | Path) -> DetectorProfile:
         known = sorted({f"{e.name}@{e.version}" for e in entries})
         raise UsageError(f"no profile {ref_s!r}; known: {', '.join(known) or 'none'}")
     best = max(cands, key=lambda e: semver_key(e.version))
+    return best.path, best
+
+
+def profile_path(ref: str | Path) -> Path:
+    """The file :func:`resolve` reads for ``ref``."""
+    return _lookup(ref)[0]
+
+
+def resolve(ref: str | Path) -> DetectorProfile:
+    """A profile from a file path or ``name[@version]`` (newest version when omitted)."""
+    path, best = _lookup(ref)
+    if best is None:
+        return load_profile_file(path)
     prof = load_profile_file(best.path)
     if (prof.name, prof.version) != (best.name, best.version):
         raise DataError(f"{best.path}: holds {prof.ref}, but its file name says {best.name}@{best.version}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 from typing import Annotated
@@ -32,8 +33,8 @@ def profile_list() -> None:
         try:
             held = load_profile_file(e.path).ref
         except DetcalError as exc:
-            msg = " ".join(str(exc).split())
-            status = f"unreadable ({msg.removeprefix(f'{e.path}: ')})"
+            msg = re.sub(rf"^{re.escape(str(e.path))}(?::(\d+))?: ", lambda m: f"line {m[1]}: " if m[1] else "", " ".join(str(exc).split()))
+            status = f"unreadable ({msg})"
         else:
             if held != f"{e.name}@{e.version}":
                 status = f"holds {held}, not what its file name says"

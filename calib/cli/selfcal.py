@@ -48,7 +48,7 @@ def selfcal_cmd(
     from calib.selfcal import SelfCalConfig, fill_selfcal_run, pool_self_calibrations, profile_change, self_calibrate
     from profiles.atomic import Output, atomic_outputs
     from profiles.profile import NAME_RE, SEMVER_RE
-    from profiles.store import check_new_version, looks_like_profile, resolve, write_profile_text
+    from profiles.store import check_new_version, looks_like_profile, profile_path, resolve, write_profile_text
     from slam_runtime.run import check_inputs
     from slam_runtime.selfcal import self_calibration
 
@@ -78,9 +78,10 @@ def selfcal_cmd(
     if not NAME_RE.match(prof_name):
         raise UsageError(f"--name: {prof_name!r} must match [a-z0-9][a-z0-9._-]*")
     target = out_dir or Path("runs") / f"selfcal_{prof_name}@{version}"
-    fresh(target, force, inputs=[log_path, profile_ref, config])  # both outputs decided before any work
+    start_file = profile_path(profile_ref)  # given by name, it is still a file --force must not replace
+    fresh(target, force, inputs=[log_path, start_file, config])  # both outputs decided before any work
     saved, status = check_new_version(prof_name, version, profiles_dir, force=force)
-    fresh(saved, force, directory=False, owned=looks_like_profile, inputs=[profile_ref])
+    fresh(saved, force, directory=False, owned=looks_like_profile, inputs=[start_file])
     refs = input_refs(log_path, log)
     command = typed_command("selfcal")
     scfg = SelfCalConfig()

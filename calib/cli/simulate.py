@@ -35,7 +35,7 @@ def simulate_park_cmd(
 
     check_seed(seed)
     cfg = load_yaml_model(ParkConfig, config)
-    fresh(out_dir, force)
+    fresh(out_dir, force, inputs=[config])
     summary = simulate_to(out_dir, seed, cfg, overwrite=force)
     out.print(summary_table(f"simulated park -> {out_dir}", summary))
 
@@ -64,7 +64,7 @@ def simulate_rfs_cmd(
             cfg = RfsSimConfig.model_validate({**cfg.model_dump(), "steps": steps})
         except ValidationError as exc:
             raise UsageError(f"--steps: {exc.errors()[0]['msg']}") from None
-    fresh(out_dir, force)
+    fresh(out_dir, force, inputs=[config])
     summary = write_rfs_simulation(cfg, seed, out_dir, overwrite=force)
     out.print(summary_table(f"rfs-sim scenario -> {out_dir}", summary))
 
@@ -91,7 +91,7 @@ def simulate_street_cmd(
             cfg = StreetConfig.model_validate({**cfg.model_dump(), "frames": frames})
         except ValidationError as exc:
             raise UsageError(f"--frames: {exc.errors()[0]['msg']}") from None
-    fresh(out_dir, force)
+    fresh(out_dir, force, inputs=[config])
     summary = write_street_simulation(cfg, seed, out_dir, overwrite=force)
     out.print(summary_table(f"simulated street -> {out_dir}", summary))
 
@@ -120,6 +120,6 @@ def simulate_glmb_paper_cmd(
             cfg = GlmbPaperConfig.model_validate({**cfg.model_dump(), "clutter": clutter})
         except ValidationError as exc:
             raise UsageError(f"--clutter: {exc.errors()[0]['msg']}") from None
-    fresh(out_dir, force)
+    fresh(out_dir, force, inputs=[config])
     summary = write_glmb_paper_simulation(cfg, seed, out_dir, overwrite=force)
     out.print(summary_table(f"glmb-paper scenario -> {out_dir}", summary))

@@ -225,6 +225,16 @@ def evidence_table(rows: list[dict]) -> Table:
     return t
 
 
+def own_particles(config: Path | None) -> int:
+    """The particle count of a (validated) settings file, or the default."""
+    import yaml
+
+    from slam_runtime.config import SlamConfig
+
+    data = yaml.safe_load(config.read_text(encoding="utf-8")) if config is not None else None
+    return int((data or {}).get("particles", SlamConfig.model_fields["particles"].default))
+
+
 def seed_list(text: str) -> list[int]:
     """`5` -> 0..4; `1,3,7` or `1-5` -> those seeds."""
     try:
@@ -350,7 +360,10 @@ def slam_sweep_cmd(
                                 name = f"{i:02d}_{src.name}_{prof.ref}_{f}_{m}_p{n}{tag}_s{sd}"
                                 labels = {"log": src.name, "profile": prof.ref, "filter": f, "pd_mode": m, "particles": n, "variant": label, "seed": sd}
                                 job_list.append(SweepJob(name, src, prof, cfg, sd, labels, frames, refs))
-    plan = make_plan(job_list, base.model_dump(mode="json"), described)
+    # the plan records the config's own particle count, as before --particles met the islands check: each run holds its
+    # own, and a sweep then resumes whatever order --particles comes in
+    settings = {**base.model_dump(mode="json"), "particles": own_particles(config)}
+    plan = make_plan(job_list, settings, described)
     if force:
         fresh(out_dir, force, inputs=[*logs, *profile_refs, config])
     made = force or not os.path.lexists(out_dir)

@@ -158,10 +158,16 @@ class ParkConfig(_Strict):
     @model_validator(mode="after")
     def _room(self) -> ParkConfig:
         """The path's margin must leave room inside the park (checked here so that the message names the config)."""
-        if self.path.kind == "figure8" and self.path.margin >= min(self.width, self.height) / 2:
+        m, sp = self.path.margin, self.path.row_spacing
+        if self.path.kind == "figure8" and m >= min(self.width, self.height) / 2:
             raise ValueError(
-                f"path.margin ({self.path.margin} m) leaves no room for the figure-eight in a {self.width} x {self.height} m park "
+                f"path.margin ({m} m) leaves no room for the figure-eight in a {self.width} x {self.height} m park "
                 "(it must be below half the smaller side)"
+            )
+        if self.path.kind == "lawnmower" and (np.arange(m, self.height - m + 1e-9, sp).size < 2 or self.width - 2 * m - sp <= 0):
+            raise ValueError(
+                f"path.margin ({m} m) and path.row_spacing ({sp} m) leave no room for two lawnmower rows in a "
+                f"{self.width} x {self.height} m park"
             )
         return self
 

@@ -212,6 +212,9 @@ CASES = [
     ("config-inf", "simulation config with .inf", lambda t: ["simulate", "park", "--out", str(t / "s"), "--config", text(t, "c.yaml", "width: .inf\n")], 2, "c.yaml: width: Input should be a finite number"),
     ("config-margin", "park path margin wider than the park", lambda t: ["simulate", "park", "--out", str(t / "s"), "--config", text(t, "c.yaml", "path: {margin: 100}\n")], 2, "c.yaml: path.margin (100.0 m) leaves no room for the figure-eight"),
     ("config-min-max", "bushes' smallest radius above their largest", lambda t: ["simulate", "park", "--out", str(t / "s"), "--config", text(t, "c.yaml", "bushes: {min_radius: 2, max_radius: 1}\n")], 2, "c.yaml: bushes: min_radius (2.0) must not exceed max_radius (1.0)"),
+    ("config-lawnmower", "lawnmower rows that do not fit the park", lambda t: ["simulate", "park", "--out", str(t / "s"), "--config", text(t, "c.yaml", "path: {kind: lawnmower, margin: 100}\n")], 2, "c.yaml: path.margin (100.0 m) and path.row_spacing (25.0 m) leave no room for two lawnmower rows"),
+    ("config-mount-inf", "laser mount at x = .inf", lambda t: ["simulate", "park", "--out", str(t / "s"), "--config", text(t, "c.yaml", "laser: {mount: {x: .inf}}\n")], 2, "c.yaml: laser.mount.x: Input should be a finite number"),
+    ("config-detector-inf", "detector jump .inf", lambda t: ["calibrate", small_log(t), "--config", text(t, "c.yaml", "detector: {jump: .inf}\n"), "--out", str(t / "r")], 2, "c.yaml: detector.jump: Input should be a finite number"),
     ("config-rfs-ranges", "rfs-sim range_min above range_max", lambda t: ["simulate", "rfs-sim", "--out", str(t / "s"), "--config", text(t, "c.yaml", "range_min: 3\nrange_max: 1\n")], 2, "c.yaml: range_min (3.0) must be below range_max (1.0)"),
     ("config-rfs-speeds", "rfs-sim min_dx above max_dx", lambda t: ["simulate", "rfs-sim", "--out", str(t / "s"), "--config", text(t, "c.yaml", "min_dx: 1\nmax_dx: 0.5\n")], 2, "c.yaml: min_dx (1.0) must not exceed max_dx (0.5)"),
     ("config-waypoint", "glmb-paper path of one waypoint at the start", lambda t: ["simulate", "glmb-paper", "--out", str(t / "s"), "--config", text(t, "c.yaml", "waypoints: [[0, 0]]\n")], 2, "c.yaml: waypoints: the only waypoint is within arrive (1.0 m) of the start"),
@@ -237,6 +240,7 @@ CASES = [
     ("out-foreign-file", "--force over a file detcal did not write", lambda t: ["profile", "export", "sim-park-laser", "--out", text(t, "notes.yaml", "my: notes\n"), "--force"], 2, "notes.yaml: is not a profile detcal wrote; --force replaces only a profile"),
     ("out-other-kind", "--force over a file detcal wrote, of another kind", lambda t: ["profile", "export", "sim-park-laser", "--out", small_log(t), "--force"], 2, "ok.dlog: is not a profile detcal wrote; --force replaces only a profile"),
     ("out-holds-input", "--force over the folder that holds the input log", lambda t: ["detect", _run_with_log(t), "--out", str(t / "run"), "--force"], 2, "run: holds the input"),
+    ("out-holds-config", "--force over the folder that holds the simulation's config", lambda t: ["simulate", "park", "--config", _run_with_config(t), "--out", str(t / "run"), "--force"], 2, "run: holds the input"),
     ("out-unwritable", "output folder under a plain file", lambda t: ["log", "convert", small_log(t), str(Path(text(t, "plain", "x")) / "o.dlog")], 2, "plain/o.dlog: cannot write here ("),
     ("out-export-dir", "profile export onto a folder", lambda t: ["profile", "export", "sim-park-laser", "--out", str(t)], 2, "already exists (use --force to replace it)"),
 ]  # fmt: skip
@@ -281,6 +285,17 @@ def _run_with_log(t: Path) -> str:
     (d / MARKER).write_text("")
     (d / "ok.dlog").write_bytes(Path(small_log(t)).read_bytes())
     return str(d / "ok.dlog")
+
+
+def _run_with_config(t: Path) -> str:
+    """A folder detcal wrote that holds a simulation config."""
+    from profiles.atomic import MARKER
+
+    d = t / "run"
+    d.mkdir()
+    (d / MARKER).write_text("")
+    (d / "c.yaml").write_text("width: 60\n")
+    return str(d / "c.yaml")
 
 
 def _foreign_dir(t: Path, name: str = "mine") -> str:

@@ -112,7 +112,9 @@ def test_the_list_marks_files_that_do_not_hold_what_their_name_says(tmp_path, ca
     (user / "newer@1.0.0.yaml").write_text("schema_version: 3\nname: newer\nversion: 1.0.0\n")
     (user / "other@2.0.0.yaml").write_bytes((BUILTIN / "sim-park-laser@1.0.0.yaml").read_bytes())
     monkeypatch.setenv("DETCAL_PROFILES", str(user))
-    monkeypatch.setenv("COLUMNS", "300")  # one table row per line
+    from calib.cli.common import out
+
+    monkeypatch.setattr(out, "width", 300)  # one table row per line
     code, out, _ = run(capsys, "profile", "list")
     assert code == 0
     row = {p: next(ln for ln in out.splitlines() if p in ln) for p in ("newer@1.0.0", "other@2.0.0", "sim-park-laser@1.0.0")}

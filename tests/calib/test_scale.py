@@ -228,6 +228,27 @@ def test_execution_options_are_checked_before_any_work(tmp_path, capsys, park_lo
     assert not (tmp_path / "sw").exists()  # refused before the sweep folder is made
 
 
+def test_a_listener_that_is_not_a_scheduler_is_refused_before_any_work(tmp_path, capsys, park_log):
+    """A port that accepts connections but never speaks Dask (a dashboard's, say): refused after the probe's timeout,
+    nothing written, no Client left to hang at exit."""
+    import socket
+    import threading
+
+    server = socket.create_server(("127.0.0.1", 0))
+    held: list[socket.socket] = []
+    threading.Thread(target=lambda: held.append(server.accept()[0]), daemon=True).start()
+    address = f"tcp://127.0.0.1:{server.getsockname()[1]}"
+    try:
+        code, _, err = run(capsys, "slam", "sweep", str(park_log), *SWEEP, "--scheduler", address, "--out", str(tmp_path / "sw"))
+    finally:
+        server.close()
+        for s in held:
+            s.close()
+    assert code == 2
+    assert_one_line_error(err, f"--scheduler {address}: something listens there but it is not a Dask scheduler")
+    assert not (tmp_path / "sw").exists()
+
+
 def test_a_worker_refuses_a_log_with_other_content_at_the_same_path(tmp_path, park_log):
     import shutil
 

@@ -67,6 +67,9 @@ def test_sweep_over_filters(tmp_path, capsys, paper):
     ms = next(line for line in text.splitlines() if "ms per step" in line)
     assert len([c for c in ms.split("│") if c.strip()]) == 3
     assert sum(1 for p in out.iterdir() if p.is_dir() and (p / "labels.csv").exists()) == 2
+    # the plan keeps the settings' own particle count (each run holds its --particles): sweeps made before --particles
+    # met the islands check resume
+    assert yaml.safe_load((out / "config.yaml").read_text())["settings"]["particles"] == 20
     code, _, err = run(capsys, "slam", "sweep", str(paper / "log.dlog"), "--profile", str(paper / "profile.yaml"), "--filter", "ekf", "--out", str(tmp_path / "x"))
     assert code == 2
     assert_one_line_error(err, "--filter: expected one of rbphd, lmb, glmb, got 'ekf'")

@@ -10,7 +10,7 @@ import yaml
 
 from profiles.errors import DataError, UsageError
 from profiles.profile import DetectorProfile
-from profiles.store import diff_profiles, dump_profile, load_profile_file, registry, resolve, save_profile
+from profiles.store import diff_profiles, dump_profile, load_profile_file, profile_path, registry, resolve, save_profile
 
 
 def make_profile(version="1.0.0", rate=5.5, **kw) -> DetectorProfile:
@@ -117,6 +117,14 @@ def test_registry_resolves_newest_and_exact_versions(tmp_path, monkeypatch):
     with pytest.raises(UsageError, match="no profile 'test-laser@2.0.0'; known: .*test-laser@1.0.0"):
         resolve("test-laser@2.0.0")
     assert resolve(str(tmp_path / "test-laser@1.0.0.yaml")).clutter.rate == 1.0
+    # the file a reference names, by name or by path: what --force must not replace while it is an input
+    assert profile_path("test-laser") == tmp_path / "test-laser@1.10.0.yaml"
+    assert profile_path("test-laser@1.0.0") == profile_path(str(tmp_path / "test-laser@1.0.0.yaml"))
+    from calib.cli.common import fresh
+    from profiles.store import looks_like_profile
+
+    with pytest.raises(UsageError, match="test-laser@1.0.0.yaml: is the input, which --force would delete"):
+        fresh(tmp_path / "test-laser@1.0.0.yaml", True, directory=False, owned=looks_like_profile, inputs=[profile_path("test-laser@1.0.0")])
 
 
 def test_diff_names_changed_fields():
