@@ -364,11 +364,13 @@ def slam_sweep_cmd(
     # own, and a sweep then resumes whatever order --particles comes in
     settings = {**base.model_dump(mode="json"), "particles": own_particles(config)}
     plan = make_plan(job_list, settings, described)
-    if force:
+    if force:  # checked before any worker starts; the old sweep is replaced only once the engine is up
         fresh(out_dir, force, inputs=[*logs, *profile_refs, config])
-    made = force or not os.path.lexists(out_dir)
-    done = open_sweep(out_dir, plan, job_list, force=force)  # checked (and created) before any worker starts
-    todo = len(job_list) - len(done)
+        made, done = False, None
+    else:
+        made = not os.path.lexists(out_dir)
+        done = open_sweep(out_dir, plan, job_list)  # checked (and created) before any worker starts
+    todo = len(job_list) - len(done or ())
     engine_cm = open_engine(workers, scheduler, todo) if todo else contextlib.nullcontext(InProcess())
     with contextlib.ExitStack() as stack:
         try:
@@ -377,6 +379,8 @@ def slam_sweep_cmd(
             if made:  # the cluster refused before any run: leave no empty sweep folder behind
                 shutil.rmtree(out_dir, ignore_errors=True)
             raise
+        if done is None:
+            done = open_sweep(out_dir, plan, job_list, force=True)
         res = run_sweep(job_list, out_dir, engine, done=done, progress=progress)
         where = engine.label
     if res.failed:
