@@ -356,3 +356,22 @@ def test_a_bar_counts_tasks_on_a_terminal_and_nothing_is_drawn_in_ci_or_a_pipe(m
             monkeypatch.delenv("CI", raising=False)
         assert list(progress(iter(range(3)), 3, "sweep")) == [0, 1, 2]
         assert stream.getvalue() == ""
+
+
+def test_force_keeps_the_old_sweep_when_the_cluster_refuses(tmp_path, capsys, park_log, serial):
+    """--force replaces a sweep only once the engine is up: a scheduler without workers leaves the old results."""
+    import shutil
+
+    import dask
+    from distributed import LocalCluster
+
+    from calib.engine import LOCAL_CONFIG
+
+    out = tmp_path / "sw"
+    shutil.copytree(serial, out)
+    before = results(out)
+    with dask.config.set(LOCAL_CONFIG), LocalCluster(n_workers=0, processes=False, protocol="tcp", host="127.0.0.1", dashboard_address=None) as c:
+        code, _, err = run(capsys, "slam", "sweep", str(park_log), *SWEEP, "--scheduler", c.scheduler_address, "--out", str(out), "--force")
+    assert code == 2
+    assert_one_line_error(err, "the cluster has no workers")
+    assert results(out) == before
