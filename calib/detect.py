@@ -19,7 +19,7 @@ from calib.io.atomic import atomic_output
 from calib.progress import progress
 from detectors.circle import CircleDetections, detect_circles
 from detectors.logs import SensorLog
-from profiles.errors import DataError
+from profiles.errors import DataError, UsageError
 from profiles.schema import CircleDetectorParams, HotellingParams, PdTable
 
 #: Thesis Table 6.1 (a real park data set), clamped as in ch. 6: above n_p = 6 use
@@ -101,7 +101,7 @@ def write_detect_run(
     log: SensorLog, cfg: DetectConfig, out: Path, *, plot_scan: int | None = None, pd_table: PdTable | None = None, overwrite: bool = False
 ) -> dict:
     if plot_scan is not None and log.scans is not None and not 0 <= plot_scan < len(log.scans):
-        raise DataError(f"--plot: scan {plot_scan} is outside the log (0..{len(log.scans) - 1})")
+        raise UsageError(f"--plot: scan {plot_scan} is outside the log (0..{len(log.scans) - 1})")
     det = run_detector(log, cfg)
     table = detections_table(log, det)
     summary = {

@@ -35,6 +35,7 @@ import hashlib
 import logging
 import os
 import resource
+import signal
 import socket
 import threading
 import time
@@ -278,7 +279,8 @@ class DaskEngine(Engine):
                     yield i, False, exc, {}
                 fut.release()
         finally:
-            self.client.cancel([f for f in futures if not f.done()])
+            with contextlib.suppress(RuntimeError):  # the client's loop already closed (an interrupt unwound it first)
+                self.client.cancel([f for f in futures if not f.done()])
 
 
 # ---------------------------------------------------------------------------- opening an engine
@@ -361,6 +363,22 @@ def dask_setup(worker=None) -> None:
         importlib.import_module(name)
 
 
+@contextlib.contextmanager
+def _sigint_held() -> Iterator[None]:
+    """SIGINT ignored while a local cluster starts its worker processes: they inherit the disposition and ignore a
+    Ctrl-C for life, which then reaches this process alone (it closes them in order) instead of printing each one's
+    traceback, and a cluster is never left half-started for Dask's exit hook. A Ctrl-C in those few seconds is lost;
+    the next one stops the command. The main thread only (signal handlers can be set nowhere else)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
 def local_cluster(n: int):
     """A Dask ``LocalCluster`` of ``n`` worker processes of one thread each, on the loopback interface only.
 
@@ -408,12 +426,15 @@ def open_engine(workers: int | None, scheduler: str | None, tasks: int) -> Itera
         return
     n = max(1, min(workers or os.cpu_count() or 1, tasks))
     with _quiet_dask(), dask.config.set(LOCAL_CONFIG):
-        cluster = local_cluster(n)
+        cluster = None
         try:
+            with _sigint_held():
+                cluster = local_cluster(n)
             with Client(cluster, set_as_default=False) as client:
                 yield DaskEngine(client, f"on {n} local worker{'s' if n > 1 else ''}")
         finally:
-            cluster.close()
+            if cluster is not None:
+                cluster.close()
 
 
 def _probe(scheduler: str, timeout: float = 5.0) -> None:

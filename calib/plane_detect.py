@@ -27,7 +27,7 @@ from calib.io.atomic import atomic_output
 from calib.progress import progress
 from detectors.logs import SensorLog
 from detectors.plane import PlaneDetections, detect_planes
-from profiles.errors import DataError
+from profiles.errors import DataError, UsageError
 from profiles.planes import PlaneDetectorParams
 
 
@@ -125,7 +125,7 @@ def write_plane_detect_run(
     if log.clouds is None:
         raise DataError(f"log {log.name!r} has no point clouds to detect planes in")
     if plot_frame is not None and not 0 <= plot_frame < len(log.clouds):
-        raise DataError(f"--plot: frame {plot_frame} is outside the log (0..{len(log.clouds) - 1})")
+        raise UsageError(f"--plot: frame {plot_frame} is outside the log (0..{len(log.clouds) - 1})")
     det, ms = run_plane_detector(log, cfg.detector)
     table = planes_table(log, det)
     per = np.bincount(det.frame, minlength=len(log.clouds))

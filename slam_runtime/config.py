@@ -141,7 +141,11 @@ FilterConfig = Annotated[RBPHDConfig | LMBConfig | GLMBConfig, Field(discriminat
 
 
 #: the settings that apply to point features only, and what each does to them (the message that refuses planes)
-_POINTS_ONLY = {"map_refine": "re-estimates point features", "island_match": "pairs point features by position"}
+_POINTS_ONLY = {
+    "map_refine": "re-estimates point features",
+    "island_match": "pairs point features by position",
+    "proposal": "'optimal' draws the pose from point features' measurements",
+}
 
 
 class SlamConfig(_Strict):
@@ -204,10 +208,10 @@ class SlamConfig(_Strict):
             )
         return value
 
-    @field_validator("map_refine", "island_match")
+    @field_validator("map_refine", "island_match", "proposal")
     @classmethod
     def _points_only(cls, value, info: ValidationInfo):
-        if value not in (None, False) and info.data.get("features") == "planes":
+        if value not in (None, False, "prior") and info.data.get("features") == "planes":
             name = info.field_name
             raise PydanticCustomError(name, "{field} {does}; it does not apply to planes", {"field": name, "does": _POINTS_ONLY[name]})
         return value

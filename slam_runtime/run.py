@@ -99,16 +99,22 @@ class Built:
     mount: np.ndarray
 
 
-def build(log: SensorLog, profile, cfg: SlamConfig) -> Built:
-    """The models, the map filter and the measurement source of a run (the factory of the settings)."""
-    sensor = (log.sensor if log.sensor is not None else profile.sensor).turned(cfg.mount_yaw)
-    mount = np.array([sensor.mount.x, sensor.mount.y, sensor.mount.theta])
+def check_features(profile, cfg: SlamConfig) -> None:
+    """Plane profiles go with ``features: planes``, every other with points."""
     planar = profile.detector.kind == "plane3d"
     if planar != (cfg.features == "planes"):
         raise UsageError(
             f"profile {profile.ref} is a {profile.kind} profile; "
             + ("run it with --features planes" if planar else "--features planes needs a lidar3d-planes profile")
         )
+
+
+def build(log: SensorLog, profile, cfg: SlamConfig) -> Built:
+    """The models, the map filter and the measurement source of a run (the factory of the settings)."""
+    sensor = (log.sensor if log.sensor is not None else profile.sensor).turned(cfg.mount_yaw)
+    mount = np.array([sensor.mount.x, sensor.mount.y, sensor.mount.theta])
+    check_features(profile, cfg)
+    planar = cfg.features == "planes"
     det = detection_model(profile, cfg.detection, None, filter_kind=cfg.filter.kind)
     feat = feature_model(det, cfg.measurement, mount, cfg.metric)
     mf = map_filter(cfg, feat, det)
@@ -335,10 +341,12 @@ def evaluate(log: SensorLog, res: SlamResult, c: float = 1.0, p: float = 1.0, cf
         dr = ref.at_point(interpolate_poses(res.stamps, odo, at))
         if not ref.on_vehicle_point:
             out[f"reference_point_{key}_m"] = list(ref.point)
-        out[f"trajectory_rmse_vs_{key}_m"] = trajectory_rmse(est, truth, align)
+        # a rigid fit has three degrees of freedom: on fewer points it fits them exactly and its RMSE says nothing
+        rmse = trajectory_rmse if not align or at.size >= 3 else (lambda *_: float("nan"))
+        out[f"trajectory_rmse_vs_{key}_m"] = rmse(est, truth, align)
         mean = ref.at_point(interpolate_poses(res.stamps, res.mean_trajectory, at))
-        out[f"mean_trajectory_rmse_vs_{key}_m"] = trajectory_rmse(mean, truth, align)
-        out[f"odometry_rmse_vs_{key}_m"] = trajectory_rmse(dr, truth, align)
+        out[f"mean_trajectory_rmse_vs_{key}_m"] = rmse(mean, truth, align)
+        out[f"odometry_rmse_vs_{key}_m"] = rmse(dr, truth, align)
         if key == "ground_truth":  # per axis (the delta-GLMB-SLAM paper's figs. 2-4)
             rx, ry, rh = axis_rmse(est, truth)
             out[f"rmse_x_vs_{key}_m"], out[f"rmse_y_vs_{key}_m"], out[f"rmse_heading_vs_{key}_deg"] = rx, ry, float(np.degrees(rh))

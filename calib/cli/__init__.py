@@ -70,6 +70,8 @@ def main(argv: list[str] | None = None) -> int:
         app(args=argv, prog_name="detcal")
     except SystemExit as exc:
         code = exc.code
+        if code == 130:  # typer turns a Ctrl-C into exit 130 itself
+            sys.stderr.write("detcal: interrupted\n")
         return code if isinstance(code, int) else (0 if code is None else 1)
     except DetcalError as exc:
         error_line(str(exc))

@@ -299,7 +299,7 @@ def slam_sweep_cmd(
     from calib.progress import progress
     from profiles.store import resolve
     from slam_runtime.config import FILTER_KINDS, override, with_filter, with_settings
-    from slam_runtime.run import check_inputs, check_poses
+    from slam_runtime.run import check_features, check_inputs, check_poses
     from slam_runtime.sweep import SETTING, SweepJob, make_plan, open_sweep, run_sweep, summarise
 
     modes = list(dict.fromkeys(pd_modes or list(PD_MODES)))
@@ -335,6 +335,12 @@ def slam_sweep_cmd(
     check_options(workers, scheduler)
     seeds_ = seed_list(seeds)
     profs = [resolve(r) for r in dict.fromkeys(profile_refs)]
+    for (_, label), c in configs.items():  # every run's features against every profile, before any log is read
+        for prof in profs:
+            try:
+                check_features(prof, c)
+            except UsageError as exc:
+                raise UsageError(f"--vary {label}: {exc}" if label is not None else str(exc)) from None
     sources, described = [], []
     for p in logs:
         log = reader.read(p)

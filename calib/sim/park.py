@@ -32,6 +32,9 @@ from detectors.geometry import cast, compose, relative
 from detectors.logs import Landmarks, Mount, Odometry, ReferencePoses, ScanBatch, SensorLog, SensorModel, seconds_to_stamp
 from profiles.errors import DataError
 
+#: odometry ticks a simulated run may hold at most (about 14 hours at 200 Hz): a slower speed or a faster rate is refused
+MAX_TICKS = 10_000_000
+
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -285,7 +288,13 @@ def _trajectory(cfg: ParkConfig, dense: np.ndarray, closed: bool) -> tuple[np.nd
     length = s[-1]
     total = length * cfg.path.laps if closed else length
     dt = 1.0 / cfg.odometry.rate_hz
-    t = np.arange(int(np.floor(total / cfg.path.speed / dt)) + 1) * dt
+    ticks = np.floor(total / cfg.path.speed / dt) + 1
+    if ticks > MAX_TICKS:
+        raise DataError(
+            f"path.speed ({cfg.path.speed} m/s) and odometry.rate_hz ({cfg.odometry.rate_hz}) give {ticks:.3g} odometry ticks "
+            f"over the {total:.0f} m path; at most {MAX_TICKS:,} are simulated"
+        )
+    t = np.arange(int(ticks)) * dt
     dist = cfg.path.speed * t
     dist = np.mod(dist, length) if closed else np.minimum(dist, length)
 

@@ -39,6 +39,9 @@ from detectors.raytrace3d import BeamGrid, Scene, cast, hdl64_elevations
 from profiles.errors import DataError
 from profiles.schema import LidarGeometry
 
+#: odometry ticks a simulated run may hold at most (as calib.sim.park's)
+MAX_TICKS = 10_000_000
+
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -403,7 +406,13 @@ def true_motion(cfg: StreetConfig, route: Route) -> tuple[np.ndarray, np.ndarray
     """
     dt = 1.0 / cfg.odometry.rate_hz
     duration = route.length / cfg.speed
-    k = int(np.floor(duration / dt)) + 1
+    ticks = np.floor(duration / dt) + 1
+    if ticks > MAX_TICKS:
+        raise DataError(
+            f"speed ({cfg.speed} m/s) and odometry.rate_hz ({cfg.odometry.rate_hz}) give {ticks:.3g} odometry ticks over the "
+            f"{route.length:.0f} m route; at most {MAX_TICKS:,} are simulated"
+        )
+    k = int(ticks)
     t = np.arange(k) * dt
     # yaw rate along the route by arc length
     bounds, rates = [0.0], []

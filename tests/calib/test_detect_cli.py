@@ -31,7 +31,7 @@ def test_detect_writes_table_config_and_plot(tmp_path, capsys, small_sim):
 def test_detect_errors(tmp_path, capsys, small_sim):
     log = write_native(small_sim.log, tmp_path / "park.dlog")
     code, _, err = run(capsys, "detect", str(log), "--out", str(tmp_path / "d"), "--plot", "99999")
-    assert code == 1
+    assert code == 2  # a usage error, as --frames 0 is
     assert_one_line_error(err, "--plot: scan 99999 is outside the log")
     assert not (tmp_path / "d").exists()
     code, _, err = run(capsys, "detect", str(VENDORED / "victoria_park"), "--out", str(tmp_path / "v"))

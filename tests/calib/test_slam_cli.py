@@ -83,6 +83,11 @@ def test_slam_run_on_a_detection_log_with_gps(tmp_path, capsys):
     m = yaml.safe_load((tmp_path / "r/metrics.yaml").read_text())
     assert m["alignment_vs_gps"].startswith("rigid") and m["points_vs_gps"] > 0
     assert m["trajectory_rmse_vs_gps_m"] >= 0 and "map_ospa" not in m
+    # two frames see one GPS point: a rigid fit (3 degrees of freedom) matches it exactly, so no RMSE is claimed
+    code, _, err = run(capsys, "slam", "run", str(folder), "--profile", str(prof), "--particles", "2", "--frames", "2", "--out", str(tmp_path / "r2"))
+    assert code == 0, err
+    m = yaml.safe_load((tmp_path / "r2/metrics.yaml").read_text())
+    assert m["points_vs_gps"] < 3 and m["trajectory_rmse_vs_gps_m"] != m["trajectory_rmse_vs_gps_m"]  # NaN
 
 
 def test_slam_sweep_tabulates_runs(tmp_path, capsys, park_log):

@@ -223,6 +223,17 @@ def test_island_match_is_refused_for_planes_naming_the_setting():
     assert SlamConfig(island_match=0.5).island_match == 0.5
 
 
+def test_the_optimal_proposal_is_refused_for_planes():
+    """It was accepted, recorded in the run folder and not applied (the particle loop fell back to the prior)."""
+    from pydantic import ValidationError
+
+    from slam_runtime.config import SlamConfig
+
+    with pytest.raises(ValidationError, match="proposal 'optimal' draws the pose from point features' measurements; it does not apply to planes"):
+        SlamConfig(features="planes", proposal="optimal")
+    assert SlamConfig(features="planes").proposal == "prior" and SlamConfig(proposal="optimal").proposal == "optimal"
+
+
 def test_each_island_counts_its_own_updates_since_it_resampled():
     """resample_every = 2 with two islands: at step 2 island 0's weights collapse and it resamples alone; at step 3
     both collapse, and only island 1 (three updates since it last resampled, against island 0's one) resamples.
