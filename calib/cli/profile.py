@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 import sys
 from pathlib import Path
@@ -10,7 +11,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from calib.cli.common import out
+from calib.cli.common import out, warn
 from profiles.errors import UsageError
 
 app = typer.Typer(help="List, show, validate, compare and export detector profiles.", no_args_is_help=True, rich_markup_mode=None)
@@ -25,6 +26,11 @@ def profile_list() -> None:
     from profiles.errors import DetcalError
     from profiles.store import load_profile_file, registry, user_dirs
 
+    for d in user_dirs():  # a folder the registry cannot look into would otherwise just list nothing
+        if d.exists() and not d.is_dir():
+            warn(f"{d}: a profile folder of DETCAL_PROFILES is a file; skipped")
+        elif d.is_dir() and not os.access(d, os.R_OK | os.X_OK):
+            warn(f"{d}: a profile folder that cannot be read; its profiles are not listed")
     t = Table(title="detector profiles (user folders: " + ", ".join(str(d) for d in user_dirs()) + ")")
     for col in ("profile", "origin", "file", "status"):
         t.add_column(col, overflow="fold")

@@ -1,6 +1,7 @@
 """detcal calibrate as one step: conflicts found before any work, reruns that are no conflict, no shadowing."""
 
 import dataclasses
+import os
 
 import numpy as np
 import pytest
@@ -121,6 +122,11 @@ def test_the_list_marks_files_that_do_not_hold_what_their_name_says(tmp_path, ca
     assert "unreadable (schema_version 3 is newer than this detcal reads" in row["newer@1.0.0"]
     assert "holds sim-park-laser@1.0.0, not what its file name says" in row["other@2.0.0"]
     assert "active" in row["sim-park-laser@1.0.0"]
+    # a DETCAL_PROFILES entry that is a file is said, not silently listed as empty
+    (tmp_path / "notes.txt").write_text("x")
+    monkeypatch.setenv("DETCAL_PROFILES", f"{user}{os.pathsep}{tmp_path / 'notes.txt'}")
+    code, _, err = run(capsys, "profile", "list")
+    assert code == 0 and "notes.txt: a profile folder of DETCAL_PROFILES is a file; skipped" in err
 
 
 def test_records_outside_the_truth_span(capsys, tmp_path):
