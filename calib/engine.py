@@ -442,7 +442,6 @@ def _probe(scheduler: str, timeout: float = 5.0) -> None:
     a Dask scheduler (a dashboard's port, say), before a Client is made: a Client that fails to connect is closed when
     it is collected, which waits 60 s and prints a traceback at exit."""
     import asyncio
-    import socket
 
     from distributed.comm import parse_address, parse_host_port
     from distributed.core import rpc
