@@ -75,14 +75,28 @@ def profile_doc(**edits) -> dict:
     return d
 
 
-def utias_copy(tmp: Path, edit=None) -> str:
+def sim_config(t: Path, scenario: str, config: str) -> list[str]:
+    """``detcal simulate SCENARIO`` with a config file of the text ``config``."""
+    return ["simulate", scenario, "--out", str(t / "s"), "--config", text(t, "c.yaml", config)]
+
+
+def _vendored_copy(tmp: Path, source: str, name: str, edit=None) -> str:
+    """A copy of a vendored data folder as ``tmp / name``, edited by ``edit(folder)``."""
     import shutil
 
-    dst = tmp / "utias"
-    shutil.copytree(VENDORED / "utias_dataset1", dst)
+    dst = tmp / name
+    shutil.copytree(VENDORED / source, dst)
     if edit:
         edit(dst)
     return str(dst)
+
+
+def utias_copy(tmp: Path, edit=None) -> str:
+    return _vendored_copy(tmp, "utias_dataset1", "utias", edit)
+
+
+def vp_copy(tmp: Path, edit=None) -> str:
+    return _vendored_copy(tmp, "victoria_park", "vp", edit)
 
 
 def _utias_big_time(d: Path) -> None:
@@ -106,16 +120,6 @@ def _edit_row(name: str, row: int, column: int, value: str):
         p.write_text("\n".join(lines) + "\n")
 
     return edit
-
-
-def vp_copy(tmp: Path, edit=None) -> str:
-    import shutil
-
-    dst = tmp / "vp"
-    shutil.copytree(VENDORED / "victoria_park", dst)
-    if edit:
-        edit(dst)
-    return str(dst)
 
 
 def interlaced_log(tmp: Path) -> str:
@@ -164,9 +168,9 @@ CASES = [
     ("utias-robot", "UTIAS robot 9", lambda t: ["log", "info", str(VENDORED / "utias_dataset1"), "--robot", "9"], 2, "--robot: expected 1..5, got 9"),
     # ---- configs
     ("config-utf8", "config that is not UTF-8", lambda t: ["simulate", "park", "--out", str(t / "s"), "--config", text(t, "c.yaml", b"width: \xff\xfe\n")], 2, "c.yaml: not UTF-8 text (byte 7)"),
-    ("config-yaml", "config that is not YAML", lambda t: ["simulate", "park", "--out", str(t / "s"), "--config", text(t, "c.yaml", "width: [1,\n")], 2, "c.yaml:2: not valid YAML"),
-    ("config-list", "config that is a list", lambda t: ["simulate", "park", "--out", str(t / "s"), "--config", text(t, "c.yaml", "- 1\n")], 2, "c.yaml: expected a mapping at the top level"),
-    ("config-unknown", "misspelt nested config key", lambda t: ["simulate", "park", "--out", str(t / "s"), "--config", text(t, "c.yaml", "laser: {beams: 3}\n")], 2, "c.yaml: laser.beams: unknown key"),
+    ("config-yaml", "config that is not YAML", lambda t: sim_config(t, "park", "width: [1,\n"), 2, "c.yaml:2: not valid YAML"),
+    ("config-list", "config that is a list", lambda t: sim_config(t, "park", "- 1\n"), 2, "c.yaml: expected a mapping at the top level"),
+    ("config-unknown", "misspelt nested config key", lambda t: sim_config(t, "park", "laser: {beams: 3}\n"), 2, "c.yaml: laser.beams: unknown key"),
     ("config-calibrate", "calibration config with a bad value", lambda t: ["calibrate", small_log(t), "--config", text(t, "c.yaml", "pd: {min_count: -1}\n"), "--out", str(t / "r")], 2, "c.yaml: pd.min_count: Input should be greater than or equal to 1"),
     ("config-missing", "config file that does not exist", lambda t: ["calibrate", small_log(t), "--config", str(t / "none.yaml")], 2, "none.yaml: no such config file"),
     # ---- profiles
@@ -209,17 +213,17 @@ CASES = [
     # ---- values that are not finite, settings that contradict each other, streams that hold nothing
     ("opt-clutter-inf", "--clutter inf", lambda t: ["simulate", "glmb-paper", "--out", str(t / "s"), "--clutter", "inf"], 2, "--clutter: Input should be a finite number"),
     ("opt-clutter-huge", "--clutter 1e20", lambda t: ["simulate", "glmb-paper", "--out", str(t / "s"), "--clutter", "1e20"], 2, "--clutter: Input should be less than or equal to 10000"),
-    ("config-inf", "simulation config with .inf", lambda t: ["simulate", "park", "--out", str(t / "s"), "--config", text(t, "c.yaml", "width: .inf\n")], 2, "c.yaml: width: Input should be a finite number"),
-    ("config-margin", "park path margin wider than the park", lambda t: ["simulate", "park", "--out", str(t / "s"), "--config", text(t, "c.yaml", "path: {margin: 100}\n")], 2, "c.yaml: path.margin (100.0 m) leaves no room for the figure-eight"),
-    ("config-min-max", "bushes' smallest radius above their largest", lambda t: ["simulate", "park", "--out", str(t / "s"), "--config", text(t, "c.yaml", "bushes: {min_radius: 2, max_radius: 1}\n")], 2, "c.yaml: bushes: min_radius (2.0) must not exceed max_radius (1.0)"),
-    ("config-lawnmower", "lawnmower rows that do not fit the park", lambda t: ["simulate", "park", "--out", str(t / "s"), "--config", text(t, "c.yaml", "path: {kind: lawnmower, margin: 100}\n")], 2, "c.yaml: path.margin (100.0 m) and path.row_spacing (25.0 m) leave no room for two lawnmower rows"),
-    ("config-mount-inf", "laser mount at x = .inf", lambda t: ["simulate", "park", "--out", str(t / "s"), "--config", text(t, "c.yaml", "laser: {mount: {x: .inf}}\n")], 2, "c.yaml: laser.mount.x: Input should be a finite number"),
+    ("config-inf", "simulation config with .inf", lambda t: sim_config(t, "park", "width: .inf\n"), 2, "c.yaml: width: Input should be a finite number"),
+    ("config-margin", "park path margin wider than the park", lambda t: sim_config(t, "park", "path: {margin: 100}\n"), 2, "c.yaml: path.margin (100.0 m) leaves no room for the figure-eight"),
+    ("config-min-max", "bushes' smallest radius above their largest", lambda t: sim_config(t, "park", "bushes: {min_radius: 2, max_radius: 1}\n"), 2, "c.yaml: bushes: min_radius (2.0) must not exceed max_radius (1.0)"),
+    ("config-lawnmower", "lawnmower rows that do not fit the park", lambda t: sim_config(t, "park", "path: {kind: lawnmower, margin: 100}\n"), 2, "c.yaml: path.margin (100.0 m) and path.row_spacing (25.0 m) leave no room for two lawnmower rows"),
+    ("config-mount-inf", "laser mount at x = .inf", lambda t: sim_config(t, "park", "laser: {mount: {x: .inf}}\n"), 2, "c.yaml: laser.mount.x: Input should be a finite number"),
     ("config-detector-inf", "detector jump .inf", lambda t: ["calibrate", small_log(t), "--config", text(t, "c.yaml", "detector: {jump: .inf}\n"), "--out", str(t / "r")], 2, "c.yaml: detector.jump: Input should be a finite number"),
-    ("config-park-ticks", "a park path so slow it would need 10^13 odometry ticks", lambda t: ["simulate", "park", "--out", str(t / "s"), "--config", text(t, "c.yaml", "path: {speed: 1.0e-9}\n")], 1, "path.speed (1e-09 m/s) and odometry.rate_hz (20.0) give 1.26e+13 odometry ticks"),
-    ("config-rfs-ranges", "rfs-sim range_min above range_max", lambda t: ["simulate", "rfs-sim", "--out", str(t / "s"), "--config", text(t, "c.yaml", "range_min: 3\nrange_max: 1\n")], 2, "c.yaml: range_min (3.0) must be below range_max (1.0)"),
-    ("config-rfs-speeds", "rfs-sim min_dx above max_dx", lambda t: ["simulate", "rfs-sim", "--out", str(t / "s"), "--config", text(t, "c.yaml", "min_dx: 1\nmax_dx: 0.5\n")], 2, "c.yaml: min_dx (1.0) must not exceed max_dx (0.5)"),
-    ("config-waypoint", "glmb-paper path of one waypoint at the start", lambda t: ["simulate", "glmb-paper", "--out", str(t / "s"), "--config", text(t, "c.yaml", "waypoints: [[0, 0]]\n")], 2, "c.yaml: waypoints: the only waypoint is within arrive (1.0 m) of the start"),
-    ("config-street-rings", "street lidar with no rings", lambda t: ["simulate", "street", "--out", str(t / "s"), "--config", text(t, "c.yaml", "lidar: {vertical_angles_deg: []}\n")], 2, "c.yaml: lidar.vertical_angles_deg: List should have at least 1 item"),
+    ("config-park-ticks", "a park path so slow it would need 10^13 odometry ticks", lambda t: sim_config(t, "park", "path: {speed: 1.0e-9}\n"), 1, "path.speed (1e-09 m/s) and odometry.rate_hz (20.0) give 1.26e+13 odometry ticks"),
+    ("config-rfs-ranges", "rfs-sim range_min above range_max", lambda t: sim_config(t, "rfs-sim", "range_min: 3\nrange_max: 1\n"), 2, "c.yaml: range_min (3.0) must be below range_max (1.0)"),
+    ("config-rfs-speeds", "rfs-sim min_dx above max_dx", lambda t: sim_config(t, "rfs-sim", "min_dx: 1\nmax_dx: 0.5\n"), 2, "c.yaml: min_dx (1.0) must not exceed max_dx (0.5)"),
+    ("config-waypoint", "glmb-paper path of one waypoint at the start", lambda t: sim_config(t, "glmb-paper", "waypoints: [[0, 0]]\n"), 2, "c.yaml: waypoints: the only waypoint is within arrive (1.0 m) of the start"),
+    ("config-street-rings", "street lidar with no rings", lambda t: sim_config(t, "street", "lidar: {vertical_angles_deg: []}\n"), 2, "c.yaml: lidar.vertical_angles_deg: List should have at least 1 item"),
     ("config-calibrate-inf", "calibration gate .inf", lambda t: ["calibrate", small_log(t), "--config", text(t, "c.yaml", "gate: .inf\n"), "--out", str(t / "r")], 2, "c.yaml: gate: Input should be a finite number"),
     ("config-descriptors-twice", "a descriptor named twice", lambda t: ["calibrate", small_log(t), "--config", text(t, "c.yaml", "descriptors: [log_mse, log_mse]\n"), "--out", str(t / "r")], 2, "c.yaml: descriptors: log_mse is named twice"),
     ("config-detector-points", "detector max_points below min_points", lambda t: ["detect", small_log(t), "--config", text(t, "c.yaml", "detector: {min_points: 10, max_points: 3}\n"), "--out", str(t / "r")], 2, "c.yaml: detector: max_points (3) is below min_points (10)"),
@@ -277,26 +281,23 @@ def empty_scans_log(t: Path) -> str:
     return str(t / "e.dlog")
 
 
-def _run_with_log(t: Path) -> str:
-    """A folder detcal wrote (its marker inside) that holds a log: the input of a run whose --out it is."""
+def _in_a_run_folder(t: Path, name: str, content: bytes) -> str:
+    """A file inside a folder detcal wrote (its marker inside): the input of a command whose --out that folder is."""
     from profiles.atomic import MARKER
 
     d = t / "run"
     d.mkdir()
     (d / MARKER).write_text("")
-    (d / "ok.dlog").write_bytes(Path(small_log(t)).read_bytes())
-    return str(d / "ok.dlog")
+    (d / name).write_bytes(content)
+    return str(d / name)
+
+
+def _run_with_log(t: Path) -> str:
+    return _in_a_run_folder(t, "ok.dlog", Path(small_log(t)).read_bytes())
 
 
 def _run_with_config(t: Path) -> str:
-    """A folder detcal wrote that holds a simulation config."""
-    from profiles.atomic import MARKER
-
-    d = t / "run"
-    d.mkdir()
-    (d / MARKER).write_text("")
-    (d / "c.yaml").write_text("width: 60\n")
-    return str(d / "c.yaml")
+    return _in_a_run_folder(t, "c.yaml", b"width: 60\n")
 
 
 def _foreign_dir(t: Path, name: str = "mine") -> str:
