@@ -99,13 +99,13 @@ class Built:
     mount: np.ndarray
 
 
-def check_features(profile, cfg: SlamConfig) -> None:
-    """Plane profiles go with ``features: planes``, every other with points."""
+def check_features(profile, cfg: SlamConfig, planes: str = "--features planes") -> None:
+    """Plane profiles go with ``features: planes``, every other with points; ``planes`` is how the command sets it."""
     planar = profile.detector.kind == "plane3d"
     if planar != (cfg.features == "planes"):
         raise UsageError(
             f"profile {profile.ref} is a {profile.kind} profile; "
-            + ("run it with --features planes" if planar else "--features planes needs a lidar3d-planes profile")
+            + (f"run it with {planes}" if planar else f"{planes} needs a lidar3d-planes profile")
         )
 
 
@@ -341,7 +341,8 @@ def evaluate(log: SensorLog, res: SlamResult, c: float = 1.0, p: float = 1.0, cf
         dr = ref.at_point(interpolate_poses(res.stamps, odo, at))
         if not ref.on_vehicle_point:
             out[f"reference_point_{key}_m"] = list(ref.point)
-        # a rigid fit has three degrees of freedom: on fewer points it fits them exactly and its RMSE says nothing
+        # a rigid fit has three degrees of freedom: one point it fits exactly, two leave one residual; no RMSE is claimed
+        # on fewer than three
         rmse = trajectory_rmse if not align or at.size >= 3 else (lambda *_: float("nan"))
         out[f"trajectory_rmse_vs_{key}_m"] = rmse(est, truth, align)
         mean = ref.at_point(interpolate_poses(res.stamps, res.mean_trajectory, at))

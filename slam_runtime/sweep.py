@@ -165,7 +165,8 @@ def _same_run(folder: Path, job: SweepJob) -> bool:
         return False
 
 
-def _distinct_names(jobs: list[SweepJob]) -> None:
+def check_run_names(jobs: list[SweepJob]) -> None:
+    """Refuse two runs of one name (a setting given twice): each run is a folder of that name."""
     twice = sorted(n for n, k in Counter(j.name for j in jobs).items() if k > 1)
     if twice:
         raise UsageError(f"two runs of the sweep have the same name ({twice[0]}): a setting is given twice")
@@ -177,7 +178,7 @@ def open_sweep(folder: Path, plan: dict, jobs: list[SweepJob], *, force: bool = 
     ``force`` replaces an existing sweep folder (one detcal wrote) by an empty one.
     """
     folder = Path(folder)
-    _distinct_names(jobs)
+    check_run_names(jobs)
     if force or not os.path.lexists(folder):
         with atomic_output(folder, overwrite=force, directory=True) as tmp:
             tmp.mkdir()
@@ -314,7 +315,7 @@ def run_sweep(
     (to check it before starting an engine).
     """
     folder = Path(folder)
-    _distinct_names(jobs)
+    check_run_names(jobs)
     names = [j.name for j in jobs]
     if done is None:
         done = open_sweep(folder, plan if plan is not None else make_plan(jobs, {}, []), jobs, force=force)

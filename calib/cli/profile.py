@@ -28,7 +28,7 @@ def profile_list() -> None:
 
     for d in user_dirs():  # a folder the registry cannot look into would otherwise just list nothing
         if d.exists() and not d.is_dir():
-            warn(f"{d}: a profile folder of DETCAL_PROFILES is a file; skipped")
+            warn(f"{d}: a user profile folder is a file; skipped")
         elif d.is_dir() and not os.access(d, os.R_OK | os.X_OK):
             warn(f"{d}: a profile folder that cannot be read; its profiles are not listed")
     t = Table(title="detector profiles (user folders: " + ", ".join(str(d) for d in user_dirs()) + ")")

@@ -300,7 +300,7 @@ def slam_sweep_cmd(
     from profiles.store import resolve
     from slam_runtime.config import FILTER_KINDS, override, with_filter, with_settings
     from slam_runtime.run import check_features, check_inputs, check_poses
-    from slam_runtime.sweep import SETTING, SweepJob, make_plan, open_sweep, run_sweep, summarise
+    from slam_runtime.sweep import SETTING, SweepJob, check_run_names, make_plan, open_sweep, run_sweep, summarise
 
     modes = list(dict.fromkeys(pd_modes or list(PD_MODES)))
     for m in modes:
@@ -338,7 +338,7 @@ def slam_sweep_cmd(
     for (_, label), c in configs.items():  # every run's features against every profile, before any log is read
         for prof in profs:
             try:
-                check_features(prof, c)
+                check_features(prof, c, planes="features: planes (in --config or --vary)")
             except UsageError as exc:
                 raise UsageError(f"--vary {label}: {exc}" if label is not None else str(exc)) from None
     sources, described = [], []
@@ -372,6 +372,7 @@ def slam_sweep_cmd(
     plan = make_plan(job_list, settings, described)
     if force:  # checked before any worker starts; the old sweep is replaced only once the engine is up
         fresh(out_dir, force, inputs=[*logs, *profile_refs, config])
+        check_run_names(job_list)
         made, done = False, None
     else:
         made = not os.path.lexists(out_dir)

@@ -34,6 +34,8 @@ from profiles.errors import DataError
 
 #: odometry ticks a simulated run may hold at most (about 14 hours at 200 Hz): a slower speed or a faster rate is refused
 MAX_TICKS = 10_000_000
+#: beams a simulated run may hold at most (800 MB of ranges)
+MAX_RETURNS = 200_000_000
 
 
 class _Strict(BaseModel):
@@ -121,7 +123,7 @@ class PathConfig(_Strict):
 
 
 class LaserConfig(_Strict):
-    n_beams: int = Field(default=361, ge=2)
+    n_beams: int = Field(default=361, ge=2, le=100_000)
     fov_deg: float = Field(default=180.0, gt=0.0, le=360.0)
     range_max: float = Field(default=80.0, gt=0.0)
     range_sigma: float = Field(default=0.02, ge=0.0)
@@ -443,6 +445,11 @@ def simulate_park(cfg: ParkConfig, seed: int, progress=None) -> Simulation:
     scan_idx = np.arange(0, poses.shape[0], step)
     spose = sensor_poses(poses[scan_idx], cfg.laser.mount)
     las = cfg.laser
+    if scan_idx.size * las.n_beams > MAX_RETURNS:
+        raise DataError(
+            f"laser.rate_hz ({las.rate_hz}) and laser.n_beams ({las.n_beams}) over the run give {scan_idx.size:,} scans of "
+            f"{las.n_beams:,} beams; at most {MAX_RETURNS:,} beams are simulated"
+        )
     ranges = np.empty((scan_idx.size, las.n_beams), dtype=np.float32)
     scans = range(scan_idx.size) if progress is None else progress(range(scan_idx.size), scan_idx.size, "simulating scans")
     for k in scans:  # one vectorised cast (beams x shapes) per scan

@@ -220,6 +220,7 @@ CASES = [
     ("config-mount-inf", "laser mount at x = .inf", lambda t: sim_config(t, "park", "laser: {mount: {x: .inf}}\n"), 2, "c.yaml: laser.mount.x: Input should be a finite number"),
     ("config-detector-inf", "detector jump .inf", lambda t: ["calibrate", small_log(t), "--config", text(t, "c.yaml", "detector: {jump: .inf}\n"), "--out", str(t / "r")], 2, "c.yaml: detector.jump: Input should be a finite number"),
     ("config-park-ticks", "a park path so slow it would need 10^13 odometry ticks", lambda t: sim_config(t, "park", "path: {speed: 1.0e-9}\n"), 1, "path.speed (1e-09 m/s) and odometry.rate_hz (20.0) give 1.26e+13 odometry ticks"),
+    ("config-park-beams", "a park laser whose scans would hold 10^11 beams", lambda t: sim_config(t, "park", "laser: {n_beams: 100000, rate_hz: 200}\n"), 1, "laser.rate_hz (200.0) and laser.n_beams (100000) over the run give"),
     ("config-rfs-ranges", "rfs-sim range_min above range_max", lambda t: sim_config(t, "rfs-sim", "range_min: 3\nrange_max: 1\n"), 2, "c.yaml: range_min (3.0) must be below range_max (1.0)"),
     ("config-rfs-speeds", "rfs-sim min_dx above max_dx", lambda t: sim_config(t, "rfs-sim", "min_dx: 1\nmax_dx: 0.5\n"), 2, "c.yaml: min_dx (1.0) must not exceed max_dx (0.5)"),
     ("config-waypoint", "glmb-paper path of one waypoint at the start", lambda t: sim_config(t, "glmb-paper", "waypoints: [[0, 0]]\n"), 2, "c.yaml: waypoints: the only waypoint is within arrive (1.0 m) of the start"),

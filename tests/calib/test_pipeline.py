@@ -126,7 +126,7 @@ def test_the_list_marks_files_that_do_not_hold_what_their_name_says(tmp_path, ca
     (tmp_path / "notes.txt").write_text("x")
     monkeypatch.setenv("DETCAL_PROFILES", f"{user}{os.pathsep}{tmp_path / 'notes.txt'}")
     code, _, err = run(capsys, "profile", "list")
-    assert code == 0 and "notes.txt: a profile folder of DETCAL_PROFILES is a file; skipped" in err
+    assert code == 0 and "notes.txt: a user profile folder is a file; skipped" in err
 
 
 def test_records_outside_the_truth_span(capsys, tmp_path):

@@ -49,7 +49,7 @@ def test_street_end_to_end(tmp_path, capsys):
     assert code == 2 and "--features: expected one of points, planes" in err
     # a sweep whose varied features do not fit the profile is refused before any run, nothing written
     code, _, err = run(capsys, "slam", "sweep", log, "--profile", prof, "--vary", "features=points,planes", "--workers", "0", "--out", tmp_path / "sw")
-    assert code == 2 and "--vary features=points: profile street-cli@1.0.0 is a lidar3d-planes profile; run it with --features planes" in err
+    assert code == 2 and "--vary features=points: profile street-cli@1.0.0 is a lidar3d-planes profile; run it with features: planes (in --config or --vary)" in err
     assert not (tmp_path / "sw").exists()
 
 
