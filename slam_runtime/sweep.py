@@ -315,8 +315,7 @@ def run_sweep(
     (to check it before starting an engine).
     """
     folder = Path(folder)
-    check_run_names(jobs)
-    names = [j.name for j in jobs]
+    names = [j.name for j in jobs]  # (checked distinct by open_sweep, which opened the folder)
     if done is None:
         done = open_sweep(folder, plan if plan is not None else make_plan(jobs, {}, []), jobs, force=force)
     todo = [j for j in jobs if j.name not in done]

@@ -56,14 +56,7 @@ def simulate_rfs_cmd(
     from calib.sim.run import write_rfs_simulation
 
     check_seed(seed)
-    cfg = load_yaml_model(RfsSimConfig, config)
-    if steps is not None:
-        from pydantic import ValidationError
-
-        try:
-            cfg = RfsSimConfig.model_validate({**cfg.model_dump(), "steps": steps})
-        except ValidationError as exc:
-            raise UsageError(f"--steps: {exc.errors()[0]['msg']}") from None
+    cfg = load_yaml_model(RfsSimConfig, config, {"steps": steps})  # an error in --steps names it
     fresh(out_dir, force, inputs=[config])
     summary = write_rfs_simulation(cfg, seed, out_dir, overwrite=force)
     out.print(summary_table(f"rfs-sim scenario -> {out_dir}", summary))
@@ -83,14 +76,7 @@ def simulate_street_cmd(
     from calib.sim.street import StreetConfig, write_street_simulation
 
     check_seed(seed)
-    cfg = load_yaml_model(StreetConfig, config)
-    if frames is not None:
-        from pydantic import ValidationError
-
-        try:
-            cfg = StreetConfig.model_validate({**cfg.model_dump(), "frames": frames})
-        except ValidationError as exc:
-            raise UsageError(f"--frames: {exc.errors()[0]['msg']}") from None
+    cfg = load_yaml_model(StreetConfig, config, {"frames": frames})  # an error in --frames names it
     fresh(out_dir, force, inputs=[config])
     summary = write_street_simulation(cfg, seed, out_dir, overwrite=force)
     out.print(summary_table(f"simulated street -> {out_dir}", summary))
@@ -112,14 +98,7 @@ def simulate_glmb_paper_cmd(
     from calib.sim.run import write_glmb_paper_simulation
 
     check_seed(seed)
-    cfg = load_yaml_model(GlmbPaperConfig, config)
-    if clutter is not None:
-        from pydantic import ValidationError
-
-        try:
-            cfg = GlmbPaperConfig.model_validate({**cfg.model_dump(), "clutter": clutter})
-        except ValidationError as exc:
-            raise UsageError(f"--clutter: {exc.errors()[0]['msg']}") from None
+    cfg = load_yaml_model(GlmbPaperConfig, config, {"clutter": clutter})  # an error in --clutter names it
     fresh(out_dir, force, inputs=[config])
     summary = write_glmb_paper_simulation(cfg, seed, out_dir, overwrite=force)
     out.print(summary_table(f"glmb-paper scenario -> {out_dir}", summary))

@@ -28,6 +28,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy.spatial import cKDTree
 
+from calib.config import check_order
 from detectors.geometry import cast, compose, relative
 from detectors.logs import Landmarks, Mount, Odometry, ReferencePoses, ScanBatch, SensorLog, SensorModel, seconds_to_stamp
 from profiles.errors import DataError
@@ -42,12 +43,6 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
-def _ordered(model: BaseModel, low: str, high: str) -> None:
-    """``low`` must not exceed ``high`` (a range drawn uniformly between them)."""
-    if getattr(model, low) > getattr(model, high):
-        raise ValueError(f"{low} ({getattr(model, low)}) must not exceed {high} ({getattr(model, high)})")
-
-
 class RadiusDist(_Strict):
     """Trunk radius distribution [m]: uniform on [min, max] or log-normal clipped to it."""
 
@@ -59,8 +54,7 @@ class RadiusDist(_Strict):
 
     @model_validator(mode="after")
     def _order(self) -> RadiusDist:
-        if self.min > self.max:
-            raise ValueError(f"min ({self.min}) must not exceed max ({self.max})")
+        check_order(self, "min", "max")
         return self
 
 
@@ -86,7 +80,7 @@ class BushesConfig(_Strict):
 
     @model_validator(mode="after")
     def _order(self) -> BushesConfig:
-        _ordered(self, "min_radius", "max_radius")
+        check_order(self, "min_radius", "max_radius")
         return self
 
 
@@ -98,7 +92,7 @@ class WallsConfig(_Strict):
 
     @model_validator(mode="after")
     def _order(self) -> WallsConfig:
-        _ordered(self, "min_length", "max_length")
+        check_order(self, "min_length", "max_length")
         return self
 
 
@@ -109,7 +103,7 @@ class PostsConfig(_Strict):
 
     @model_validator(mode="after")
     def _order(self) -> PostsConfig:
-        _ordered(self, "min_radius", "max_radius")
+        check_order(self, "min_radius", "max_radius")
         return self
 
 

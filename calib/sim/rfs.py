@@ -30,6 +30,7 @@ from __future__ import annotations
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from calib.config import check_order
 from detectors.geometry import compose
 from detectors.logs import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, wrap_angle
 
@@ -55,10 +56,8 @@ class RfsSimConfig(BaseModel):
 
     @model_validator(mode="after")
     def _order(self) -> RfsSimConfig:
-        if self.min_dx > self.max_dx:
-            raise ValueError(f"min_dx ({self.min_dx}) must not exceed max_dx ({self.max_dx})")
-        if self.range_min >= self.range_max:
-            raise ValueError(f"range_min ({self.range_min}) must be below range_max ({self.range_max})")
+        check_order(self, "min_dx", "max_dx")
+        check_order(self, "range_min", "range_max", strict=True)
         lam = self.clutter_intensity * (self.range_max - self.range_min) * 2 * np.pi
         if lam > 10_000:
             raise ValueError(f"clutter_intensity ({self.clutter_intensity}) gives {lam:.3g} false alarms per step; at most 10,000 are simulated")

@@ -33,6 +33,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from calib.config import check_order
 from detectors.geometry import compose
 from detectors.logs import Mount, Odometry, PlaneLandmarks, PointClouds, ReferencePoses, SensorLog, SensorModel, seconds_to_stamp, wrap_angle
 from detectors.raytrace3d import BeamGrid, Scene, cast, hdl64_elevations
@@ -77,8 +78,7 @@ class Range(_Strict):
 
     @model_validator(mode="after")
     def _order(self) -> Range:
-        if self.min > self.max:
-            raise ValueError(f"min ({self.min}) must not exceed max ({self.max})")
+        check_order(self, "min", "max")
         return self
 
     def draw(self, rng: np.random.Generator, n: int | None = None):
@@ -125,8 +125,7 @@ class LidarSimConfig(_Strict):
 
     @model_validator(mode="after")
     def _ranges(self) -> LidarSimConfig:
-        if self.range_min >= self.range_max:
-            raise ValueError(f"range_min ({self.range_min}) must be below range_max ({self.range_max})")
+        check_order(self, "range_min", "range_max", strict=True)
         return self
 
 
