@@ -70,14 +70,14 @@ def measured(label: str, out: dict):
 
 
 def sweep_bench(work: Path, seeds: int, rounds: int) -> None:
-    from calib.engine import InProcess, LogSource, open_engine
+    from detcal.engine import InProcess, LogSource, open_engine
     from calib.io.registry import ReadOptions, read_log
     from calib.config import load_yaml_model
     from calib.sim.park import ParkConfig
-    from calib.sim.run import simulate_to
+    from detcal.reports.simulation import simulate_to
     from profiles.store import resolve
     from slam_runtime.config import SlamConfig, override
-    from slam_runtime.sweep import SweepJob, make_plan, run_sweep
+    from detcal.pipelines.sweep import SweepJob, make_plan, run_sweep
 
     log_path = work / "sweep_park/log.dlog"
     if not log_path.is_file():
@@ -168,7 +168,7 @@ def noop(x):
 
 
 def overhead_bench() -> None:
-    from calib.engine import open_engine
+    from detcal.engine import open_engine
 
     print("\nDask's own round trip (200 empty tasks on 1 worker, after a warm-up):")
     with open_engine(1, None, 1) as engine:
@@ -183,7 +183,7 @@ def calibration_bench(work: Path, n_logs: int) -> None:
     from calib.calibrate import CalibrateConfig  # noqa: F401  (imported here, not in the timed blocks)
     from calib.io.native import write_native
     from calib.io.registry import ReadOptions, input_refs, read_log
-    from calib.pipeline import CalibrationJob, run_calibration
+    from detcal.pipelines.calibrate import CalibrationJob, run_calibration
     from calib.sim.park import ParkConfig, simulate_park
 
     paths = []

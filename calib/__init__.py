@@ -1,4 +1,4 @@
-"""Calibration: log readers/writers, the park simulator, ground truth, fits, reports and the CLI."""
+"""Calibration: log readers/writers, simulators, ground truth, labelling, the fits and the validation scores."""
 
 __version__ = "0.1.0"
 

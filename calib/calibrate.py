@@ -302,7 +302,7 @@ def calibrate(
     per_log: how the per-log steps (poses, range residuals, landmarks and
     labelling) run, ``per_log(fn, [(log, *args), ...]) -> [fn(log, *args), ...]``
     in the order of the logs; default: one after the other in this process.
-    :mod:`calib.engine` runs them on Dask workers, each reading its log where it
+    :mod:`detcal.engine` runs them on Dask workers, each reading its log where it
     lives. The fits always run here, on the gathered tables, so the result does
     not depend on where or in which order the logs were done.
     """

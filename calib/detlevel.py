@@ -48,7 +48,7 @@ from calib.validate import BLOCK_S, Held, Validation, score
 from detectors.geometry import compose, interpolate_poses
 from detectors.logs import SensorLog
 from profiles.errors import DataError, UsageError
-from profiles.profile import DetectorProfile, DetectorSpec, InputRef, Provenance, SensorSpread
+from profiles.profile import DetectorProfile, DetectorSpec, Provenance, SensorSpread
 from profiles.schema import MeasurementNoise, SensorModel
 
 
@@ -470,55 +470,3 @@ def validate_detections(profile: DetectorProfile, logs: list[SensorLog], *, audi
     return score(profile, held, {"identity_remap": evidence or "none"})
 
 
-def input_refs_for(log: SensorLog) -> list[InputRef]:
-    files = log.source.get("files")
-    if isinstance(files, dict):
-        return [InputRef(name=str(k), sha256=str(v)) for k, v in files.items()]
-    return []
-
-
-def write_detection_run(cal: DetectionCalibration, out, *, overwrite: bool = False) -> list[str]:
-    from calib.io.atomic import atomic_output
-
-    with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
-        return fill_detection_run(cal, tmp)
-
-
-def fill_detection_run(cal: DetectionCalibration, folder) -> list[str]:
-    """Create ``folder`` with profile.yaml (and sensors/ with the per-sensor profiles), summary.yaml,
-    config.yaml, pairs.csv.gz and the figures; returns the figure names."""
-    from calib.config import dump_yaml
-    from calib.report import plot_clutter, plot_clutter_density, plot_pd, plot_pd_grid, plot_sensors
-    from profiles.store import dump_profile
-
-    figures = []
-    tmp = folder
-    tmp.mkdir()
-    (tmp / "profile.yaml").write_text(dump_profile(cal.profile))
-    if cal.members:
-        (tmp / "sensors").mkdir()
-        for m in cal.members:
-            (tmp / "sensors" / f"{m.name}@{m.version}.yaml").write_text(dump_profile(m))
-    (tmp / "summary.yaml").write_text(dump_yaml(cal.summary))
-    if cal.config is not None:
-        (tmp / "config.yaml").write_text(dump_yaml(cal.config.model_dump(mode="json")))
-    if cal.motion is not None:  # SLAM settings for `detcal slam run --config`: the vehicle model measured on these logs
-        v = {k: float(f"{x:.4g}") for k, x in cal.motion["velocity"].items()}
-        head = f"# velocity odometry measured against ground truth over {cal.motion['windows']} windows of {cal.motion['window_s']:g} s\n"
-        (tmp / "motion.yaml").write_text(head + dump_yaml({"motion": {"velocity": v}}))
-    cal.pairs.to_csv(tmp / "pairs.csv.gz", index=False, float_format="%.9g", compression={"method": "gzip", "mtime": 0})
-    if cal.profile.pd.two_d:
-        plot_pd_grid(cal.profile.pd, cal.pairs, tmp / "pd_range_bearing.png")
-        figures.append("pd_range_bearing.png")
-    else:
-        plot_pd(cal, tmp / "pd_vs_range.png")
-        figures.append("pd_vs_range.png")
-    plot_clutter(cal, tmp / "clutter.png")
-    figures.append("clutter.png")
-    if cal.profile.clutter.density is not None:
-        plot_clutter_density(cal.profile.clutter, tmp / "clutter_density.png")
-        figures.append("clutter_density.png")
-    if len(cal.names) > 1:
-        plot_sensors(cal, tmp / "sensors.png")
-        figures.append("sensors.png")
-    return figures

@@ -239,30 +239,3 @@ def summary(log: SensorLog, cfg: GlmbPaperConfig) -> dict:
     }
 
 
-def plot_overview(log: SensorLog, path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    poses = log.reference["ground_truth"].poses
-    d = log.detections
-    fs = log.reference["ground_truth"]
-    at = np.searchsorted(fs.stamp, d.frame_stamp[d.frame])
-    sp = fs.poses[at]
-    a = sp[:, 2] + d.bearing
-    xy = np.column_stack([sp[:, 0] + d.range * np.cos(a), sp[:, 1] + d.range * np.sin(a)])
-    clutter = np.asarray(d.descriptors["landmark"]) == 0
-    fig, ax = plt.subplots(figsize=(8, 6))
-    ax.plot(xy[clutter, 0], xy[clutter, 1], ".", color="tab:green", ms=1.5, alpha=0.5, label="false alarms")
-    ax.plot(xy[~clutter, 0], xy[~clutter, 1], ".", color="tab:purple", ms=1.5, alpha=0.5, label="landmark detections")
-    ax.plot(poses[:, 0], poses[:, 1], "b--", lw=1, label="true path")
-    ax.plot(log.landmarks.xy[:, 0], log.landmarks.xy[:, 1], "k+", ms=10, mew=2, label="landmarks")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_title(f"{log.name}: {len(d)} detections over {d.n_frames} scans", fontsize=9)
-    ax.legend(fontsize=7, loc="upper right")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110, metadata={"Software": None})
-    plt.close(fig)

@@ -178,21 +178,3 @@ def summary(log: SensorLog, cfg: RfsSimConfig) -> dict:
     }
 
 
-def plot_overview(log: SensorLog, path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    poses = log.reference["ground_truth"].poses
-    fig, ax = plt.subplots(figsize=(7, 6))
-    ax.plot(poses[:, 0], poses[:, 1], "k-", lw=1, label="true path")
-    ax.plot(log.landmarks.xy[:, 0], log.landmarks.xy[:, 1], "g*", ms=8, label="landmarks")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_title(f"{log.name}: {len(log.detections)} detections over {log.detections.n_frames} steps", fontsize=9)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)

@@ -60,7 +60,7 @@ def main() -> int:
     kill = spec.get("kill")
     if kill:
         arm(kill["target"], int(kill.get("call", 1)), kill.get("when", "after"))
-    from calib.cli import main as detcal
+    from detcal.cli import main as detcal
 
     return detcal(spec["argv"])
 

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import yaml
 
-from calib.cli import main
+from detcal.cli import main
 from tests.calib.io.test_carmen import BASE, flaser, odom
 from tests.conftest import VENDORED
 

@@ -5,7 +5,7 @@ import sys
 
 import pytest
 
-from calib.cli import main
+from detcal.cli import main
 from calib.io.registry import read_log
 from tests.calib.io.test_carmen import BASE, flaser, write
 from tests.calib.io.test_rosbag import write_bag
@@ -89,7 +89,7 @@ def test_convert_round_trip_and_no_silent_overwrite(tmp_path, capsys):
 def test_simulate_and_info_through_the_console_script(tmp_path):
     cfg = tmp_path / "small.yaml"
     cfg.write_text("width: 40\nheight: 30\ntrees: {count: 10}\nbushes: {count: 2}\nwalls: {count: 1, max_length: 6}\nposts: {count: 2}\npath: {margin: 6}\n")
-    exe = [sys.executable, "-c", "from calib.cli import run; run()"]
+    exe = [sys.executable, "-c", "from detcal.cli import run; run()"]
     r = subprocess.run([*exe, "simulate", "park", "--seed", "3", "--out", str(tmp_path / "s"), "--config", str(cfg)], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert sorted(p.name for p in (tmp_path / "s").iterdir()) == [".detcal-output", "config.yaml", "log.dlog", "overview.png", "summary.yaml", "world.yaml"]

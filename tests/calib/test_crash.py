@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from calib.cli import main
+from detcal.cli import main
 from calib.io.native import write_native
 from profiles.atomic import MARKER
 from profiles.store import load_profile_file, same_content
@@ -73,7 +73,7 @@ def test_calibrate_killed_at_several_points(tmp_path, logs):
     killed(args, "calib.calibrate:label_log", "before")
     assert not run.exists() and not prof.exists()
     # 2. half-way through the run folder's figures: only a hidden temporary
-    killed(args, "calib.report:plot_roc")
+    killed(args, "detcal.reports.calibration:plot_roc")
     assert not run.exists() and not prof.exists() and leftovers(tmp_path)
     # 3. after the run folder is in place, before the profile: the folder is whole, the store has nothing
     killed(args, "profiles.atomic:_Staged.install")
@@ -124,7 +124,7 @@ def test_forced_slam_run_killed(tmp_path, logs):
     assert main([*base, "--seed", "2", "--out", str(ref)]) == 0  # the uninterrupted forced run's outputs
     old = (run / "trajectory.csv").read_bytes()
     forced = [*base, "--seed", "2", "--out", run, "--force"]
-    killed(forced, "slam_runtime.report:_figures", "before")  # tables written to the temporary, no figures
+    killed(forced, "detcal.reports.slam_run:_figures", "before")  # tables written to the temporary, no figures
     assert (run / "trajectory.csv").read_bytes() == old and (run / "ospa.png").is_file()
     killed(forced, "os:rename", no_exchange=True)
     assert not run.exists() and leftovers(tmp_path)

@@ -1,7 +1,7 @@
 import numpy as np
 import pandas as pd
 
-from calib.cli import main
+from detcal.cli import main
 from calib.io.native import write_native
 from tests.calib.test_cli import assert_one_line_error, run
 from tests.conftest import VENDORED

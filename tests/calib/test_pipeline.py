@@ -20,7 +20,7 @@ from tests.calib.test_cli import assert_one_line_error, run
 @pytest.fixture(scope="module")
 def calibrated(tmp_path_factory):
     """One calibration of a small park: its log, profile folder and run folder."""
-    from calib.cli import main
+    from detcal.cli import main
 
     d = tmp_path_factory.mktemp("pipeline")
     log = write_native(park(41, 0.5), d / "a.dlog")
@@ -113,7 +113,7 @@ def test_the_list_marks_files_that_do_not_hold_what_their_name_says(tmp_path, ca
     (user / "newer@1.0.0.yaml").write_text("schema_version: 3\nname: newer\nversion: 1.0.0\n")
     (user / "other@2.0.0.yaml").write_bytes((BUILTIN / "sim-park-laser@1.0.0.yaml").read_bytes())
     monkeypatch.setenv("DETCAL_PROFILES", str(user))
-    from calib.cli.common import out
+    from detcal.cli.common import out
 
     monkeypatch.setattr(out, "width", 300)  # one table row per line
     code, out, _ = run(capsys, "profile", "list")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import yaml
 
-from calib.cli import main
+from detcal.cli import main
 
 
 def run(capsys, *args):

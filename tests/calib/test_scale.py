@@ -23,8 +23,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from calib.cli import main
-from calib.sim.run import simulate_to
+from detcal.cli import main
+from detcal.reports.simulation import simulate_to
 from profiles.atomic import MARKER
 from tests.calib.test_cli import assert_one_line_error, run
 from tests.conftest import small_park_config
@@ -78,7 +78,7 @@ def cluster():
     import dask
     from distributed import Client
 
-    from calib.engine import LOCAL_CONFIG, local_cluster
+    from detcal.engine import LOCAL_CONFIG, local_cluster
 
     with dask.config.set(LOCAL_CONFIG):
         c = local_cluster(2)
@@ -96,7 +96,7 @@ def arm_kill(client, run_name: str, flag: Path) -> None:
         import os
         import signal
 
-        import slam_runtime.sweep as sw
+        import detcal.pipelines.sweep as sw
 
         original = sw.run_job
 
@@ -252,7 +252,7 @@ def test_a_listener_that_is_not_a_scheduler_is_refused_before_any_work(tmp_path,
 def test_a_worker_refuses_a_log_with_other_content_at_the_same_path(tmp_path, park_log):
     import shutil
 
-    from calib import engine
+    from detcal import engine
     from calib.io.registry import ReadOptions, read_log
     from profiles.errors import DataError
 
@@ -309,7 +309,7 @@ def _http_sockets(dask_scheduler=None, dask_worker=None):
 
 
 def test_the_local_cluster_listens_on_loopback_only():
-    from calib.engine import open_engine
+    from detcal.engine import open_engine
 
     with open_engine(1, None, 3) as engine:
         client = engine.client
@@ -327,7 +327,7 @@ def test_the_local_cluster_listens_on_loopback_only():
 def _worker_state(dask_worker=None):
     import sys
 
-    from calib.engine import PRELOAD
+    from detcal.engine import PRELOAD
 
     return "profile" in dask_worker.periodic_callbacks, [m for m in PRELOAD if m not in sys.modules]
 
@@ -365,7 +365,7 @@ def test_force_keeps_the_old_sweep_when_the_cluster_refuses(tmp_path, capsys, pa
     import dask
     from distributed import LocalCluster
 
-    from calib.engine import LOCAL_CONFIG
+    from detcal.engine import LOCAL_CONFIG
 
     out = tmp_path / "sw"
     shutil.copytree(serial, out)

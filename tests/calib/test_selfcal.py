@@ -44,7 +44,7 @@ def test_the_loop_recovers_pd_and_clutter_from_a_wrong_start(log):
 
     from calib.config import load_yaml_model
     from slam_runtime.config import SlamConfig, override
-    from slam_runtime.selfcal import self_calibration
+    from detcal.pipelines.self_calibration import self_calibration
 
     cfg = override(load_yaml_model(SlamConfig, Path(__file__).resolve().parents[2] / "benchmarks/configs/rfs_sim.yaml"), particles=20)
 
@@ -90,7 +90,7 @@ def test_selfcal_command_writes_its_folder_and_the_profile(tmp_path, capsys, log
     assert_one_line_error(err, "is bundled with detcal")
     assert not (tmp_path / "sc3").exists()
     # errors: a laser log, a starting profile with an n_p table
-    from calib.sim.run import simulate_to
+    from detcal.reports.simulation import simulate_to
     from tests.conftest import small_park_config
 
     simulate_to(tmp_path / "park", 2, small_park_config())
@@ -214,7 +214,7 @@ def test_the_loop_averages_the_odometry_biases_with_the_profiles():
     from calib.sim.glmb_paper import GlmbPaperConfig, simulate_glmb_paper
     from calib.sim.glmb_paper import truth_profile as glmb_truth
     from slam_runtime.config import SlamConfig
-    from slam_runtime.selfcal import self_calibration
+    from detcal.pipelines.self_calibration import self_calibration
 
     sc = GlmbPaperConfig(max_steps=800, clutter=1.0)
     lg = simulate_glmb_paper(sc, 3)

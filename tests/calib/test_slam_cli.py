@@ -6,7 +6,7 @@ import shutil
 import pytest
 import yaml
 
-from calib.sim.run import simulate_to
+from detcal.reports.simulation import simulate_to
 from tests.calib.test_cli import assert_one_line_error, run
 from tests.conftest import VENDORED, small_park_config
 

@@ -120,7 +120,7 @@ def test_registry_resolves_newest_and_exact_versions(tmp_path, monkeypatch):
     # the file a reference names, by name or by path: what --force must not replace while it is an input
     assert profile_path("test-laser") == tmp_path / "test-laser@1.10.0.yaml"
     assert profile_path("test-laser@1.0.0") == profile_path(str(tmp_path / "test-laser@1.0.0.yaml"))
-    from calib.cli.common import fresh
+    from detcal.cli.common import fresh
     from profiles.store import looks_like_profile
 
     with pytest.raises(UsageError, match="test-laser@1.0.0.yaml: is the input, which --force would delete"):

@@ -4,7 +4,7 @@ import pytest
 from calib.config import load_yaml_model
 from calib.io.native import read_native
 from calib.sim.park import ParkConfig, World, cast_world, sensor_poses, simulate_park
-from calib.sim.run import load_world, write_simulation
+from detcal.reports.simulation import load_world, write_simulation
 from detectors.geometry import relative
 from profiles.errors import UsageError
 from tests.conftest import small_park_config

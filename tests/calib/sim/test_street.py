@@ -97,7 +97,7 @@ def test_config_refuses_unknown_keys(tmp_path):
 
 
 def test_labels_file_matches_the_cloud(tmp_path):
-    from calib.sim.street import write_street_simulation
+    from detcal.reports.simulation import write_street_simulation
 
     summary = write_street_simulation(small_street_config(2), 3, tmp_path / "run")
     labels = np.lib.format.read_array(io.BytesIO((tmp_path / "run" / "labels.npy").read_bytes()))

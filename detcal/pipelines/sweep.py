@@ -1,9 +1,9 @@
 """Monte Carlo sweeps: many SLAM runs over logs x profiles x settings x seeds, resumable, on any engine.
 
 Each job is one complete run (:func:`run_job`: filter, evaluation, the run
-folder of :func:`slam_runtime.report.write_slam_run` rendered where the job
+folder of :func:`detcal.reports.slam_run.write_slam_run` rendered where the job
 runs and handed back as bytes). :func:`run_sweep` hands the jobs to an engine
-(in turn in this process by default; ``calib.engine`` runs them on Dask
+(in turn in this process by default; ``detcal.engine`` runs them on Dask
 workers), moves each run folder into the sweep folder as soon as its job
 completes, and tabulates the runs once all are done. A job carries its log,
 or a handle whose ``load()`` gives the log where the job runs (so a log is
@@ -88,14 +88,9 @@ class SweepJob:
 
     def run_config(self) -> dict:
         """The run folder's config.yaml: what the run was (the same whoever runs it)."""
-        return {
-            "log": self.labels.get("log"),
-            "inputs": list(self.inputs),
-            "profile": self.profile.ref,
-            "seed": self.seed,
-            "frames": self.max_frames,
-            "settings": self.config.model_dump(mode="json"),
-        }
+        from detcal.pipelines.slam_run import run_record
+
+        return run_record(self.labels.get("log"), self.inputs, self.profile, self.seed, self.max_frames, self.config)
 
 
 def _log_of(job: SweepJob) -> SensorLog:
@@ -104,19 +99,14 @@ def _log_of(job: SweepJob) -> SensorLog:
 
 def run_job(job: SweepJob) -> dict[str, bytes]:
     """One run where it is called: filter, evaluation and the run folder's files ({relative path: bytes})."""
-    from slam_runtime.labels import labelled_hooks
-    from slam_runtime.report import write_slam_run
-    from slam_runtime.run import MapOSPA, evaluate, run_slam
+    from detcal.pipelines.slam_run import run_and_evaluate
+    from detcal.reports.slam_run import write_slam_run
 
     log = _log_of(job)
-    m = job.config.metric
-    hooks = (MapOSPA(log.landmarks.xy, m.ospa_c, m.ospa_p),) if log.landmarks is not None else ()
-    labelled = labelled_hooks() if job.config.filter.kind != "rbphd" else ()
-    res = run_slam(log, job.profile, job.config, job.seed, max_frames=job.max_frames, hooks=hooks + labelled)
-    res.metrics = evaluate(log, res, m.ospa_c, m.ospa_p, job.config)
+    res, labels = run_and_evaluate(log, job.profile, job.config, job.seed, frames=job.max_frames)
     with tempfile.TemporaryDirectory(prefix="detcal-run-") as tmp:
         out = Path(tmp) / job.name
-        write_slam_run(log, res, out, job.run_config(), labels=labelled[0] if labelled else None)
+        write_slam_run(log, res, out, job.run_config(), labels=labels)
         return {p.relative_to(out).as_posix(): p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file() and p.name != MARKER}
 
 
@@ -236,7 +226,7 @@ def install_run(folder: Path, job: SweepJob, files: dict[str, bytes], stats: dic
 
 
 class InTurn:
-    """The default engine: every job in this process, in order (``calib.engine`` offers Dask ones)."""
+    """The default engine: every job in this process, in order (``detcal.engine`` offers Dask ones)."""
 
     workers = 0
     label = "in this process"

@@ -1,4 +1,5 @@
-"""The calibration report: figures a person would rather look at than read."""
+"""The run folder of a laser calibration (``detcal calibrate``) and the report's figures, a person would rather
+look at than read; the figure functions serve the detection-level and plane calibrations' folders too."""
 
 from __future__ import annotations
 
@@ -10,11 +11,16 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.patches import Circle  # noqa: E402
+import pandas as pd  # noqa: E402
 from scipy.stats import nbinom, poisson  # noqa: E402
 
 from calib.calibrate import Calibration  # noqa: E402
+from calib.config import dump_yaml  # noqa: E402
+from detcal.reports.detect import plot_scan_detections  # noqa: E402
 from detectors.circle import descriptor_matrix  # noqa: E402
+from profiles.store import dump_profile  # noqa: E402
 
+GZ = {"method": "gzip", "mtime": 0}  # fixed header time: same tables, same bytes
 SAVE = {"metadata": {"Software": None}}
 
 
@@ -266,7 +272,6 @@ def plot_map(cal: Calibration, path: Path, k: int = 0, every: int = 10) -> None:
 
 
 def write_report(cal: Calibration, folder: Path) -> list[str]:
-    from calib.plots import plot_scan_detections
     from detectors.circle import detect_circles
 
     plot_pd(cal, folder / "pd_vs_np.png")
@@ -280,3 +285,17 @@ def write_report(cal: Calibration, folder: Path) -> list[str]:
     det = detect_circles(lg.scans.ranges[k : k + 1], lg.scan_angles(k), prof.detector.circle, prof.hotelling, lg.sensor.range_sigma)
     plot_scan_detections(lg, det.offset(k), k, prof.pd, prof.detector.k_sigma, folder / "pd_field.png")
     return ["pd_vs_np.png", "roc.png", "clutter.png", "descriptors.png", "map.png", "pd_field.png"]
+
+
+def fill_calibration_run(cal: Calibration, folder: Path) -> list[str]:
+    """Create ``folder`` with profile.yaml, config.yaml, summary.yaml, detections.csv.gz, pairs.csv.gz,
+    range_noise.csv (when sigma_r was estimated) and the report figures; returns the figure names."""
+    folder.mkdir()
+    (folder / "profile.yaml").write_text(dump_profile(cal.profile))
+    (folder / "config.yaml").write_text(dump_yaml(cal.config.model_dump(mode="json")))
+    (folder / "summary.yaml").write_text(dump_yaml(cal.summary))
+    cal.labelled.detections.to_csv(folder / "detections.csv.gz", index=False, float_format="%.9g", compression=GZ)
+    cal.labelled.pairs.to_csv(folder / "pairs.csv.gz", index=False, float_format="%.9g", compression=GZ)
+    if cal.range_noise is not None:
+        pd.DataFrame(cal.range_noise.summary()["bands"]).to_csv(folder / "range_noise.csv", index=False, float_format="%.6g")
+    return write_report(cal, folder)

@@ -11,7 +11,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from calib.cli.common import out, warn
+from detcal.cli.common import out, warn
 from profiles.errors import UsageError
 
 app = typer.Typer(help="List, show, validate, compare and export detector profiles.", no_args_is_help=True, rich_markup_mode=None)

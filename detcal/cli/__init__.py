@@ -3,7 +3,7 @@
 Thin by design: parse, cross-check options, call one pipeline function, print
 a result table. One module per command group (``logs``, ``simulate``,
 ``detect``, ``calibrate``, ``profile``, ``slam``); the reader options are
-defined once (:mod:`calib.cli.common`). Library errors
+defined once (:mod:`detcal.cli.common`). Library errors
 (:class:`profiles.errors.DetcalError`) become one-line plain-text messages with
 exit code 1 (bad data) or 2 (usage); a user never sees a traceback for bad
 input.
@@ -16,9 +16,9 @@ from typing import Annotated
 
 import typer
 
-from calib import __version__
-from calib.cli import calibrate, detect, logs, profile, selfcal, simulate, slam
-from calib.cli.common import out
+from detcal import __version__
+from detcal.cli import calibrate, detect, logs, profile, selfcal, simulate, slam
+from detcal.cli.common import out
 from profiles.errors import DetcalError
 
 app = typer.Typer(
@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
 
     Usage errors found by the option parser are reported by typer itself (exit 2).
     """
-    from calib.cli import common
+    from detcal.cli import common
 
     common.ARGV = list(sys.argv[1:] if argv is None else argv)
     try:

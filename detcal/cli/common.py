@@ -26,7 +26,7 @@ from profiles.errors import DataError, UsageError
 
 out = Console(highlight=False, markup=False)  # file names may hold brackets
 
-#: The arguments of the running command (set by :func:`calib.cli.main`), for provenance.
+#: The arguments of the running command (set by :func:`detcal.cli.main`), for provenance.
 ARGV: list[str] = []
 
 READER_OPTIONS: dict[str, tuple[type, object, typer.models.OptionInfo]] = {

@@ -155,14 +155,16 @@ def run_calibration(job: CalibrationJob) -> CalibrationOutcome:
     # ---- the work
     where = "in this process"
     if planes:
-        from calib.planes import calibrate_planes, fill_plane_run
+        from calib.planes import calibrate_planes
+        from detcal.reports.plane_calibration import fill_plane_run
 
         cal = calibrate_planes(
             logs, cfg, name=job.name, version=job.version, description=job.description, input_refs=list(job.inputs), command=job.command
         )
         fill = fill_plane_run
     elif levels:
-        from calib.detlevel import calibrate_detections, fill_detection_run
+        from calib.detlevel import calibrate_detections
+        from detcal.reports.detection_calibration import fill_detection_run
 
         if job.workers or job.scheduler:
             notes.append("detection-level logs are calibrated in this process (their per-log work takes milliseconds); --workers and --scheduler are not used")
@@ -173,7 +175,7 @@ def run_calibration(job: CalibrationJob) -> CalibrationOutcome:
         fill = fill_detection_run
     else:
         from calib.calibrate import calibrate
-        from calib.runs import fill_calibration_run
+        from detcal.reports.calibration import fill_calibration_run
 
         with _per_log_engine(job, logs) as (per_log, where):
             cal = calibrate(
@@ -225,7 +227,7 @@ def _per_log_engine(job: CalibrationJob, logs: list[SensorLog]) -> Iterator[tupl
     if not distribute:
         yield None, "in this process"
         return
-    from calib.engine import LogSource, open_engine
+    from detcal.engine import LogSource, open_engine
     from calib.progress import progress
 
     handles = [LogSource.of(lg, p, fmt, opts, trim=True) for lg, (p, fmt, opts) in zip(logs, job.sources, strict=True)]

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from calib.cli.common import ReaderArgs, fresh, out, reader_options, summary_table
+from detcal.cli.common import ReaderArgs, fresh, out, reader_options, summary_table
 
 
 @reader_options("fmt", "max_backstep", "laser", "range_max", "range_sigma", "scan_topic")
@@ -24,11 +24,11 @@ def detect_cmd(
     force: Annotated[bool, typer.Option(help="Replace the run folder if it exists.")] = False,
 ) -> None:
     """Run the circle (tree) detector over every scan, or the plane detector over every point cloud, and write a table."""
-    from calib.detect import detect_config, write_detect_run
+    from detcal.reports.detect import detect_config, write_detect_run
 
     log = reader.read(log_path)
     if log.scans is None and log.clouds is not None:
-        from calib.plane_detect import plane_detect_config, write_plane_detect_run
+        from detcal.reports.detect import plane_detect_config, write_plane_detect_run
 
         pcfg = plane_detect_config(profile, config)
         target = out_dir or Path("runs") / f"detect_{log.name}"

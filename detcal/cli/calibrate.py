@@ -11,7 +11,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from calib.cli.common import ReaderArgs, fresh, input_refs, out, reader_options, summary_table, warn
+from detcal.cli.common import ReaderArgs, fresh, input_refs, out, reader_options, summary_table, warn
 from profiles.errors import UsageError
 
 POSE_SOURCES = ("auto", "reference", "icp")
@@ -31,7 +31,7 @@ EXECUTION_OPTIONS = ("--workers", "--scheduler")
 def typed_command(name: str) -> str:
     """The command as typed; absolute paths lose their folders (a profile names inputs by file name and hash);
     ``--workers`` and ``--scheduler`` are left out, so a profile is the same bytes wherever it was computed."""
-    from calib.cli.common import ARGV
+    from detcal.cli.common import ARGV
 
     words, skip = [], False
     for a in ARGV[1:]:
@@ -80,8 +80,8 @@ def calibrate_cmd(
     3D lidar logs with plane truth (detcal simulate street): the plane detector, P_D against the
     ray-traced visible points and incidence angle, clutter planes (profile kind lidar3d-planes).
     """
-    from calib.engine import check_options
-    from calib.pipeline import CalibrationJob, check_name, run_calibration
+    from detcal.engine import check_options
+    from detcal.pipelines.calibrate import CalibrationJob, check_name, run_calibration
 
     check_poses(poses)
     check_name(name, version)
@@ -92,7 +92,7 @@ def calibrate_cmd(
         prof_name = name or loaded[0].name.lower().replace("_", "-")
         fmt = reader.fmt
     else:
-        from calib.default import DEFAULT_PROFILE_NAME, default_log
+        from detcal.default_log import DEFAULT_PROFILE_NAME, default_log
 
         log, path = default_log()
         loaded, paths, prof_name, fmt = [log], [path], name or DEFAULT_PROFILE_NAME, "native"
@@ -175,7 +175,7 @@ def validate_cmd(
         raise UsageError("--config and --adapt go with --cv")
     if len(args) < 2:
         raise UsageError("validate needs a PROFILE and at least one LOG (or --cv robots|time with logs)")
-    from calib.pipeline import run_validation
+    from detcal.pipelines.calibrate import run_validation
     from profiles.store import resolve
 
     landmark_input(landmarks)

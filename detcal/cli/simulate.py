@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from calib.cli.common import fresh, out, summary_table
+from detcal.cli.common import fresh, out, summary_table
 from profiles.errors import UsageError
 
 app = typer.Typer(help="Simulate sensor logs with exported truth.", no_args_is_help=True, rich_markup_mode=None)
@@ -31,7 +31,7 @@ def simulate_park_cmd(
     """Simulate a 2D park (trees, bushes, walls, posts, dust) seen by a laser on a moving vehicle."""
     from calib.config import load_yaml_model
     from calib.sim.park import ParkConfig
-    from calib.sim.run import simulate_to
+    from detcal.reports.simulation import simulate_to
 
     check_seed(seed)
     cfg = load_yaml_model(ParkConfig, config)
@@ -53,7 +53,7 @@ def simulate_rfs_cmd(
     profile of its true statistics."""
     from calib.config import load_yaml_model
     from calib.sim.rfs import RfsSimConfig
-    from calib.sim.run import write_rfs_simulation
+    from detcal.reports.simulation import write_rfs_simulation
 
     check_seed(seed)
     cfg = load_yaml_model(RfsSimConfig, config, {"steps": steps})  # an error in --steps names it
@@ -73,7 +73,8 @@ def simulate_street_cmd(
     """Simulate a 3D street (buildings, walls, boards, poles, cars, trees, bushes) swept by an HDL-64E-like
     lidar on a vehicle on an Extended Constant Turn path; writes the log with plane truth and the world."""
     from calib.config import load_yaml_model
-    from calib.sim.street import StreetConfig, write_street_simulation
+    from calib.sim.street import StreetConfig
+    from detcal.reports.simulation import write_street_simulation
 
     check_seed(seed)
     cfg = load_yaml_model(StreetConfig, config, {"frames": frames})  # an error in --frames names it
@@ -95,7 +96,7 @@ def simulate_glmb_paper_cmd(
     writes the log and the profile of its true statistics."""
     from calib.config import load_yaml_model
     from calib.sim.glmb_paper import GlmbPaperConfig
-    from calib.sim.run import write_glmb_paper_simulation
+    from detcal.reports.simulation import write_glmb_paper_simulation
 
     check_seed(seed)
     cfg = load_yaml_model(GlmbPaperConfig, config, {"clutter": clutter})  # an error in --clutter names it

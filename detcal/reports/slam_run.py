@@ -1,4 +1,4 @@
-"""The run folder of ``detcal slam run``: tables, metrics, the config used, and figures.
+"""The run folder of ``detcal slam run``: tables, metrics, the config used, and figures (matplotlib, Agg).
 
 Layout::
 
@@ -140,8 +140,6 @@ def _figures(log: SensorLog, res: SlamResult, odo: np.ndarray, folder: Path) -> 
     if log.landmarks is not None:
         ax.plot(log.landmarks.xy[:, 0], log.landmarks.xy[:, 1], "k*", ms=6, label="true landmarks")
     if res.map_xy.ndim == 2 and res.map_xy.shape[1] == 4:
-        from slam_runtime.plane_metrics import draw_planes
-
         draw_planes(ax, log, res.map_xy, res.trajectory)
     elif res.map_xy.size:
         ax.scatter(res.map_xy[:, 0], res.map_xy[:, 1], s=18, facecolors="none", edgecolors="g", label="map (weight >= threshold)")
@@ -187,3 +185,28 @@ def _figures(log: SensorLog, res: SlamResult, odo: np.ndarray, folder: Path) -> 
     plt.close(fig)
     names.append("timing.png")
     return names
+def draw_planes(ax, log: SensorLog, est: np.ndarray, trajectory: np.ndarray, reach: float = 30.0) -> None:
+    """Top view: the true landmark planes' outlines and each mapped plane's trace near the trajectory."""
+    pl = log.planes
+    if pl is not None:
+        steep = np.abs(pl.normal[:, 2]) <= np.sin(np.radians(45.0))
+        for i in np.flatnonzero(steep):
+            v = pl.polygon(int(i))
+            ax.plot(v[:, 0], v[:, 1], "-", color="0.6", lw=0.8, label="true planes" if i == np.flatnonzero(steep)[0] else None)
+    est = np.asarray(est, dtype=np.float64).reshape(-1, 4)
+    if not est.size:
+        return
+    lo, hi = trajectory[:, :2].min(0) - reach, trajectory[:, :2].max(0) + reach
+    t = np.linspace(-np.hypot(*(hi - lo)), np.hypot(*(hi - lo)), 2000)
+    first = True
+    for e in est:
+        n = e[:3] / max(np.linalg.norm(e[:3]), 1e-12)
+        h = np.hypot(n[0], n[1])
+        if h < 0.3:
+            continue
+        foot = np.array([n[0], n[1]]) / h**2 * e[3]  # where the plane crosses z = 0, nearest the origin
+        pts = foot + t[:, None] * np.array([-n[1], n[0]]) / h
+        near = np.min(np.hypot(*(pts[:, None, :] - trajectory[None, ::10, :2]).transpose(2, 0, 1)), axis=1) <= reach
+        if near.any():
+            ax.plot(pts[near, 0], pts[near, 1], "g.", ms=1.2, label="mapped planes (traces)" if first else None)
+            first = False

@@ -336,7 +336,7 @@ def _quiet_dask(level: int = logging.CRITICAL) -> Iterator[None]:
 #: Workers import what the tasks use as they start (:data:`PRELOAD`).
 LOCAL_CONFIG = {
     "distributed.worker.profile.enabled": False,
-    "distributed.worker.preload": ["calib.engine"],
+    "distributed.worker.preload": ["detcal.engine"],
     "distributed.nanny.pre-spawn-environ": {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1, "OPENBLAS_NUM_THREADS": 1},
     "distributed.scheduler.worker-saturation": 1.0,
     "distributed.comm.timeouts.connect": "60s",
@@ -348,11 +348,11 @@ LOCAL_CONFIG = {
 
 #: What the tasks import, imported by every worker as it starts (:func:`dask_setup`), all workers at once, rather
 #: than inside each worker's first task: 1.5-2 s of CPU a process (matplotlib, scipy, detcal's own modules).
-PRELOAD = ("slam_runtime.sweep", "slam_runtime.run", "slam_runtime.report", "slam_runtime.labels", "calib.calibrate", "matplotlib.pyplot")
+PRELOAD = ("detcal.pipelines.sweep", "slam_runtime.run", "detcal.reports.slam_run", "slam_runtime.labels", "calib.calibrate", "matplotlib.pyplot")
 
 
 def dask_setup(worker=None) -> None:
-    """Dask's preload hook (``distributed.worker.preload: [calib.engine]``, or ``dask worker --preload calib.engine``):
+    """Dask's preload hook (``distributed.worker.preload: [detcal.engine]``, or ``dask worker --preload detcal.engine``):
     import what the tasks use before the worker takes its first task."""
     import importlib
 

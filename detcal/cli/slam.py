@@ -11,7 +11,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from calib.cli.common import ReaderArgs, fresh, input_refs, out, positive, reader_options, summary_table, warn
+from detcal.cli.common import ReaderArgs, fresh, input_refs, out, positive, reader_options, summary_table, warn
 from profiles.errors import DataError, UsageError
 
 app = typer.Typer(help="Run SLAM filters with a detector profile.", no_args_is_help=True, rich_markup_mode=None)
@@ -55,7 +55,7 @@ def variants(specs: list[str] | None) -> list[tuple[str | None, dict]]:
 
     import yaml
 
-    from slam_runtime.sweep import is_number
+    from detcal.pipelines.sweep import is_number
 
     if not specs:
         return [(None, {})]
@@ -134,10 +134,9 @@ def slam_run_cmd(
 ) -> None:
     """SLAM over a log with a detector profile's P_D and clutter: trajectory, map, metrics, figures."""
     from calib.progress import progress
+    from detcal.pipelines.slam_run import SlamRun
     from profiles.store import resolve
-    from slam_runtime.labels import labelled_hooks
-    from slam_runtime.report import write_slam_run
-    from slam_runtime.run import MapOSPA, check_inputs, evaluate, run_slam
+    from slam_runtime.run import check_inputs
 
     cfg = slam_config(config, filter_, particles, pd_mode, features, poses)
     positive("--frames", frames)
@@ -148,25 +147,8 @@ def slam_run_cmd(
     check_inputs(log, prof)
     target = out_dir or Path("runs") / f"slam_{log.name}_{prof.ref}_{seed}"
     fresh(target, force, inputs=[log_path, profile_ref, config])
-    m = cfg.metric
-    hooks = (MapOSPA(log.landmarks.xy, m.ospa_c, m.ospa_p),) if log.landmarks is not None else ()
-    labelled = labelled_hooks() if cfg.filter.kind != "rbphd" else ()
-    if cfg.features == "planes" and log.planes is not None and "ground_truth" in log.reference:
-        from slam_runtime.plane_features import plane_distance
-        from slam_runtime.plane_metrics import landmark_truth
-
-        hooks = (MapOSPA(landmark_truth(log, length=m.plane_length)[0], m.ospa_c, m.ospa_p, every=5, distance=plane_distance),)
-    res = run_slam(log, prof, cfg, seed, progress=progress, max_frames=frames, hooks=hooks + labelled)
-    res.metrics = evaluate(log, res, m.ospa_c, m.ospa_p, cfg)
-    settings = {
-        "log": log_path.name,
-        "inputs": [r.model_dump() for r in input_refs(log_path, log)],
-        "profile": prof.ref,
-        "seed": seed,
-        "frames": frames,
-        "settings": cfg.model_dump(mode="json"),
-    }
-    write_slam_run(log, res, target, settings, overwrite=force, labels=labelled[0] if labelled else None)
+    inputs = [r.model_dump() for r in input_refs(log_path, log)]
+    res = SlamRun(log, log_path.name, inputs, prof, cfg, seed, target, frames, force).run(progress)
     shown = {k: v for k, v in res.metrics.items() if not isinstance(v, dict)}
     mode = " (poses: ground truth, mapping only)" if cfg.poses == "ground_truth" else ""
     out.print(summary_table(f"{res.filter}-SLAM{mode} on {log.name} with {prof.ref} -> {target}", shown))
@@ -185,10 +167,10 @@ PAIRED_SHOWN = (
 
 
 def paired_table(rows: list[dict]) -> Table:
-    """The sweep's paired differences (paired.csv, :func:`slam_runtime.sweep.paired`) of the metrics of
+    """The sweep's paired differences (paired.csv, :func:`detcal.pipelines.sweep.paired`) of the metrics of
     PAIRED_SHOWN: one row per comparison, each cell the mean difference a - b +- its standard error and the
     pairs in which a is lower."""
-    from slam_runtime.sweep import COMPARED
+    from detcal.pipelines.sweep import COMPARED
 
     present = [(k, head) for k, head in PAIRED_SHOWN if any(r["metric"] == k for r in rows)]
     t = Table(title="paired by log and seed: a - b, mean ± standard error (pairs in which a is lower)")
@@ -212,9 +194,9 @@ def paired_table(rows: list[dict]) -> Table:
 
 
 def evidence_table(rows: list[dict]) -> Table:
-    """The values of the varied settings ranked by the runs' log evidence (:func:`slam_runtime.sweep.by_evidence`): per
+    """The values of the varied settings ranked by the runs' log evidence (:func:`detcal.pipelines.sweep.by_evidence`): per
     profile, filter, P_D mode and particle count, the likeliest and its lead over the next, paired by log and seed."""
-    from slam_runtime.sweep import by_evidence
+    from detcal.pipelines.sweep import by_evidence
 
     t = Table(title="the varied settings by the log evidence (no ground truth): the likeliest, and its lead over the next, paired by log and seed")
     for c in ("profile, filter, P_D mode, particles", "likeliest (mean log evidence [nats])", "next", "lead ± standard error (pairs in which it is higher)"):
@@ -295,12 +277,12 @@ def slam_sweep_cmd(
     records its log evidence, log p(Z) of the measurements: the values of a
     varied setting are ranked by it, a choice that needs no ground truth.
     """
-    from calib.engine import InProcess, LogSource, check_options, open_engine
+    from detcal.engine import InProcess, LogSource, check_options, open_engine
     from calib.progress import progress
     from profiles.store import resolve
     from slam_runtime.config import FILTER_KINDS, override, with_filter, with_settings
     from slam_runtime.run import check_features, check_inputs, check_poses
-    from slam_runtime.sweep import SETTING, SweepJob, check_run_names, make_plan, open_sweep, run_sweep, summarise
+    from detcal.pipelines.sweep import SETTING, SweepJob, check_run_names, make_plan, open_sweep, run_sweep, summarise
 
     modes = list(dict.fromkeys(pd_modes or list(PD_MODES)))
     for m in modes:

@@ -1,9 +1,9 @@
 """The self-calibration loop: run SLAM, measure the detector (and the odometry's biases) against the
 run's own map and trajectory, run again with what was measured, until the profile stops changing.
 
-The measuring is injected (``measure``: the calibration code lives in ``calib``,
-which this package never imports); this module only alternates the two steps
-and keeps the history. For Ackermann odometry the steering offset and the speed
+The measuring is injected (``measure``: :func:`calib.selfcal.self_calibrate` in
+``detcal selfcal``); this module only alternates the two steps and keeps the
+history. For Ackermann odometry the steering offset and the speed
 scale are measured too (:func:`slam_runtime.vehicle.fit_ackermann_bias`) and go
 into the next run's settings.
 """

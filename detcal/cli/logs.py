@@ -9,7 +9,7 @@ import numpy as np
 import typer
 from rich.table import Table
 
-from calib.cli.common import ReaderArgs, fresh, out, reader_options
+from detcal.cli.common import ReaderArgs, fresh, out, reader_options
 
 app = typer.Typer(help="Inspect and convert sensor logs.", no_args_is_help=True, rich_markup_mode=None)
 

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from calib.cli.common import ReaderArgs, fresh, input_refs, out, positive, reader_options, summary_table
+from detcal.cli.common import ReaderArgs, fresh, input_refs, out, positive, reader_options, summary_table
 from profiles.errors import UsageError
 
 
@@ -42,15 +42,16 @@ def selfcal_cmd(
 ) -> None:
     """Self-calibration: run SLAM, measure P_D against range (unoccluded map features), clutter, noise and the
     odometry's steering offset against the run's own map and trajectory, run again, until nothing changes."""
-    from calib.cli.calibrate import typed_command
-    from calib.cli.slam import slam_config
+    from detcal.cli.calibrate import typed_command
+    from detcal.cli.slam import slam_config
     from calib.progress import progress
-    from calib.selfcal import SelfCalConfig, fill_selfcal_run, pool_self_calibrations, profile_change, self_calibrate
+    from calib.selfcal import SelfCalConfig, pool_self_calibrations, profile_change, self_calibrate
+    from detcal.reports.self_calibration import fill_selfcal_run
     from profiles.atomic import Output, atomic_outputs
     from profiles.profile import NAME_RE, SEMVER_RE
     from profiles.store import check_new_version, looks_like_profile, profile_path, resolve, write_profile_text
     from slam_runtime.run import check_inputs
-    from slam_runtime.selfcal import self_calibration
+    from detcal.pipelines.self_calibration import self_calibration
 
     positive("--iterations", iterations)
     positive("--particles", particles)
@@ -103,7 +104,7 @@ def selfcal_cmd(
         log, start, cfg, seed, measure, profile_change, iterations=iterations, tolerance=tolerance, average_from=average_from, progress=progress
     )
     final = history[-1].measured
-    from slam_runtime.report import write_slam_run
+    from detcal.reports.slam_run import write_slam_run
 
     last = history[-1]
     settings = {"log": log_path.name, "inputs": [r.model_dump() for r in refs], "profile": last.profile.ref, "seed": seed,
