@@ -25,18 +25,15 @@ from dataclasses import dataclass, field, replace
 from math import gamma as gamma_fn
 from math import pi
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 import pandas as pd
-from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from calib import __version__
-from calib.clutter import ClutterModelConfig, density_summary, fit_density, time_folds
+from calib.clutter import density_summary, fit_density, time_folds
 from calib.fits import (
     ClutterFit,
     HotellingFit,
-    PdFitConfig,
     clutter_params,
     fit_clutter,
     fit_hotelling,
@@ -52,47 +49,9 @@ from detectors.geometry import compose, interpolate_poses
 from detectors.logs import SensorLog
 from detectors.model import fov_volume
 from profiles.errors import DataError, UsageError
+from profiles.parameters import CalibrateConfig
 from profiles.profile import DescriptorLikelihoods, DetectorProfile, DetectorSpec, HotellingModel, InputRef, Provenance
 from profiles.schema import CircleDetectorParams, SensorModel
-
-DescriptorName = Literal["fit_error", "radius", "convexity", "points", "mse", "log_mse", "log_radius", "rel_convexity"]
-
-
-class CalibrateConfig(BaseModel):
-    """Everything ``detcal calibrate --config`` accepts; the defaults follow the thesis."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    detector: CircleDetectorParams = CircleDetectorParams()
-    # log mean-square residual, log radius, convexity / radius: the thesis's three descriptors
-    # in coordinates where a Gaussian fits (see detectors.circle.DESCRIPTOR_NAMES); the raw
-    # ["fit_error", "radius", "convexity"] remain available
-    descriptors: list[DescriptorName] = Field(default=["log_mse", "log_radius", "rel_convexity"], min_length=1)
-    confidence: float = Field(default=0.999, gt=0.0, lt=1.0, description="Hotelling ellipsoid confidence (eq. 5.4)")
-    gamma: Literal["chi2", "empirical"] = Field(
-        default="chi2",
-        description="Hotelling threshold: the chi-square quantile (eq. 5.4; exact for Gaussian descriptors) or the empirical "
-        "quantile of the true detections' Mahalanobis distances (the stated confidence holds whatever their distribution)",
-    )
-    gate: float = Field(default=1.0, gt=0.0, description="detection-landmark association gate [m]")
-    k_sigma: float = Field(default=3.0, gt=0.0, description="occlusion tolerance of the ray tracer, in sigma_r")
-    buffer_samples: int = Field(default=5, ge=1)
-    pd: PdFitConfig = PdFitConfig()
-    clutter_space: Literal["range_bearing", "xy"] = "range_bearing"
-    clutter: ClutterModelConfig = ClutterModelConfig()
-    poses: Literal["auto", "reference", "icp"] = Field(default="auto", description="where scan poses come from")
-    cloud_landmarks: CloudLandmarkConfig = CloudLandmarkConfig()
-    range_noise: RangeNoiseConfig = Field(
-        default=RangeNoiseConfig(), description="how sigma_r is estimated when the log does not state it and --range-sigma is not given"
-    )
-
-    @field_validator("descriptors")
-    @classmethod
-    def _distinct(cls, names: list[str]) -> list[str]:
-        seen = [n for i, n in enumerate(names) if n in names[:i]]
-        if seen:
-            raise ValueError(f"{seen[0]} is named twice (a descriptor twice makes the Hotelling covariance singular)")
-        return names
-
 
 @dataclass
 class Calibration:

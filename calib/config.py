@@ -31,14 +31,6 @@ def validation_message(exc: ValidationError, where: str) -> str:
     return f"{where}: {loc}: {msg}{more}"
 
 
-def check_order(model: BaseModel, low: str, high: str, *, strict: bool = False) -> None:
-    """A model's own check that setting ``low`` does not exceed ``high`` (``strict``: is below it), for a model
-    validator; the message names both with their values."""
-    a, b = getattr(model, low), getattr(model, high)
-    if a > b or (strict and a == b):
-        raise ValueError(f"{low} ({a}) must {'be below' if strict else 'not exceed'} {high} ({b})")
-
-
 def load_yaml_model(model: type[M], path: str | Path | None, updates: dict | None = None) -> M:
     """Defaults when ``path`` is None; otherwise the YAML file validated against ``model``. ``updates`` (top-level keys;
     None: not given) replace the file's values before validation, so that checks across fields see the command line's

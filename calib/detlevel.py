@@ -36,41 +36,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
-from pydantic import BaseModel, ConfigDict, Field
 
 from calib import __version__
 from calib.calibrate import created_now
-from calib.clutter import ClutterModelConfig, density_summary, fit_density, time_folds
+from calib.clutter import density_summary, fit_density, time_folds
 from calib.fits import ClutterFit, clutter_params, fit_clutter
 from calib.io.common import index_of
-from calib.pdmodels import PdModelConfig, between_sensor_sd, choose_pd_model, pool_sensors, predict, shrink_rates
+from calib.pdmodels import between_sensor_sd, choose_pd_model, pool_sensors, predict, shrink_rates
 from calib.validate import BLOCK_S, Held, Validation, score
 from detectors.geometry import compose, interpolate_poses
 from detectors.logs import SensorLog
 from profiles.errors import DataError, UsageError
+from profiles.parameters import DetectionCalibConfig, IdentityAudit
 from profiles.profile import DetectorProfile, DetectorSpec, Provenance, SensorSpread
 from profiles.schema import MeasurementNoise, SensorModel
-
-
-class IdentityAudit(BaseModel):
-    """When a landmark identity's detections are taken to belong to another landmark."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    enabled: bool = True
-    share: float = Field(default=0.9, gt=0.5, le=1.0, description="share of its detections on one other landmark (and at most 1 - share on its own)")
-    min_detections: int = Field(default=20, ge=1)
-
-
-class DetectionCalibConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    gate: float = Field(default=1.0, gt=0.0, description="true detection: within this of the landmark [m]")
-    frame_period: float | None = Field(default=None, gt=0.0, description="camera frame period [s] (default: estimated)")
-    fov: float | None = Field(default=None, gt=0.0, description="field of view [rad] (default: from the true detections)")
-    range_max: float | None = Field(default=None, gt=0.0, description="[m] (default: from the true detections)")
-    quantile: float = Field(default=0.995, gt=0.5, lt=1.0)
-    audit: IdentityAudit = IdentityAudit()
-    pd: PdModelConfig = PdModelConfig()
-    clutter: ClutterModelConfig = ClutterModelConfig()
 
 
 def frame_period(logs: list[SensorLog]) -> float:

@@ -17,12 +17,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 from scipy.stats import chi2, poisson, rankdata
 
 from calib.clutter import dispersion_test, fit_negative_binomial, nb_pmf_sf, pearson
 from detectors.circle import mahalanobis2 as maha2
 from profiles.errors import DataError
+from profiles.parameters import PdFitConfig
 from profiles.schema import ClutterDensity, ClutterParams, CountTest, PdTable
 
 Z95 = 1.959963984540054
@@ -38,25 +38,6 @@ def wilson(k: np.ndarray, n: np.ndarray, z: float = Z95) -> tuple[np.ndarray, np
         centre = (p + z * z / (2 * n)) / den
         half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
     return centre - half, centre + half
-
-
-class PdFitConfig(BaseModel):
-    """How the P_D table is binned and clamped.
-
-    ``min_count``: a bin is well populated with at least this many (landmark,
-    scan) pairs. ``tail``: above the last well-populated bin, ``last`` uses that
-    bin's own estimate (the thesis: n_p > 6 uses n_p = 6), ``pool`` pools every
-    pair at or above it into that bin (more data for the same rule; the default,
-    because the tail is where counts are thin). ``zero_below``: estimates under
-    this become 0 (thesis: 0.1), so a filter does not keep expecting features
-    that are out of view.
-    """
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    min_count: int = Field(default=200, ge=1)
-    tail: str = Field(default="pool", pattern="^(pool|last)$")
-    zero_below: float = Field(default=0.1, ge=0.0, lt=1.0)
-    range_bin: float = Field(default=0.5, gt=0.0, description="bin width for a range covariate [m]")
 
 
 def fit_pd_table(values: np.ndarray, detected: np.ndarray, covariate: str, cfg: PdFitConfig, runs: int = 1) -> PdTable:

@@ -31,30 +31,18 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from pydantic import BaseModel, ConfigDict, Field
 from scipy.optimize import linear_sum_assignment
 
 from calib import __version__
 from calib.calibrate import created_now
 from calib.detlevel import fit_noise
-from calib.fits import ClutterFit, PdFitConfig, clutter_params, fit_clutter, fit_pd_table
+from calib.fits import ClutterFit, clutter_params, fit_clutter, fit_pd_table
 from detectors.geometry import compose
 from detectors.logs import SensorLog
 from profiles.errors import DataError
+from profiles.parameters import SelfCalConfig
 from profiles.profile import DetectorProfile, DetectorSpec, InputRef, Provenance
 from profiles.schema import MeasurementNoise, SensorModel
-
-
-class SelfCalConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    gate: float = Field(default=1.5, gt=0.0, description="a detection matches a map feature within this [m]")
-    map_weight: float = Field(
-        default=0.2, gt=0.0, description="map components of this weight or more are features (a feature missed twice at P_D 0.6 keeps 0.16 of its weight)"
-    )
-    radius: float | None = Field(
-        default=None, gt=0.0, description="trunk radius for the occlusion test when the log has no diameters [m] (None: point landmarks, no occlusion)"
-    )
-    pd: PdFitConfig = PdFitConfig(min_count=100, range_bin=5.0, zero_below=0.0)
 
 
 @dataclass

@@ -2,6 +2,6 @@
 execution engine, run folders, reports and figures, over the libraries ``profiles``, ``detectors``, ``calib`` and
 ``slam_runtime``."""
 
-from calib import __version__
+from profiles.version import __version__
 
 __all__ = ["__version__"]

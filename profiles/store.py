@@ -17,7 +17,6 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,6 +26,7 @@ from pydantic import ValidationError
 from profiles.atomic import atomic_output
 from profiles.errors import DataError, DetcalError, UsageError
 from profiles.profile import SCHEMA_VERSION, SUPPORTED_SCHEMAS, V2_FIELDS, DetectorProfile, semver_key
+from profiles.provenance import parameter_models
 
 BUILTIN = Path(__file__).resolve().parent / "builtin"
 
@@ -43,27 +43,17 @@ def _field_path(loc: tuple) -> str:
     return ".".join(str(p) for p in loc) or "(top level)"
 
 
-#: How the parameters recorded in ``provenance.parameters`` are validated, per detector kind: the
-#: detcal version whose records they describe, and factories of pydantic models refusing unknown
-#: keys -- one per way this detcal makes profiles of that kind (calibration, self-calibration, a
-#: simulator's truth). The calibrating package registers them (``calib`` does on import);
-#: ``profiles`` cannot import it.
-PARAMETER_MODELS: dict[str, tuple[str, list[Callable[[], type]]]] = {}
-
-
-def register_parameters(kind: str, detcal_version: str, *models: Callable[[], type]) -> None:
-    """Validate the recorded parameters of ``kind`` profiles made by ``detcal_version``: they must fit one of ``models``."""
-    PARAMETER_MODELS[kind] = (detcal_version, list(models))
-
-
 def _check_parameters(prof: DetectorProfile, where: str) -> None:
-    known = PARAMETER_MODELS.get(prof.detector.kind)
-    if known is None or known[0] != prof.provenance.detcal_version or not prof.provenance.parameters:
-        return  # none recorded (a profile written by hand), or by another detcal version: kept as recorded
+    """The recorded parameters must fit one of the models of the way this detcal makes such profiles
+    (:mod:`profiles.provenance`); a profile written by hand (none recorded) or by another detcal version is kept as
+    recorded."""
+    models = parameter_models(prof.detector.kind, prof.provenance.detcal_version)
+    if not models or not prof.provenance.parameters:
+        return
     closest = None
-    for factory in known[1]:
+    for model in models:
         try:
-            factory().model_validate(prof.provenance.parameters)
+            model.model_validate(prof.provenance.parameters)
             return
         except ValidationError as exc:
             if closest is None or exc.error_count() < closest.error_count():

@@ -37,54 +37,10 @@ reproducible from its text).
 from __future__ import annotations
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from detectors.logs import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, Vehicle, wrap_angle
 from profiles.errors import UsageError
-
-#: the 23 landmarks [m], world frame, 1-2 m beside the default circuit (each in range for 22-58 scans)
-LANDMARKS = [
-    [1.6, 1.1], [5.6, -1.8], [9.1, 1.1], [12.6, -1.5], [16.2, 1.7], [20.5, -1.2], [22.5, 2.9], [27.2, 4.7],
-    [24.6, 8.6], [27.1, 12.5], [22.5, 14.6], [20.6, 18.0], [16.3, 15.5], [12.6, 18.8], [9.1, 16.1], [5.7, 18.2],
-    [2.7, 14.0], [-1.4, 13.3], [0.0, 8.9], [-3.0, 5.7], [1.4, 3.0], [-1.8, 1.0], [8.0, -3.0],
-]  # fmt: skip
-
-#: the pre-planned path: from the origin heading east round the circuit, then along its first side again
-WAYPOINTS = [[24.0, 0.0], [24.0, 16.0], [0.0, 16.0], [0.0, 0.0], [14.0, 0.0]]
-
-
-class GlmbPaperConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    landmarks: list[tuple[float, float]] = Field(default_factory=lambda: [tuple(x) for x in LANDMARKS], min_length=1)
-    waypoints: list[tuple[float, float]] = Field(default_factory=lambda: [tuple(x) for x in WAYPOINTS], min_length=1)
-    speed: float = Field(default=1.0, gt=0.0, description="[m/s]")
-    dt: float = Field(default=0.025, gt=0.0, description="control period [s]")
-    observe_every: int = Field(default=8, ge=1, description="control steps per scan")
-    wheelbase: float = Field(default=4.0, gt=0.0, description="[m]")
-    max_steer: float = Field(default=float(np.radians(30.0)), gt=0.0, lt=np.pi / 2, description="[rad]")
-    steer_rate: float = Field(default=float(np.radians(20.0)), gt=0.0, description="[rad/s]")
-    switch: float = Field(default=6.0, gt=0.0, description="distance at which the next waypoint is taken [m]")
-    arrive: float = Field(default=1.0, gt=0.0, description="the run ends this close to the last waypoint [m]")
-    max_steps: int = Field(default=20000, ge=10, le=1_000_000, description="control steps at most")
-    sigma_v: float = Field(default=0.1, ge=0.0, description="control noise on the speed [m/s]")
-    sigma_steer: float = Field(default=float(np.radians(2.0)), ge=0.0, description="control noise on the steering angle [rad]")
-    range_min: float = Field(default=0.0, ge=0.0)
-    range_max: float = Field(default=3.0, gt=0.0)
-    pd: float = Field(default=0.7, gt=0.0, le=1.0)
-    clutter: float = Field(default=5.0, ge=0.0, le=10_000.0, description="false alarms per scan (Poisson mean)")
-    sigma_range: float = Field(default=0.3, gt=0.0, description="[m]")
-    sigma_bearing: float = Field(default=float(np.radians(2.0)), gt=0.0, description="[rad]")
-
-    @model_validator(mode="after")
-    def _ranges(self) -> GlmbPaperConfig:
-        if self.range_min >= self.range_max:
-            raise ValueError("range_min must be below range_max")
-        if len(self.waypoints) == 1 and float(np.hypot(*self.waypoints[0])) < self.arrive:
-            raise ValueError(
-                f"waypoints: the only waypoint is within arrive ({self.arrive} m) of the start (0, 0): the path would have no step"
-            )
-        return self
-
+from profiles.parameters import GlmbPaperConfig
 
 def sensor_model(cfg: GlmbPaperConfig) -> SensorModel:
     """The sensor as the filter sees it: its reports reach 4 range sigmas past the detection range (noise)."""

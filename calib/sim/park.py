@@ -28,10 +28,10 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy.spatial import cKDTree
 
-from calib.config import check_order
 from detectors.geometry import cast, compose, relative
 from detectors.logs import Landmarks, Mount, Odometry, ReferencePoses, ScanBatch, SensorLog, SensorModel, seconds_to_stamp
 from profiles.errors import DataError
+from profiles.parameters import check_order
 
 #: odometry ticks a simulated run may hold at most (about 14 hours at 200 Hz): a slower speed or a faster rate is refused
 MAX_TICKS = 10_000_000

@@ -33,11 +33,11 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from calib.config import check_order
 from detectors.geometry import compose
 from detectors.logs import Mount, Odometry, PlaneLandmarks, PointClouds, ReferencePoses, SensorLog, SensorModel, seconds_to_stamp, wrap_angle
 from detectors.raytrace3d import BeamGrid, Scene, cast, hdl64_elevations
 from profiles.errors import DataError
+from profiles.parameters import check_order
 from profiles.schema import LidarGeometry
 
 #: odometry ticks a simulated run may hold at most (as calib.sim.park's)

@@ -28,7 +28,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from calib import __version__
+from profiles.version import __version__
 from calib.config import load_yaml_model
 from detectors.logs import SensorLog
 from profiles.atomic import Output, atomic_outputs, check_replaceable

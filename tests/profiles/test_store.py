@@ -265,3 +265,26 @@ def test_table_lookups_refuse_the_wrong_covariates():
         p.pd.lookup(np.array([1.0]))
     with pytest.raises(ValueError, match="a n_p table cannot be looked up by range and bearing"):
         make_profile().pd.lookup_rb(np.array([1.0]), np.array([0.0]))
+
+
+def test_recorded_parameters_are_checked_the_same_without_calib(tmp_path):
+    """A program that imports only ``profiles`` (a robot running slam_runtime) refuses a misspelt key of the
+    recorded calibration parameters as ``detcal profile validate`` does, and never imports calib for it."""
+    d = make_profile().model_dump(mode="json")
+    d["provenance"]["parameters"] = {"pd": {"min_cont": 3}}  # CalibrateConfig's pd has min_count
+    f = tmp_path / "p.yaml"
+    f.write_text(yaml.safe_dump(d))
+    code = textwrap.dedent(
+        f"""
+        import sys
+        from profiles.errors import DataError
+        from profiles.store import load_profile_file
+        try:
+            load_profile_file({str(f)!r})
+        except DataError as exc:
+            print(exc)
+        print(sorted(m for m in sys.modules if m.split(".")[0] in ("calib", "detcal", "slam_runtime")))
+        """
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert res.stdout.splitlines() == [f"{f}: provenance.parameters.pd.min_cont: unknown key", "[]"]
