@@ -2,7 +2,7 @@
 
 A profile is calibrated on its own street (seed 100, every second frame); then each of ``--streets`` streets
 (seeds 1..N, about 345 frames each, HDL-64E-like) runs through every map filter asked for (``--filter``, any of
-``slam_runtime.config.FILTER_KINDS``) with the ECT model, the profile's P_D (``profile``) and a constant P_D of
+``slam_runtime.mapfilter.MAP_FILTERS``) with the ECT model, the profile's P_D (``profile``) and a constant P_D of
 0.9 inside the range (``constant``), for ``--seeds`` filter seeds. Printed per setting (mean +- standard
 deviation over runs): the trajectory RMSE against the truth beside dead reckoning's, the map OSPA (c = 1 m,
 p = 1) on the plane embedding (L n, d) with L = 10 m against the planes seen with >= 200 returns, the matched
@@ -30,7 +30,8 @@ import numpy as np
 import slam_runtime.run as run_mod
 from calib.planes import PlaneCalibConfig, calibrate_planes
 from calib.sim.street import StreetConfig, simulate_street
-from slam_runtime.config import FILTER_KINDS, SlamConfig, with_filter, with_settings
+from slam_runtime.config import SlamConfig, with_filter, with_settings
+from slam_runtime.mapfilter import MAP_FILTERS
 from slam_runtime.run import evaluate, run_slam
 from slam_runtime.sources import CloudPlanes
 
@@ -79,8 +80,8 @@ def main() -> None:
     sets = dict(parse_set(x) for x in args.set)
     filters = args.filters or ["rbphd"]
     for f in filters:
-        if f not in FILTER_KINDS:
-            raise SystemExit(f"--filter: {f!r} is not one of {FILTER_KINDS}")
+        if f not in MAP_FILTERS:
+            raise SystemExit(f"--filter: {f!r} is not one of {MAP_FILTERS.names()}")
     print(f"load average: {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
     t0 = time.perf_counter()
     cal_log = simulate_street(StreetConfig(), 100).log

@@ -45,6 +45,10 @@ class Registry(Generic[T]):
             self._loaded = True  # (set first: a built-in module may ask the registry while it is imported)
             for module in self._builtins:
                 importlib.import_module(module)
+            # the built-ins in the order of their modules (one may import another first), then the others as added
+            rank = {m: i for i, m in enumerate(self._builtins)}
+            order = sorted(self._items, key=lambda n: rank.get(getattr(self._items[n], "__module__", None), len(rank)))
+            self._items = {n: self._items[n] for n in order}
 
     def add(self, name: str, obj: T, *, replace: bool = False) -> T:
         """Add ``obj`` under ``name``; a name already taken is refused unless ``replace``."""

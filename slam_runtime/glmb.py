@@ -120,7 +120,7 @@ from profiles.errors import UsageError
 from slam_runtime.features import FeatureModel, lookup, mean_by_label
 from slam_runtime.gibbs import detection_costs, joint_update, reduce_hypotheses
 from slam_runtime.gm import det, inv, matmul, matvec, moment_match, quad, transpose
-from slam_runtime.mapfilter import MapFilter, Measurements
+from slam_runtime.mapfilter import MAP_FILTERS, MapFilter, Measurements
 from slam_runtime.pd_factor import LabelFactors, beta_update, mean_factor, prior_ab, store_key
 
 #: bits of a label that hold the measurement index: label = (step << LABEL_BITS) + measurement
@@ -383,6 +383,11 @@ class _Costs:
 
 class LabelledFilter(MapFilter):
     """What the LMB and delta-GLMB map filters share: slots, costs, the sampler call, EKF updates, births."""
+
+    labelled = True
+    proposes_poses = True
+    # without the occlusion test the labelled filters no longer keep the tracks of static clutter (docs/results.md)
+    occlusion_default = float("inf")
 
     def __init__(self, feature: FeatureModel, detection, cfg: LabelledSettings, rng: np.random.Generator | None = None) -> None:
         super().__init__(feature, detection)
@@ -692,6 +697,7 @@ class GLMB(LabelledFilter):
     """delta-GLMB map per particle (module docstring)."""
 
     name = "delta-GLMB"
+    Config = GLMBConfig
 
     def __init__(self, feature: FeatureModel, detection, cfg: GLMBConfig, rng: np.random.Generator | None = None) -> None:
         super().__init__(feature, detection, cfg, rng)
@@ -893,3 +899,6 @@ class GLMB(LabelledFilter):
         lw = maps.logw[i]
         live = np.isfinite(lw)
         return np.bincount(maps.member[i].sum(axis=1)[live], weights=np.exp(lw[live]))
+
+
+MAP_FILTERS.add("glmb", GLMB)

@@ -46,7 +46,7 @@ class LabelHistory:
 
     def __call__(self, k: int, slam) -> float:
         mf = slam.mf
-        if not hasattr(mf, "labels"):
+        if not mf.labelled:
             return float("nan")
         lab, x, r = mf.labels(slam.maps, slam.best())
         seen = set()
@@ -93,7 +93,7 @@ class HypothesisCount:
 
     def __call__(self, k: int, slam) -> float:
         mf = slam.mf
-        if not hasattr(mf, "hypotheses"):
+        if not mf.labelled:
             return float("nan")
         return float(np.mean(mf.hypotheses(slam.maps)))
 

@@ -51,7 +51,7 @@ from slam_runtime.features import FeatureModel, lookup
 from slam_runtime.gibbs import reduce_hypotheses
 from slam_runtime.glmb import Births, GLMBConfig, JointResult, LabelledFilter, LabelledSettings, Tracks
 from slam_runtime.gm import moment_match
-from slam_runtime.mapfilter import Measurements
+from slam_runtime.mapfilter import MAP_FILTERS, Measurements
 from slam_runtime.pd_factor import beta_update, mean_factor, prior_ab, store_key
 
 #: merge_alternatives: the squared Mahalanobis distance within which two labels' updated densities are alternatives
@@ -99,6 +99,7 @@ class LMB(LabelledFilter):
     """LMB map per particle (module docstring)."""
 
     name = "LMB"
+    Config = LMBConfig
 
     def __init__(self, feature: FeatureModel, detection, cfg: LMBConfig, rng: np.random.Generator | None = None) -> None:
         super().__init__(feature, detection, cfg, rng)
@@ -257,3 +258,6 @@ class LMB(LabelledFilter):
     def estimate(self, maps: LMBMaps, i: int) -> tuple[np.ndarray, np.ndarray]:
         _, x, r = self.labels(maps, i)
         return x, r
+
+
+MAP_FILTERS.add("lmb", LMB)

@@ -35,7 +35,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from slam_runtime.features import FeatureModel
 from slam_runtime.gm import GMBatch, det, gaussian, inv, matmul, matvec, prune_merge, quad, transpose
-from slam_runtime.mapfilter import MapFilter, Measurements
+from slam_runtime.mapfilter import MAP_FILTERS, MapFilter, Measurements
 
 
 class RBPHDConfig(BaseModel):
@@ -107,6 +107,8 @@ class _Innovations:
 
 class RBPHD(MapFilter):
     name = "RB-PHD"
+    Config = RBPHDConfig
+    proposes_poses = True
 
     def __init__(self, feature: FeatureModel, detection, cfg: RBPHDConfig) -> None:
         super().__init__(feature, detection)
@@ -286,3 +288,6 @@ class RBPHD(MapFilter):
             lam = (pd_m[..., None] * g).sum(axis=1)  # (P, M)
             lik += np.log1p(lam / np.maximum(kappa[None, :], 1e-300)).sum(axis=1)
         return base + ratio + lik
+
+
+MAP_FILTERS.add("rbphd", RBPHD)

@@ -116,7 +116,7 @@ def build(log: SensorLog, profile, cfg: SlamConfig) -> Built:
     check_features(profile, cfg)
     planar = cfg.features == "planes"
     det = detection_model(profile, cfg.detection, None, filter_kind=cfg.filter.kind)
-    feat = feature_model(det, cfg.measurement, mount, cfg.metric)
+    feat = feature_model(cfg.features, det, cfg.measurement, mount, cfg.metric)
     mf = map_filter(cfg, feat, det)
     veh = vehicle_model(log.odometry.kind, cfg.motion, log.vehicle, cfg.features)
     if planar:

@@ -22,6 +22,7 @@ from pydantic import ValidationError
 from rich.console import Console
 from rich.table import Table
 
+from calib.io.registry import READERS, ReadOptions
 from profiles.errors import DataError, UsageError
 
 out = Console(highlight=False, markup=False)  # file names may hold brackets
@@ -33,7 +34,7 @@ READER_OPTIONS: dict[str, tuple[type, object, typer.models.OptionInfo]] = {
     "fmt": (
         str | None,
         None,
-        typer.Option("--format", "-f", help="Input format: native, carmen, rosbag, victoria, utias, kitti (default: from the path)."),
+        typer.Option("--format", "-f", help=f"Input format: {', '.join(READERS.names())} (default: from the path)."),
     ),
     "max_backstep": (float, 1.0, typer.Option(help="Tolerated step back in time within a stream [s]; such records are re-sorted. 0 = strict.")),
     "laser": (str, "front", typer.Option(help="CARMEN: which laser, front or rear.")),
@@ -85,8 +86,6 @@ class ReaderArgs:
     """The reader options of one command: ``fmt`` and the :class:`ReadOptions` (validated once, errors name the option)."""
 
     def __init__(self, fmt: str | None = None, **opts) -> None:
-        from calib.io.registry import ReadOptions
-
         self.fmt = fmt
         try:
             self.options = ReadOptions(**opts)
@@ -119,7 +118,7 @@ class ReaderArgs:
         loaded, used = [], []
         for p in paths:
             kind = self.fmt or detect_format(p)
-            for r in list(dict.fromkeys(robots or [self.options.robot])) if kind == "utias" else [None]:
+            for r in list(dict.fromkeys(robots or [self.options.robot])) if getattr(READERS.get(kind, None), "robots", False) else [None]:
                 loaded.append(self.read(p, r))
                 used.append(p)
         return loaded, used

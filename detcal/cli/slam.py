@@ -100,10 +100,11 @@ def slam_config(
 ):
     """The settings file (or the defaults) with the command-line overrides, validated."""
     from calib.config import load_yaml_model
-    from slam_runtime.config import FILTER_KINDS, SlamConfig, override, with_filter
+    from slam_runtime.config import SlamConfig, override, with_filter
+    from slam_runtime.mapfilter import MAP_FILTERS
 
-    if filter_ is not None and filter_ not in FILTER_KINDS:
-        raise UsageError(f"--filter: expected one of {', '.join(FILTER_KINDS)}, got {filter_!r}")
+    if filter_ is not None and filter_ not in MAP_FILTERS:
+        raise UsageError(f"--filter: expected one of {', '.join(MAP_FILTERS.names())}, got {filter_!r}")
     positive("--particles", particles)
     if pd_mode is not None and pd_mode not in PD_MODES:
         raise UsageError(f"--pd-mode: expected one of {', '.join(PD_MODES)}, got {pd_mode!r}")
@@ -280,7 +281,8 @@ def slam_sweep_cmd(
     from detcal.engine import InProcess, LogSource, check_options, open_engine
     from calib.progress import progress
     from profiles.store import resolve
-    from slam_runtime.config import FILTER_KINDS, override, with_filter, with_settings
+    from slam_runtime.config import override, with_filter, with_settings
+    from slam_runtime.mapfilter import MAP_FILTERS
     from slam_runtime.run import check_features, check_inputs, check_poses
     from detcal.pipelines.sweep import SETTING, SweepJob, check_run_names, make_plan, open_sweep, run_sweep, summarise
 
@@ -291,8 +293,8 @@ def slam_sweep_cmd(
     base = slam_config(config, None, particles[0] if particles else None, None, poses=poses)
     kinds = list(dict.fromkeys(filters or [base.filter.kind]))
     for f in kinds:
-        if f not in FILTER_KINDS:
-            raise UsageError(f"--filter: expected one of {', '.join(FILTER_KINDS)}, got {f!r}")
+        if f not in MAP_FILTERS:
+            raise UsageError(f"--filter: expected one of {', '.join(MAP_FILTERS.names())}, got {f!r}")
     counts = list(dict.fromkeys(particles or [base.particles]))
     if min(counts) < 1:
         raise UsageError(f"--particles: expected positive integers, got {counts}")

@@ -16,6 +16,7 @@ from detcal.reports.slam_run import write_slam_run
 from detectors.logs import SensorLog
 from slam_runtime.config import SlamConfig
 from slam_runtime.labels import labelled_hooks
+from slam_runtime.mapfilter import MAP_FILTERS
 from slam_runtime.run import MapOSPA, SlamResult, evaluate, run_slam
 
 
@@ -33,7 +34,7 @@ def evaluation_hooks(log: SensorLog, cfg: SlamConfig) -> tuple:
 
 def run_and_evaluate(log: SensorLog, profile, cfg: SlamConfig, seed: int, *, frames: int | None = None, progress=None):
     """(result with its metrics, the label history of a labelled filter or None): the run and its evaluation."""
-    labelled = labelled_hooks() if cfg.filter.kind != "rbphd" else ()
+    labelled = labelled_hooks() if MAP_FILTERS.get(cfg.filter.kind).labelled else ()
     res = run_slam(log, profile, cfg, seed, progress=progress, max_frames=frames, hooks=evaluation_hooks(log, cfg) + labelled)
     res.metrics = evaluate(log, res, cfg.metric.ospa_c, cfg.metric.ospa_p, cfg)
     return res, (labelled[0] if labelled else None)

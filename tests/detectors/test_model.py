@@ -195,7 +195,7 @@ def test_an_infinite_occlusion_tolerance_turns_the_test_off():
 
 def test_the_occlusion_tolerance_defaults_per_filter(small_sim):
     """With no detection.occlusion_sigmas, RB-PHD takes the profile's tolerance and the labelled filters none
-    (config.OCCLUSION_DEFAULT); 'profile' and a number are taken as given by every filter. Checked on the model the
+    (MapFilter.occlusion_default); 'profile' and a number are taken as given by every filter. Checked on the model the
     run's factory (slam_runtime.run.build) gives each filter for a park log."""
     import pydantic
     import yaml
