@@ -27,13 +27,13 @@ from pathlib import Path
 
 import numpy as np
 
-import slam_runtime.run as run_mod
 from calib.planes import PlaneCalibConfig, calibrate_planes
 from calib.sim.street import StreetConfig, simulate_street
 from slam_runtime.config import SlamConfig, with_filter, with_settings
 from slam_runtime.mapfilter import MAP_FILTERS
 from slam_runtime.run import evaluate, run_slam
-from slam_runtime.sources import CloudPlanes
+from detectors.kinds import DETECTORS
+from detectors.plane import CloudPlanes, PlaneDetector
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.common import parse_set
@@ -68,6 +68,13 @@ class Cached:
         return d[frame.rows]
 
 
+class CachedPlanes(PlaneDetector):
+    """The plane detector kind with its measurement source cached (:class:`Cached`)."""
+
+    def source(self, log, profile, detection, options):
+        return Cached(log, profile, detection)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--streets", type=int, default=3)
@@ -88,7 +95,7 @@ def main() -> None:
     prof = calibrate_planes([cal_log], PlaneCalibConfig(every=2), name="street-bench", version="1.0.0").profile
     print(f"profile calibrated on street 100 ({len(cal_log.clouds)} frames, every second) in {time.perf_counter() - t0:.0f} s: "
           f"P_D {dict(zip(prof.pd.edges[:-1], np.round(prof.pd.pd, 2), strict=True))}, clutter {prof.clutter.rate:.2f} per frame")
-    run_mod.CloudPlanes = Cached  # one detection pass per street, shared by the runs
+    DETECTORS.add("plane3d", CachedPlanes(), replace=True)  # one detection pass per street, shared by the runs
     results: dict = {}
     for s in range(1, args.streets + 1):
         log = simulate_street(StreetConfig(frames=args.frames), s).log

@@ -49,7 +49,7 @@ from detectors.logs import SensorLog
 from profiles.errors import DataError, UsageError
 from profiles.parameters import DetectionCalibConfig, IdentityAudit
 from profiles.profile import DetectorProfile, DetectorSpec, Provenance, SensorSpread
-from profiles.schema import MeasurementNoise, SensorModel
+from profiles.schema import PD_COVARIATES, MeasurementNoise, SensorModel
 
 
 def frame_period(logs: list[SensorLog]) -> float:
@@ -365,7 +365,7 @@ def calibrate_detections(
         "false_detections": int(counts.sum()),
         "landmark_epoch_pairs": len(pairs),
         "pd_overall": float(pairs["detected"].mean()),
-        "pd_model": table.model if table.covariate == "range_bearing" else "range",
+        "pd_model": table.model if table.two_d else "range",
         "pd_model_loglik": {c: round(v, 6) for c, v in zip(sel.candidates, sel.loglik, strict=True)} if sel else "no choice (one fold)",
         "clutter_rate_per_epoch": clut.rate,
         "clutter_count_model": clut.count_model,
@@ -430,8 +430,8 @@ def validate_detections(profile: DetectorProfile, logs: list[SensorLog], *, audi
     The identity audit runs on the held-out logs themselves (it corrects the
     truth, not the detector); its findings are in the summary.
     """
-    if profile.pd.covariate == "n_p":
-        raise UsageError(f"profile {profile.ref} has an n_p P_D table; a detection-level log needs a range or range_bearing table")
+    if PD_COVARIATES.get(profile.pd.covariate).from_measurement is None:
+        raise UsageError(f"profile {profile.ref} has an {profile.pd.covariate} P_D table; a detection-level log needs a range or range_bearing table")
     if profile.sensor.fov is None or profile.sensor.range_max is None:
         raise DataError(f"profile {profile.ref}: the sensor has no fov or range_max")
     for lg in logs:

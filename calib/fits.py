@@ -23,7 +23,7 @@ from calib.clutter import dispersion_test, fit_negative_binomial, nb_pmf_sf, pea
 from detectors.circle import mahalanobis2 as maha2
 from profiles.errors import DataError
 from profiles.parameters import PdFitConfig
-from profiles.schema import ClutterDensity, ClutterParams, CountTest, PdTable
+from profiles.schema import PD_COVARIATES, ClutterDensity, ClutterParams, CountTest, PdTable
 
 Z95 = 1.959963984540054
 
@@ -55,7 +55,7 @@ def fit_pd_table(values: np.ndarray, detected: np.ndarray, covariate: str, cfg: 
     detected = np.asarray(detected, dtype=bool)
     if values.size == 0:
         raise DataError("no (landmark, scan) pairs to fit P_D to: are the landmarks ever in view?")
-    if covariate == "n_p":
+    if PD_COVARIATES.get(covariate).integer:  # one bin per count
         edges = np.arange(0, int(values.max()) + 2, dtype=np.float64)
     else:
         edges = np.arange(0.0, values.max() + cfg.range_bin, cfg.range_bin)
@@ -80,7 +80,7 @@ def fit_pd_table(values: np.ndarray, detected: np.ndarray, covariate: str, cfg: 
     lo, hi = wilson(k / runs, n / runs)  # one run's sample size, centred on the pooled rate
     n_run = np.where(n > 0, np.maximum(np.rint(n / runs), 1), 0).astype(np.int64)
     k_run = np.minimum(np.rint(k / runs), n_run).astype(np.int64)
-    unit = "n_p" if covariate == "n_p" else "range"
+    unit = covariate if PD_COVARIATES.get(covariate).integer else "range"
     pooled = f"{runs} runs of the same detections pooled, counts per run; " if runs > 1 else ""
     return PdTable(
         covariate=covariate,

@@ -47,6 +47,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError
 
 from detectors.geometry3d import chart_from_normal, min_area_rectangle, plane_basis
+from detectors.kinds import Detector, Measurements, register
 from profiles.errors import DataError
 from profiles.planes import PlaneDetectorParams
 
@@ -475,3 +476,43 @@ def _outlines(p, plab, normal, d, cen, m):
         rects[i] = base + rc[:, :1] * u[i] + rc[:, 1:] * v[i]
     offs = np.concatenate([[0], np.cumsum([q.shape[0] for q in polys])]).astype(np.int64)
     return (np.vstack(polys) if polys else np.zeros((0, 3))), offs, areas, rects
+
+
+# ---------------------------------------------------------------------------- the kind at run time
+
+
+class CloudPlanes:
+    """The profile's plane detector on every cloud; the landmark planes (steep enough, enough inliers) as
+    sensor-frame charts (azimuth, elevation, offset) with their fit covariances, and the cloud for P_D."""
+
+    def __init__(self, log, profile, detection) -> None:
+        self.log = log
+        self.params = profile.detector.plane
+        self.detection = detection
+        self.min_points = profile.planes.min_points
+        self.min_width = profile.planes.min_width
+
+    def __call__(self, frame) -> Measurements:
+        cloud = self.log.clouds.frame(frame.rows)
+        det = detect_planes(cloud, self.params, where=f"{self.log.name}: cloud {frame.rows}")
+        use = self.detection.in_view(det.chart) & (det.inliers >= self.min_points) & (det.width >= self.min_width)
+        return Measurements(det.chart[use], det.cov[use], cloud=cloud)
+
+
+class PlaneDetector(Detector):
+    """``plane3d``: detcal's plane detector, run on every 3D lidar cloud of the log."""
+
+    stream = "clouds"
+    needs = "detects planes in point clouds"
+    features = "planes"
+
+    def detection_model(self, profile, sensor, options, k_sigma):
+        from detectors.plane_model import PlaneDetectionModel
+
+        return PlaneDetectionModel.from_options(profile, sensor, options, k_sigma)
+
+    def source(self, log, profile, detection, options):
+        return CloudPlanes(log, profile, detection)
+
+
+register("plane3d", PlaneDetector())

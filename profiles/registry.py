@@ -113,3 +113,19 @@ class Registry(Generic[T]):
         """The names as a sentence: ``rbphd, lmb or glmb``."""
         n = self.names()
         return n[0] if len(n) == 1 else f"{', '.join(n[:-1])} {last} {n[-1]}"
+
+
+def literal_field(model, name: str, choices: tuple[str, ...], *holders) -> None:
+    """Make ``model.name`` one of ``choices`` (a Literal; its default and description kept) and rebuild ``model`` and
+    the models that hold it (``holders``, innermost first): how a pydantic field follows a registry."""
+    from typing import Literal
+
+    from pydantic import Field
+    from pydantic.fields import FieldInfo
+
+    old = model.__pydantic_fields__[name]
+    model.__pydantic_fields__[name] = FieldInfo.from_annotated_attribute(
+        Literal[choices], Field(default=old.default, description=old.description)  # type: ignore[valid-type]
+    )
+    for m in (model, *holders):
+        m.model_rebuild(force=True)

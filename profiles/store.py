@@ -25,7 +25,7 @@ from pydantic import ValidationError
 
 from profiles.atomic import atomic_output
 from profiles.errors import DataError, DetcalError, UsageError
-from profiles.profile import SCHEMA_VERSION, SUPPORTED_SCHEMAS, V2_FIELDS, DetectorProfile, semver_key
+from profiles.profile import DETECTOR_KINDS, SCHEMA_VERSION, SUPPORTED_SCHEMAS, V2_FIELDS, DetectorProfile, semver_key
 from profiles.provenance import parameter_models
 
 BUILTIN = Path(__file__).resolve().parent / "builtin"
@@ -143,8 +143,9 @@ def dump_profile(profile: DetectorProfile, fmt: str = "yaml") -> str:
     det = data.get("detector", {})
     if det.get("plane", 0) is None:
         det.pop("plane")
-    if det.get("kind") == "plane3d" and det.get("circle", 0) is None:
-        det.pop("circle")
+    kind = DETECTOR_KINDS.get(det.get("kind"), None)
+    if det.get("circle", 0) is None and kind is not None and kind.schema >= 2:
+        det.pop("circle")  # kinds that came with schema 2 never wrote the circle: null schema-1 documents carry
     if fmt == "json":
         return json.dumps(data, indent=2) + "\n"
     if fmt != "yaml":

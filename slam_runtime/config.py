@@ -25,6 +25,7 @@ from pydantic import AllowInfNan, BaseModel, ConfigDict, Field, ValidationError,
 from pydantic.fields import FieldInfo
 from pydantic_core import PydanticCustomError
 
+from detectors.kinds import DETECTORS
 from profiles.errors import DataError, UsageError
 from slam_runtime.features import FEATURE_MODELS
 from slam_runtime.mapfilter import MAP_FILTERS
@@ -293,29 +294,11 @@ def occlusion_sigmas(opts: DetectionOptions, filter_kind: str) -> float | None:
 
 
 def detection_model(profile, opts: DetectionOptions, sensor=None, *, filter_kind: str | None = None):
-    """The profile's runtime detection model with the filter's options (``filter_kind`` chooses the occlusion tolerance
-    when the options give none: ``MapFilter.occlusion_default``; default: the first registered filter's)."""
-    filter_kind = filter_kind or MAP_FILTERS.names()[0]
-    from detectors.model import DetectionModel
-
-    if profile.detector.kind == "plane3d":
-        from detectors.plane_model import PlaneDetectionModel
-
-        return PlaneDetectionModel.from_profile(
-            profile, constant_pd=opts.constant_pd if opts.pd_mode == "constant" else None, buffer=opts.buffer_zone, buffer_sigmas=opts.buffer_sigmas
-        )
-
-    return DetectionModel.from_profile(
-        profile,
-        sensor,
-        constant_pd=opts.constant_pd if opts.pd_mode == "constant" else None,
-        buffer=opts.buffer_zone,
-        buffer_sigmas=opts.buffer_sigmas,
-        landmark_radius=opts.landmark_radius,
-        phase_average=opts.phase_average,
-        **({} if opts.occlusion else {"occluder_radius": None}),
-        **({} if (k := occlusion_sigmas(opts, filter_kind)) is None else {"k_sigma": k}),
-    )
+    """The profile's runtime detection model (its detector kind's, :data:`detectors.kinds.DETECTORS`) with the
+    filter's options; ``filter_kind`` chooses the occlusion tolerance when the options give none
+    (``MapFilter.occlusion_default``; default: the first registered filter's)."""
+    k = occlusion_sigmas(opts, filter_kind or MAP_FILTERS.names()[0])
+    return DETECTORS.get(profile.detector.kind).detection_model(profile, sensor, opts, k)
 
 
 def feature_model(features: str, detection, noise: MeasurementNoiseConfig, mount: np.ndarray, metric: MetricConfig | None = None):

@@ -31,36 +31,14 @@ import time
 from abc import ABC, abstractmethod
 from collections import defaultdict
 from contextlib import contextmanager
-from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 
+from detectors.kinds import Measurements
 from profiles.registry import Registry
 from slam_runtime.features import FeatureModel
 from slam_runtime.proposal import pose_proposal
-
-
-@dataclass
-class Measurements:
-    """One frame's measurements, sensor frame.
-
-    z (M, dz); cov (M, dz, dz) each measurement's own covariance (e.g. a circle
-    fit's), added to the filter's noise floor, or None; ratio (M,) the
-    descriptor likelihood ratio g_x(d) / g_FA(d) of eq. 5.6, or None; scan (B,)
-    and angles (B,) the laser scan the measurements came from (ray-traced P_D),
-    or None; cloud (N, 4) the point cloud they came from (3D features), or None.
-    """
-
-    z: np.ndarray
-    cov: np.ndarray | None = None
-    ratio: np.ndarray | None = None
-    scan: np.ndarray | None = None
-    angles: np.ndarray | None = None
-    cloud: np.ndarray | None = None
-
-    def __len__(self) -> int:
-        return int(self.z.shape[0])
 
 
 class MapState(Protocol):

@@ -41,7 +41,7 @@ from detectors.plane import PlaneDetections, detect_planes  # noqa: E402
 from detectors.raytrace import pd_grid  # noqa: E402
 from profiles.errors import DataError, UsageError  # noqa: E402
 from profiles.planes import PlaneDetectorParams  # noqa: E402
-from profiles.schema import HotellingParams, PdTable  # noqa: E402
+from profiles.schema import PD_COVARIATES, HotellingParams, PdTable  # noqa: E402
 from profiles.store import resolve  # noqa: E402
 
 FIELD_RADIUS = 0.1  # hypothetical landmark radius of the P_D field, as in thesis fig. 6.1
@@ -108,7 +108,7 @@ def detect_config(profile_ref: str | None, config: Path | None) -> tuple[DetectC
         raise UsageError(f"profile {prof.ref} is a {prof.kind} profile, not one of the circle detector")
     hot = None if prof.hotelling is None else HotellingParams.model_validate(prof.hotelling.model_dump(include=set(HotellingParams.model_fields)))
     cfg = DetectConfig(detector=prof.detector.circle, hotelling=hot, k_sigma=prof.detector.k_sigma)
-    return cfg, prof.pd if prof.pd.covariate == "n_p" else None
+    return cfg, prof.pd if PD_COVARIATES.get(prof.pd.covariate).ray_traced else None
 
 
 def write_detect_run(
