@@ -74,14 +74,14 @@ def sweep_bench(work: Path, seeds: int, rounds: int) -> None:
     from calib.io.registry import ReadOptions, read_log
     from calib.config import load_yaml_model
     from calib.sim.park import ParkConfig
-    from detcal.reports.simulation import simulate_to
+    from detcal.reports.simulation import write_simulation_run
     from profiles.store import resolve
     from slam_runtime.config import SlamConfig, override
     from detcal.pipelines.sweep import SweepJob, make_plan, run_sweep
 
     log_path = work / "sweep_park/log.dlog"
     if not log_path.is_file():
-        simulate_to(log_path.parent, 71, load_yaml_model(ParkConfig, ROOT / "benchmarks/configs/small_park.yaml"))
+        write_simulation_run("park", load_yaml_model(ParkConfig, ROOT / "benchmarks/configs/small_park.yaml"), 71, log_path.parent)
     log = read_log(log_path)
     prof = resolve("sim-park-laser")
     src = LogSource.of(log, log_path, None, ReadOptions())

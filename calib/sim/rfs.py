@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from calib.sim import SIMULATORS, Option, Simulated, Simulator
 from detectors.geometry import compose
 from detectors.logs import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, wrap_angle
 from profiles.parameters import RfsSimConfig
@@ -148,3 +149,16 @@ def summary(log: SensorLog, cfg: RfsSimConfig) -> dict:
     }
 
 
+def _run(cfg: RfsSimConfig, seed: int, progress=None) -> Simulated:
+    from profiles.store import dump_profile
+
+    log = simulate_rfs(cfg, seed)
+    return Simulated(log, {"seed": seed, **summary(log, cfg)}, {"profile.yaml": dump_profile(truth_profile(cfg))}, log)
+
+
+SIMULATORS.add("rfs-sim", Simulator(
+    RfsSimConfig, "rfs_sim",
+    "The C++ RFS-SLAM library's 2D RB-PHD-SLAM scenario: 50 landmarks along a piecewise constant-velocity path, range-bearing "
+    "sensor 0.5-2.5 m, P_D 0.99; writes the log and the profile of its true statistics.",
+    "rfs-sim scenario", _run, Option("steps", int, "Time steps of 0.1 s (default: the config's, 1,000)."),
+))  # fmt: skip

@@ -33,6 +33,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from calib.sim import SIMULATORS, Option, Simulated, Simulator
 from detectors.geometry import compose
 from detectors.logs import Mount, Odometry, PlaneLandmarks, PointClouds, ReferencePoses, SensorLog, SensorModel, seconds_to_stamp, wrap_angle
 from detectors.raytrace3d import BeamGrid, Scene, cast, hdl64_elevations
@@ -555,3 +556,21 @@ def street_summary(sim: StreetSimulation) -> dict:
     }
 
 
+def _run(cfg: StreetConfig, seed: int, progress=None) -> Simulated:
+    import io
+
+    from calib.config import dump_yaml
+
+    sim = simulate_street(cfg, seed, progress=progress)
+    buf = io.BytesIO()
+    np.lib.format.write_array(buf, sim.labels, allow_pickle=False)
+    files = {"world.yaml": dump_yaml(sim.world.to_dict()), "labels.npy": buf.getvalue()}
+    return Simulated(sim.log, street_summary(sim), files, sim)
+
+
+SIMULATORS.add("street", Simulator(
+    StreetConfig, "street",
+    "Simulate a 3D street (buildings, walls, boards, poles, cars, trees, bushes) swept by an HDL-64E-like lidar on a vehicle "
+    "on an Extended Constant Turn path; writes the log with plane truth and the world.",
+    "simulated street", _run, Option("frames", int, "Only the first N lidar frames (default: the whole route, about 340)."),
+))  # fmt: skip

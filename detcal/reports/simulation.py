@@ -20,42 +20,34 @@ from calib.config import dump_yaml
 from calib.io.atomic import atomic_output
 from calib.io.native import write_native
 from calib.progress import progress
-from calib.sim.park import ParkConfig, Simulation, World, sensor_poses, simulate_park
-from calib.sim.street import StreetConfig, StreetSimulation, simulate_street, street_summary
+from calib.sim import SIMULATORS
+from calib.sim.park import Simulation, World, sensor_poses
+from calib.sim.street import StreetSimulation
 from detectors.geometry import compose
 from detectors.logs import SensorLog
 from profiles.errors import DataError
 
 
-def log_summary(sim: Simulation) -> dict:
-    log = sim.log
-    r = log.scans.ranges
-    return {
-        "seed": sim.seed,
-        "scans": len(log.scans),
-        "beams": log.scans.n_beams,
-        "odometry_rows": len(log.odometry),
-        "duration_s": float((log.scans.stamp[-1] - log.scans.stamp[0]) / 1e9),
-        "path_length_m": float(np.sum(np.hypot(*np.diff(log.reference["ground_truth"].poses[:, :2], axis=0).T))),
-        "returning_beam_share": float(np.isfinite(r).mean()),
-        "trees": int(sim.world.tree_r.size),
-        "posts": int(sim.world.post_r.size),
-        "bushes": int(sim.world.bush_offsets.size - 1),
-        "wall_segments": int(sim.world.wall_p0.shape[0]),
-    }
-
-
-def write_simulation(sim: Simulation, out: Path, *, overwrite: bool = False, figure: bool = True) -> dict:
-    summary = log_summary(sim)
+def write_simulation_run(name: str, cfg, seed: int, out: Path, *, overwrite: bool = False, figure: bool = True) -> dict:
+    """Run the simulator ``name`` (:data:`calib.sim.SIMULATORS`) with its config and seed and write its run folder:
+    log.dlog, the simulator's own files, config.yaml (the seed and the config actually used), summary.yaml and,
+    when the simulator has one, overview.png. Returns the summary."""
+    sim = SIMULATORS.get(name)
+    run = sim.run(cfg, seed, progress=progress)
     with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
         tmp.mkdir()
-        write_native(sim.log, tmp / "log.dlog")
-        (tmp / "world.yaml").write_text(dump_yaml(sim.world.to_dict()))
-        (tmp / "config.yaml").write_text(dump_yaml({"seed": sim.seed, "park": sim.config.model_dump(mode="json")}))
-        (tmp / "summary.yaml").write_text(dump_yaml(summary))
-        if figure:
-            plot_overview(sim, tmp / "overview.png")
-    return summary
+        write_native(run.log, tmp / "log.dlog")
+        for rel, data in run.files.items():
+            if isinstance(data, bytes):
+                (tmp / rel).write_bytes(data)
+            else:
+                (tmp / rel).write_text(data)
+        (tmp / "config.yaml").write_text(dump_yaml({"seed": seed, sim.key: cfg.model_dump(mode="json")}))
+        (tmp / "summary.yaml").write_text(dump_yaml(run.summary))
+        draw = FIGURES.get(name)
+        if figure and draw is not None:
+            draw(run.result, tmp / "overview.png")
+    return run.summary
 
 
 def load_world(path: Path) -> World:
@@ -65,7 +57,7 @@ def load_world(path: Path) -> World:
         raise DataError(f"{path}: cannot read the world ({exc})") from None
 
 
-def plot_overview(sim: Simulation, path: Path) -> None:
+def plot_park_overview(sim: Simulation, path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -102,68 +94,7 @@ def plot_overview(sim: Simulation, path: Path) -> None:
     plt.close(fig)
 
 
-def simulate_to(out: Path, seed: int, cfg: ParkConfig | None = None, *, overwrite: bool = False) -> dict:
-    sim = simulate_park(cfg or ParkConfig(), seed, progress=progress)
-    return write_simulation(sim, out, overwrite=overwrite)
-
-
-def write_rfs_simulation(cfg, seed: int, out: Path, *, overwrite: bool = False) -> dict:
-    """The rfs-sim run folder: log.dlog, profile.yaml (the simulator's true statistics), config.yaml,
-    summary.yaml, overview.png."""
-    from calib.sim.rfs import simulate_rfs, summary, truth_profile
-    from profiles.store import dump_profile
-
-    log = simulate_rfs(cfg, seed)
-    info = {"seed": seed, **summary(log, cfg)}
-    with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
-        tmp.mkdir()
-        write_native(log, tmp / "log.dlog")
-        (tmp / "profile.yaml").write_text(dump_profile(truth_profile(cfg)))
-        (tmp / "config.yaml").write_text(dump_yaml({"seed": seed, "rfs_sim": cfg.model_dump(mode="json")}))
-        (tmp / "summary.yaml").write_text(dump_yaml(info))
-        plot_rfs_overview(log, tmp / "overview.png")
-    return info
-
-
-def write_glmb_paper_simulation(cfg, seed: int, out: Path, *, overwrite: bool = False) -> dict:
-    """The glmb-paper run folder: log.dlog, profile.yaml (the simulator's true statistics), config.yaml,
-    summary.yaml, overview.png."""
-    from calib.sim.glmb_paper import simulate_glmb_paper, summary, truth_profile
-    from profiles.store import dump_profile
-
-    log = simulate_glmb_paper(cfg, seed)
-    info = {"seed": seed, **summary(log, cfg)}
-    with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
-        tmp.mkdir()
-        write_native(log, tmp / "log.dlog")
-        (tmp / "profile.yaml").write_text(dump_profile(truth_profile(cfg)))
-        (tmp / "config.yaml").write_text(dump_yaml({"seed": seed, "glmb_paper": cfg.model_dump(mode="json")}))
-        (tmp / "summary.yaml").write_text(dump_yaml(info))
-        plot_glmb_paper_overview(log, tmp / "overview.png")
-    return info
-
-
-def write_street_simulation(cfg: StreetConfig, seed: int, out, *, overwrite: bool = False) -> dict:
-    """The run folder: log.dlog (clouds, odometry, true poses, plane truth, sensor model), world.yaml,
-    labels.npy (the primitive id of every return), config.yaml, summary.yaml, overview.png."""
-    import io
-
-    sim = simulate_street(cfg, seed, progress=progress)
-    summary = street_summary(sim)
-    with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
-        tmp.mkdir()
-        write_native(sim.log, tmp / "log.dlog")
-        (tmp / "world.yaml").write_text(dump_yaml(sim.world.to_dict()))
-        buf = io.BytesIO()
-        np.lib.format.write_array(buf, sim.labels, allow_pickle=False)
-        (tmp / "labels.npy").write_bytes(buf.getvalue())
-        (tmp / "config.yaml").write_text(dump_yaml({"seed": seed, "street": cfg.model_dump(mode="json")}))
-        (tmp / "summary.yaml").write_text(dump_yaml(summary))
-        plot_street(sim, tmp / "overview.png")
-    return summary
-
-
-def plot_street(sim: StreetSimulation, path) -> None:
+def plot_street_overview(sim: StreetSimulation, path) -> None:
     """Top view of the world, the path, and one frame's cloud coloured by height."""
     import matplotlib
 
@@ -247,3 +178,7 @@ def plot_glmb_paper_overview(log: SensorLog, path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110, metadata={"Software": None})
     plt.close(fig)
+
+
+#: The overview figure of each simulator's run folder (a simulator without one writes none).
+FIGURES = {"park": plot_park_overview, "rfs-sim": plot_rfs_overview, "street": plot_street_overview, "glmb-paper": plot_glmb_paper_overview}

@@ -24,7 +24,7 @@ import pytest
 import yaml
 
 from detcal.cli import main
-from detcal.reports.simulation import simulate_to
+from detcal.reports.simulation import write_simulation_run
 from profiles.atomic import MARKER
 from tests.calib.test_cli import assert_one_line_error, run
 from tests.conftest import small_park_config
@@ -60,7 +60,7 @@ def park_log(tmp_path_factory) -> Path:
     cfg = small_park_config()
     cfg.bushes.count = 30
     folder = tmp_path_factory.mktemp("scale") / "park"
-    simulate_to(folder, 71, cfg)
+    write_simulation_run("park", cfg, 71, folder)
     return folder / "log.dlog"
 
 
@@ -262,7 +262,7 @@ def test_a_worker_refuses_a_log_with_other_content_at_the_same_path(tmp_path, pa
     engine._CACHE.clear()  # noqa: SLF001  (as in a fresh worker process)
     assert engine.log_fingerprint(src.load()) == src.fingerprint
     engine._CACHE.clear()  # noqa: SLF001
-    simulate_to(tmp_path / "o", 72, small_park_config())
+    write_simulation_run("park", small_park_config(), 72, tmp_path / "o")
     shutil.copy(tmp_path / "o/log.dlog", p)
     with pytest.raises(DataError, match=r"log 'park_seed71': .*log.dlog on .* holds other content than the client read"):
         src.load()
@@ -278,7 +278,7 @@ def unstated_sigma_logs(tmp_path_factory) -> list[Path]:
     out = []
     base = tmp_path_factory.mktemp("calib")
     for seed in (5, 6):
-        simulate_to(base / f"p{seed}", seed, small_park_config())
+        write_simulation_run("park", small_park_config(), seed, base / f"p{seed}")
         lg = read_native(base / f"p{seed}/log.dlog")
         lg = dataclasses.replace(lg, sensor=lg.sensor.model_copy(update={"range_sigma": None}))
         out.append(write_native(lg, base / f"park{seed}.dlog"))

@@ -90,10 +90,10 @@ def test_selfcal_command_writes_its_folder_and_the_profile(tmp_path, capsys, log
     assert_one_line_error(err, "is bundled with detcal")
     assert not (tmp_path / "sc3").exists()
     # errors: a laser log, a starting profile with an n_p table
-    from detcal.reports.simulation import simulate_to
+    from detcal.reports.simulation import write_simulation_run
     from tests.conftest import small_park_config
 
-    simulate_to(tmp_path / "park", 2, small_park_config())
+    write_simulation_run("park", small_park_config(), 2, tmp_path / "park")
     code, _, err = run(capsys, "selfcal", str(tmp_path / "park/log.dlog"), "--profile", str(tmp_path / "start.yaml"), "--out", str(tmp_path / "x"))
     assert code == 2
     assert_one_line_error(err, "self-calibration takes a detection-level log")

@@ -6,7 +6,7 @@ import shutil
 import pytest
 import yaml
 
-from detcal.reports.simulation import simulate_to
+from detcal.reports.simulation import write_simulation_run
 from tests.calib.test_cli import assert_one_line_error, run
 from tests.conftest import VENDORED, small_park_config
 
@@ -16,7 +16,7 @@ def park_log(tmp_path_factory):
     cfg = small_park_config()
     cfg.bushes.count = 30
     folder = tmp_path_factory.mktemp("slam") / "park"
-    simulate_to(folder, 71, cfg)
+    write_simulation_run("park", cfg, 71, folder)
     return folder / "log.dlog"
 
 

@@ -7,14 +7,14 @@ import pytest
 import yaml
 
 from calib.sim.glmb_paper import GlmbPaperConfig
-from detcal.reports.simulation import write_glmb_paper_simulation
+from detcal.reports.simulation import write_simulation_run
 from tests.calib.test_cli import assert_one_line_error, run
 
 
 @pytest.fixture(scope="module")
 def paper(tmp_path_factory):
     folder = tmp_path_factory.mktemp("paper") / "c5"
-    write_glmb_paper_simulation(GlmbPaperConfig(clutter=5.0), 1, folder)
+    write_simulation_run("glmb-paper", GlmbPaperConfig(clutter=5.0), 1, folder)
     return folder
 
 
