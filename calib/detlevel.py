@@ -47,6 +47,7 @@ from calib.validate import BLOCK_S, Held, Validation, score
 from detectors.geometry import compose, interpolate_poses
 from detectors.logs import SensorLog
 from profiles.errors import DataError, UsageError
+from profiles.override import updated
 from profiles.parameters import DetectionCalibConfig, IdentityAudit
 from profiles.profile import DetectorProfile, DetectorSpec, Provenance, SensorSpread
 from profiles.schema import PD_COVARIATES, MeasurementNoise, SensorModel
@@ -305,7 +306,7 @@ def calibrate_detections(
         cluster = pairs.groupby(["log", "landmark", "block"], sort=False).ngroup().to_numpy()
         pooling = pool_sensors(table, pairs, pairs["log"].to_numpy(), names, cluster)
         _, tau, weights, member_rates = shrink_rates([p.counts for p in parts])
-        table = table.model_copy(update={"between_sensor_sd": between_sensor_sd(table, pooling)})
+        table = updated(table, {"between_sensor_sd": between_sensor_sd(table, pooling)})
         spread = dict(
             names=names,
             pairs=pooling.pairs,
@@ -334,8 +335,9 @@ def calibrate_detections(
     if per_sensor and pooling is not None:
         for k, lg in enumerate(logs):
             own = fit_clutter(parts[k].counts, cfg.clutter.dispersion_level)
-            mc = clutter.model_copy(
-                update={
+            mc = updated(
+                clutter,
+                {
                     "rate": member_rates[k],
                     "kappa": None,
                     "chi2": own.chi2 if np.isfinite(own.chi2) else None,
@@ -349,7 +351,7 @@ def calibrate_detections(
             sp = SensorSpread(**{**spread, "member": names[k], "clutter_weight": weights[k]})
             members.append(
                 DetectorProfile(
-                    name=f"{name}-{names[k]}", pd=pooling.tables[k], clutter=type(clutter).model_validate(mc.model_dump()), sensors=sp,
+                    name=f"{name}-{names[k]}", pd=pooling.tables[k], clutter=mc, sensors=sp,
                     **{**base, "noise": fit_noise(parts[k].detections)},
                 )
             )

@@ -36,6 +36,7 @@ from scipy.special import betaln, expit
 
 from calib.fits import fit_pd_table, wilson
 from profiles.errors import DataError
+from profiles.override import updated
 from profiles.parameters import PdModelConfig
 from profiles.schema import PdTable, Selection
 
@@ -215,7 +216,7 @@ def choose_pd_model(pairs: pd.DataFrame, fold: np.ndarray, folds_label: str, fov
     best = int(np.argmax(ll))
     table = fit_candidate(cands[best], pairs, re_, be, cfg)
     sel = Selection(folds=folds_label, candidates=cands, loglik=ll.tolist(), items=len(pairs), chosen=cands[best])
-    return table.model_copy(update={"selection": sel})
+    return updated(table, {"selection": sel})
 
 
 # ------------------------------------------------------------------------------------------ pooling

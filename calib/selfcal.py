@@ -40,6 +40,7 @@ from calib.fits import ClutterFit, clutter_params, fit_clutter, fit_pd_table
 from detectors.geometry import compose
 from detectors.logs import SensorLog
 from profiles.errors import DataError
+from profiles.override import updated
 from profiles.parameters import SelfCalConfig
 from profiles.profile import DetectorProfile, DetectorSpec, InputRef, Provenance
 from profiles.schema import MeasurementNoise, SensorModel
@@ -179,7 +180,7 @@ def self_calibrate(
     pairs, dets = measure(log, trajectory, map_xy, sensor.turned(mount_yaw), cfg)
     free = pairs[~pairs["occluded"]]
     table = fit_pd_table(free["range"].to_numpy(), free["detected"].to_numpy(), "range", cfg.pd)
-    table = table.model_copy(update={"clamping": table.clamping + "; unoccluded (frame, map feature) pairs of a SLAM run"})
+    table = updated(table, {"clamping": table.clamping + "; unoccluded (frame, map feature) pairs of a SLAM run"})
     counts = np.bincount(dets["frame"].to_numpy()[dets["feature"].to_numpy() < 0], minlength=log.detections.n_frames)
     clut = fit_clutter(counts)
     volume = sensor.field_of_view * (sensor.range_max - sensor.range_min)
@@ -253,39 +254,36 @@ def pool_self_calibrations(cals: list[SelfCalibration], cfg: SelfCalConfig, *, i
         return last.profile
     free = pd.concat([c.pairs[~c.pairs["occluded"]] for c in cals], ignore_index=True)
     t = fit_pd_table(free["range"].to_numpy(), free["detected"].to_numpy(), "range", cfg.pd, runs=n)
-    table = t.model_copy(update={"clamping": t.clamping + "; unoccluded (frame, map feature) pairs of SLAM runs"})
+    table = updated(t, {"clamping": t.clamping + "; unoccluded (frame, map feature) pairs of SLAM runs"})
     dets = pd.concat([c.detections for c in cals], ignore_index=True)
     noise = noise_of(dets)
     if noise is not None:
-        noise = noise.model_copy(update={"samples": round(noise.samples / n)})
+        noise = updated(noise, {"samples": round(noise.samples / n)})
     rate = float(np.mean([c.clutter.rate for c in cals]))
-    clutter = last.profile.clutter.model_copy(update={"rate": rate, "kappa": None})  # kappa filled in again from the rate
+    clutter = updated(last.profile.clutter, {"rate": rate, "kappa": None})  # kappa filled in again from the rate
     radii = [c.profile.detector.occluder_radius for c in cals]
     occ_r = None if any(r is None for r in radii) else float(np.mean(radii))
     prov = last.profile.provenance
-    pooled = last.profile.model_copy(
-        update={
+    pooled = updated(
+        last.profile,
+        {
             "description": (
                 f"Self-calibrated against the SLAM runs of iterations {iterations[0]}-{iterations[-1]} of this self-calibration, their measurements averaged: "
                 "P_D of unoccluded map features against range, clutter and noise measured with each run's map and trajectory as the "
                 "truth; no landmark truth was used."
             ),
-            "detector": last.profile.detector.model_copy(update={"occluder_radius": occ_r}),
+            "detector.occluder_radius": occ_r,
             "pd": table,
             "clutter": clutter,
             "noise": noise,
-            "provenance": prov.model_copy(
-                update={
-                    "parameters": {
-                        **prov.parameters,
-                        "averaged_iterations": list(iterations),
-                        "clutter_count_model_of_iteration": iterations[-1],
-                        "clutter_rate_per_run": [c.clutter.rate for c in cals],
-                        "range_sigma_per_run": [c.profile.noise.range_sigma if c.profile.noise else None for c in cals],
-                    }
-                }
-            ),
-        }
+            "provenance.parameters": {
+                **prov.parameters,
+                "averaged_iterations": list(iterations),
+                "clutter_count_model_of_iteration": iterations[-1],
+                "clutter_rate_per_run": [c.clutter.rate for c in cals],
+                "range_sigma_per_run": [c.profile.noise.range_sigma if c.profile.noise else None for c in cals],
+            },
+        },
     )
     return DetectorProfile.model_validate(pooled.model_dump())
 

@@ -14,6 +14,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_serializer, model_validator
 
 from profiles.errors import DataError
+from profiles.override import updated
 from profiles.registry import Registry, literal_field
 
 
@@ -150,7 +151,7 @@ class SensorModel(Strict):
         itself when ``yaw`` is 0."""
         if not yaw:
             return self
-        return self.model_copy(update={"mount": self.mount.model_copy(update={"theta": self.mount.theta + yaw})})
+        return updated(self, {"mount.theta": self.mount.theta + yaw})
 
     def angle_span(self) -> tuple[float, float] | None:
         """(lowest, highest) beam angle [rad] over every layout; None without a beam geometry."""

@@ -21,12 +21,13 @@ from __future__ import annotations
 from typing import Annotated, Literal, Union
 
 import numpy as np
-from pydantic import AllowInfNan, BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator
+from pydantic import AllowInfNan, BaseModel, ConfigDict, Field, ValidationInfo, field_validator
 from pydantic.fields import FieldInfo
 from pydantic_core import PydanticCustomError
 
 from detectors.kinds import DETECTORS
 from profiles.errors import DataError, UsageError
+from profiles.override import updated
 from slam_runtime.features import FEATURE_MODELS
 from slam_runtime.mapfilter import MAP_FILTERS
 from slam_runtime.vehicle import VEHICLE_MODELS
@@ -230,24 +231,8 @@ def override(cfg: SlamConfig, **changes) -> SlamConfig:
 
 def with_settings(cfg: SlamConfig, changes: dict) -> SlamConfig:
     """A validated copy of ``cfg`` with ``changes`` ({dotted path: value}; None sets None); a bad key or value raises a
-    UsageError naming it."""
-    data = cfg.model_dump()
-    for key, value in changes.items():
-        node = data
-        *path, last = key.split(".")
-        for i, part in enumerate(path):
-            if not isinstance(node.get(part), dict):
-                raise UsageError(f"{key}: unknown key ({'.'.join(path[: i + 1])} is not a group of settings)")
-            node = node[part]
-        if last == "kind" and path == ["filter"] and node.get("kind") != value:
-            node.clear()  # another filter: its own defaults
-        node[last] = value
-    try:
-        return SlamConfig.model_validate(data)
-    except ValidationError as exc:
-        e = exc.errors()[0]
-        msg = "unknown key" if e["type"] == "extra_forbidden" else e["msg"]
-        raise UsageError(f"{'.'.join(str(x) for x in e['loc'])}: {msg}") from None
+    UsageError naming it; a change of ``filter.kind`` starts the filter from its own defaults."""
+    return updated(cfg, changes, reset=("filter.kind",))
 
 
 #: Settings whose name two filters share but whose meaning or default differs: never carried from one filter to another

@@ -24,6 +24,7 @@ from rich.table import Table
 
 from calib.io.registry import READERS, ReadOptions
 from profiles.errors import DataError, UsageError
+from profiles.override import updated
 
 out = Console(highlight=False, markup=False)  # file names may hold brackets
 
@@ -99,7 +100,7 @@ class ReaderArgs:
         detections, no point clouds) is refused unless ``empty_ok`` (``log info``: it says so)."""
         from calib.io.registry import read_log
 
-        opts = self.options if robot is None else self.options.model_copy(update={"robot": robot})
+        opts = self.options if robot is None else updated(self.options, {"robot": robot})
         log = read_log(path, self.fmt, opts)
         if not empty_ok:
             refuse_empty(path, log)
@@ -109,7 +110,7 @@ class ReaderArgs:
     def options_of(self, log):
         """The reader options that read ``log`` (a UTIAS log: with its robot)."""
         robot = log.source.get("robot")
-        return self.options if robot is None else self.options.model_copy(update={"robot": int(robot)})
+        return self.options if robot is None else updated(self.options, {"robot": int(robot)})
 
     def read_many(self, paths: list[Path], robots: list[int] | None = None) -> tuple[list, list[Path]]:
         """Logs from paths; a UTIAS dataset folder gives one log per requested robot (each robot once)."""

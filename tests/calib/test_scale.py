@@ -28,6 +28,7 @@ from detcal.reports.simulation import write_simulation_run
 from profiles.atomic import MARKER
 from tests.calib.test_cli import assert_one_line_error, run
 from tests.conftest import small_park_config
+from profiles.override import updated
 
 SWEEP = ["--profile", "sim-park-laser", "--seeds", "3", "--frames", "25", "--particles", "5"]
 TIMED_FILES = {"timing.png", "task.yaml", "timings.csv", MARKER}
@@ -280,7 +281,7 @@ def unstated_sigma_logs(tmp_path_factory) -> list[Path]:
     for seed in (5, 6):
         write_simulation_run("park", small_park_config(), seed, base / f"p{seed}")
         lg = read_native(base / f"p{seed}/log.dlog")
-        lg = dataclasses.replace(lg, sensor=lg.sensor.model_copy(update={"range_sigma": None}))
+        lg = dataclasses.replace(lg, sensor=updated(lg.sensor, {"range_sigma": None}))
         out.append(write_native(lg, base / f"park{seed}.dlog"))
     return out
 

@@ -8,6 +8,7 @@ from calib.selfcal import SelfCalConfig, profile_change, self_calibrate
 from calib.sim.rfs import RfsSimConfig, simulate_rfs, truth_profile
 from profiles.schema import ClutterParams
 from tests.calib.test_cli import assert_one_line_error, run
+from profiles.override import updated
 
 SIM = RfsSimConfig(steps=300, pd=0.6, clutter_intensity=2.0 / (2.0 * 2 * np.pi))  # P_D 0.6, 2 false alarms per scan
 
@@ -20,7 +21,7 @@ def log():
 def nominal():
     """A wrong starting profile: P_D 0.9, 0.5 false alarms per scan (the noise is the sensor's)."""
     t = truth_profile(SIM)
-    return t.model_copy(update={"pd": t.pd.model_copy(update={"pd": [0.9]}), "clutter": ClutterParams(rate=0.5, volume=t.clutter.volume)})
+    return updated(t, {"pd.pd": [0.9], "clutter": ClutterParams(rate=0.5, volume=t.clutter.volume)})
 
 
 def test_measured_against_the_true_path_and_map_the_statistics_are_the_simulators(log):
@@ -65,7 +66,7 @@ def test_selfcal_command_writes_its_folder_and_the_profile(tmp_path, capsys, log
     from calib.io.native import write_native
     from profiles.store import dump_profile
 
-    lp = write_native(simulate_rfs(SIM.model_copy(update={"steps": 120}), 6), tmp_path / "sim.dlog")
+    lp = write_native(simulate_rfs(updated(SIM, {"steps": 120}), 6), tmp_path / "sim.dlog")
     (tmp_path / "start.yaml").write_text(dump_profile(nominal()))
     cfg = tmp_path / "slam.yaml"
     cfg.write_text("particles: 5\nfilter: {kind: rbphd, noise_inflation: 10.0, weighting: marginal}\n")
@@ -109,7 +110,7 @@ def test_selfcal_measures_against_the_map_of_the_filter_it_is_given(tmp_path, ca
     from calib.io.native import write_native
     from profiles.store import dump_profile
 
-    lp = write_native(simulate_rfs(SIM.model_copy(update={"steps": 80}), 6), tmp_path / "sim.dlog")
+    lp = write_native(simulate_rfs(updated(SIM, {"steps": 80}), 6), tmp_path / "sim.dlog")
     (tmp_path / "start.yaml").write_text(dump_profile(nominal()))
     base = ["selfcal", str(lp), "--profile", str(tmp_path / "start.yaml"), "--iterations", "1", "--particles", "3", "--profiles-dir", str(tmp_path / "p")]
     code, out, err = run(capsys, *base, "--filter", "lmb", "--out", str(tmp_path / "sc"), "--name", "sim-lmb")
@@ -176,7 +177,7 @@ def test_a_pd_table_of_pooled_runs_has_one_runs_counts_and_no_empty_supported_bi
     assert three.counts[0] == 1 and three.detections[0] <= 1  # a third of a pair is not no pair
     assert "3 runs of the same detections pooled" in three.clamping and ">= 100 pairs per run" in three.clamping
     with pytest.raises(Exception, match="no P_D bin holds 2000 pairs per run"):
-        fit_pd_table(r, det, "range", cfg.model_copy(update={"min_count": 2000}), runs=3)
+        fit_pd_table(r, det, "range", updated(cfg, {"min_count": 2000}), runs=3)
 
 
 def test_selfcal_average_from_writes_the_average_of_the_runs(tmp_path, capsys):
@@ -187,7 +188,7 @@ def test_selfcal_average_from_writes_the_average_of_the_runs(tmp_path, capsys):
     from calib.io.native import write_native
     from profiles.store import dump_profile
 
-    lp = write_native(simulate_rfs(SIM.model_copy(update={"steps": 80}), 6), tmp_path / "sim.dlog")
+    lp = write_native(simulate_rfs(updated(SIM, {"steps": 80}), 6), tmp_path / "sim.dlog")
     (tmp_path / "start.yaml").write_text(dump_profile(nominal()))
     base = ["selfcal", str(lp), "--profile", str(tmp_path / "start.yaml"), "--particles", "3", "--profiles-dir", str(tmp_path / "p")]
     code, out, err = run(capsys, *base, "--iterations", "3", "--average-from", "1", "--tolerance", "1e-9", "--out", str(tmp_path / "sc"), "--name", "sim-avg")
@@ -221,7 +222,7 @@ def test_the_loop_averages_the_odometry_biases_with_the_profiles():
     cfg = SlamConfig.model_validate({"particles": 3, "filter": {"kind": "rbphd"}, "motion": {"ackermann": {"sigma_speed": 0.1, "sigma_steer": 0.035}}})
 
     def measure(lg_, traj, xy, w, prior, k):
-        c = self_calibrate(lg_, traj, xy, w, prior, SelfCalConfig(gate=1.0, pd=SelfCalConfig().pd.model_copy(update={"min_count": 20})), name="x", version="1.0.0", iteration=k)
+        c = self_calibrate(lg_, traj, xy, w, prior, SelfCalConfig(gate=1.0, pd=updated(SelfCalConfig().pd, {"min_count": 20})), name="x", version="1.0.0", iteration=k)
         return c.profile, c.summary
 
     hist = self_calibration(lg, glmb_truth(sc), cfg, 0, measure, profile_change, iterations=3, tolerance=1e-12, average_from=1)

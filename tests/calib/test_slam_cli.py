@@ -9,6 +9,7 @@ import yaml
 from detcal.reports.simulation import write_simulation_run
 from tests.calib.test_cli import assert_one_line_error, run
 from tests.conftest import VENDORED, small_park_config
+from profiles.override import updated
 
 
 @pytest.fixture(scope="module")
@@ -118,7 +119,7 @@ def test_an_n_p_profile_refuses_a_laser_of_another_beam_geometry(tmp_path, capsy
     from profiles.store import dump_profile, resolve
 
     prof = resolve("sim-park-laser@1.0.0")
-    other = prof.model_copy(update={"name": "coarse", "sensor": prof.sensor.model_copy(update={"n_beams": 181, "angle_increment": 0.017453292519943295})})
+    other = updated(prof, {"name": "coarse", "sensor.n_beams": 181, "sensor.angle_increment": 0.017453292519943295})
     (tmp_path / "coarse.yaml").write_text(dump_profile(other))
     code, _, err = run(capsys, "slam", "run", str(park_log), "--profile", str(tmp_path / "coarse.yaml"), "--out", str(tmp_path / "r"))
     assert code == 2

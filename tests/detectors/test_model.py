@@ -201,14 +201,14 @@ def test_the_occlusion_tolerance_defaults_per_filter(small_sim):
     import yaml
 
     from profiles.store import resolve
-    from slam_runtime.config import DetectionOptions, SlamConfig, override
+    from slam_runtime.config import DetectionOptions, SlamConfig, with_settings
     from slam_runtime.run import build
 
     prof = resolve("sim-park-laser@1.0.0")
     got = {}
     for kind in ("rbphd", "lmb", "glmb"):
         for occ in (None, "profile", 6.0):
-            cfg = override(SlamConfig(), filter={"kind": kind}).model_copy(update={"detection": DetectionOptions(occlusion_sigmas=occ)})
+            cfg = with_settings(SlamConfig(), {"filter.kind": kind, "detection.occlusion_sigmas": occ})
             got[kind, occ] = build(small_sim.log, prof, cfg).mapfilter.detection.k_sigma
     assert got["rbphd", None] == got["rbphd", "profile"] == got["lmb", "profile"] == got["glmb", "profile"] == prof.detector.k_sigma == 3.0
     assert got["lmb", None] == got["glmb", None] == np.inf

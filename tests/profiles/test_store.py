@@ -11,6 +11,7 @@ import yaml
 from profiles.errors import DataError, UsageError
 from profiles.profile import DetectorProfile
 from profiles.store import diff_profiles, dump_profile, load_profile_file, profile_path, registry, resolve, save_profile
+from profiles.override import updated
 
 
 def make_profile(version="1.0.0", rate=5.5, **kw) -> DetectorProfile:
@@ -93,13 +94,13 @@ def test_a_rerun_that_rounds_differently_is_the_same_profile_not_a_conflict(tmp_
     path, _ = save_profile(p, tmp_path)
     before = path.read_bytes()
     cov = [[np.nextafter(0.2, 1.0), 0.01], [0.01, np.nextafter(0.03, 0.0)]]
-    rerun = p.model_copy(update={"hotelling": p.hotelling.model_copy(update={"covariance": cov})})
+    rerun = updated(p, {"hotelling.covariance": cov})
     assert rerun != p and same_content(rerun, p)
     assert save_profile(rerun, tmp_path) == (path, "unchanged") and path.read_bytes() == before
     for other in (
-        p.model_copy(update={"clutter": p.clutter.model_copy(update={"rate": 5.5 * (1 + 10 * SAME_REL_TOL)})}),
-        p.model_copy(update={"pd": p.pd.model_copy(update={"counts": [10, 20, 30, 41]})}),
-        p.model_copy(update={"hotelling": p.hotelling.model_copy(update={"names": ["log_radius", "convexity"]})}),
+        updated(p, {"clutter.rate": 5.5 * (1 + 10 * SAME_REL_TOL), "clutter.kappa": None}),
+        updated(p, {"pd.counts": [10, 20, 30, 41]}),
+        updated(p, {"hotelling.names": ["log_radius", "convexity"]}),
     ):
         assert not same_content(other, p)
         with pytest.raises(UsageError, match="exists with other content"):
