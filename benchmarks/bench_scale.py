@@ -77,7 +77,8 @@ def sweep_bench(work: Path, seeds: int, rounds: int) -> None:
     from detcal.reports.simulation import write_simulation_run
     from profiles.store import resolve
     from slam_runtime.config import SlamConfig, override
-    from detcal.pipelines.sweep import SweepJob, make_plan, run_sweep
+    from detcal.pipelines.sweep import SweepJob, run_sweep
+    from detcal.reports.sweep import make_plan
 
     log_path = work / "sweep_park/log.dlog"
     if not log_path.is_file():

@@ -54,24 +54,16 @@ class MeasurementNoiseConfig(_Strict):
 class DetectionOptions(_Strict):
     """How the filter uses the profile's detection statistics."""
 
-    pd_mode: Literal["profile", "constant"] = "profile"
+    pd_mode: Literal["profile", "constant"] = Field(default="profile", description="P_D from the profile, or constant inside the sensor's range and field of view (for comparison)")
     constant_pd: float = Field(default=0.9, gt=0.0, le=1.0, description="P_D inside the field of view in constant mode")
-    buffer_zone: bool = True
+    buffer_zone: bool = Field(default=True, description="keep a feature's weight when it is missed near the edges of the view (eq. 3.21)")
     buffer_sigmas: float = Field(default=2.0, gt=0.0, description="buffer-zone half-width in standard deviations")
     landmark_radius: float | None = Field(
         default=None, gt=0.0, description="radius the n_p ray tracer gives map features [m]; default: the profile's typical true radius"
     )
     phase_average: bool = Field(default=True, description="n_p averaged over where the beams fall, not the integer count")
-    descriptor_likelihood: bool = Field(
-        default=True, description="weigh each detection by g_x(d) / g_FA(d) of its descriptors (eqs. 2.26, 5.6) when the profile has a Hotelling model"
-    )
-    occlusion_sigmas: Annotated[float, AllowInfNan(True)] | Literal["profile"] | None = Field(
-        default=None,
-        description="n_p profiles: a return occludes a map feature when it is shorter than the feature's surface by more than "
-        "this many range sigmas ('profile': the profile's k_sigma, the tolerance its P_D table was measured with; .inf: no return "
-        "does, and a feature's P_D is the table's at the count of beams it would get; default: the filter's, "
-        "the filter's occlusion_default: the profile's for RB-PHD, .inf for LMB and delta-GLMB)",
-    )
+    descriptor_likelihood: bool = Field(default=True, description="weigh detections by their descriptors' likelihood ratio (eqs. 2.26, 5.6) when the profile has one")
+    occlusion_sigmas: Annotated[float, AllowInfNan(True)] | Literal["profile"] | None = Field(default=None, description="range sigmas a return must fall short to occlude a map feature ('profile', .inf; null: the filter's)")
     occlusion: bool = Field(
         default=True, description="detection-level profiles with an occluder radius: features hidden behind a nearer mapped one have P_D 0"
     )
@@ -112,55 +104,25 @@ _POINTS_ONLY = {
 
 
 class SlamConfig(_Strict):
-    features: str = Field(default="points", description="point landmarks (2D) or planes (3D lidar clouds)")  # (choices: _rebuild)
-    particles: int = Field(default=20, ge=1, le=100_000)
-    resampler: Literal["systematic", "stratified", "multinomial", "residual"] = "systematic"
+    features: str = Field(default="points", description="point landmarks (2D) or planes (3D lidar clouds)")
+    particles: int = Field(default=20, ge=1, le=100_000, description="particles of the filter (over every island)")
+    resampler: Literal["systematic", "stratified", "multinomial", "residual"] = Field(default="systematic", description="low-variance resampling scheme")
     resample_ess: float = Field(default=0.5, gt=0.0, le=1.0, description="resample when ESS < this x particles")
     resample_every: int = Field(default=1, ge=1, description="updates at least between two resamplings")
-    islands: int = Field(
-        default=1,
-        ge=1,
-        le=1_000,
-        description="independent particle filters the particles are split into (each resamples on its own); the estimate "
-        "averages their heaviest particles' trajectories and, with a labelled filter, maps (label by label; see island_match); "
-        "particles must be a multiple of it",
-    )
-    island_match: float | None = Field(
-        default=None,
-        gt=0.0,
-        description="[m] islands with a labelled point-feature filter: the features of an island's estimate and the reference "
-        "island's that no label pairs are paired by position, one to one, the least total distance, pairs this far apart or "
-        "more not made; a pair is one landmark the islands bore from different measurements and is averaged as one; null: "
-        "by label only",
-    )
+    islands: int = Field(default=1, ge=1, le=1_000, description="independent particle filters the particles are split into; particles must be a multiple of it")
+    island_match: float | None = Field(default=None, gt=0.0, description="[m] pair islands' unlabelled features by position up to this distance (labelled filters; null: by label)")
     proposal: Literal["prior", "optimal"] = Field(
         default="prior", description="draw poses from the motion model, or from its Gaussian updated by the measurements the map explains"
     )
     filter: BaseModel = Field(default=None)  # the union of the registered filters' settings (set by _rebuild)
-    mount_yaw: float = Field(
-        default=0.0,
-        ge=-0.2,
-        le=0.2,
-        description="[rad] added to the sensor's mount yaw (a sensor mounted a little turned: the map then holds the heading "
-        "while the odometry drives crabwise); a calibration the log evidence can choose",
-    )
+    mount_yaw: float = Field(default=0.0, ge=-0.2, le=0.2, description="[rad] correction added to the sensor's mount yaw (chosen by the log evidence)")
     measurement: MeasurementNoiseConfig = Field(default_factory=MeasurementNoiseConfig)
     motion: MotionNoise = Field(default_factory=MotionNoise)
     detection: DetectionOptions = DetectionOptions()
     metric: MetricConfig = MetricConfig()
-    map_refine: bool = Field(
-        default=False,
-        description="after the run, re-estimate the map's positions along the estimated trajectory with every scan's "
-        "measurements, the associations not given (slam_runtime.refine: a smoother after the filter; the metrics keep the "
-        "filter's own map OSPA as map_ospa_filter); point features only",
-    )
+    map_refine: bool = Field(default=False, description="after the run, re-estimate the map's positions along the estimated trajectory (point features)")
 
-    poses: Literal["estimated", "ground_truth"] = Field(
-        default="estimated",
-        description="estimated: full SLAM; ground_truth: mapping only, every particle put at the log's ground-truth pose "
-        "(interpolated to the frame's time) before every frame's update: the map filter and the detector profile alone, "
-        "without the path's error (the log needs ground-truth poses spanning its frames; planar poses: point features)",
-    )
+    poses: Literal["estimated", "ground_truth"] = Field(default="estimated", description="estimated (full SLAM) or ground_truth (mapping only: the particles on the log's true path)")
 
     @field_validator("poses")
     @classmethod

@@ -144,31 +144,10 @@ class LabelledSettings(BaseModel):
     """Settings shared by the labelled map filters (LMB, delta-GLMB)."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    survival: float = Field(
-        default=1.0,
-        gt=0.0,
-        le=1.0,
-        description="P_S of a feature in the field of view (P_D > 0), per step (the paper: 0.95; landmarks are static). 0.99 "
-        "drops the duplicate and false tracks that 1 keeps, which helps where they abound (the park with bushes, UTIAS, "
-        "Victoria Park) and loses a quarter of the landmarks where they do not (the park without bushes, the streets); the "
-        "log evidence prefers 0.99 in both cases, so it cannot choose this setting (docs/labelled-filters.md); survival_duplicate "
-        "ends the duplicates without the landmarks",
-    )
+    survival: float = Field(default=1.0, gt=0.0, le=1.0, description="P_S per step of a feature in the field of view (the paper: 0.95)")
     survival_outside: float = Field(default=1.0, gt=0.0, le=1.0, description="P_S of a feature out of the field of view")
-    survival_duplicate: float = Field(
-        default=1.0,
-        gt=0.0,
-        le=1.0,
-        description="P_S in view of a track that an older track of its particle (an earlier birth, of existence >= 0.99) lies "
-        "within squared Mahalanobis distance duplicate_gate of: a possible second track of one landmark, which the data may "
-        "then end; every other track keeps survival (1: off)",
-    )
-    duplicate_gate: float = Field(
-        default=1.0,
-        gt=0.0,
-        description="survival_duplicate: squared Mahalanobis distance of two tracks' predicted measurements (under both tracks' "
-        "H P H^T and the measurement noise) below which one measurement cannot tell them apart",
-    )
+    survival_duplicate: float = Field(default=1.0, gt=0.0, le=1.0, description="P_S in view of a track an older track of its particle lies near (1: off)")
+    duplicate_gate: float = Field(default=1.0, gt=0.0, description="squared Mahalanobis distance within which survival_duplicate takes two tracks for one landmark")
     birth_unassociated: float = Field(default=0.01, gt=0.0, lt=1.0, description="birth probability from a measurement outside every track's gate")
     birth_associated: float = Field(default=0.005, gt=0.0, lt=1.0, description="birth probability from a measurement some track could explain")
     gate: float = Field(default=16.0, gt=0.0, description="squared Mahalanobis distance beyond which a measurement cannot update a track")
@@ -176,38 +155,16 @@ class LabelledSettings(BaseModel):
     noise_inflation: float = Field(default=1.0, ge=1.0, description="factor on the measurement noise covariance")
     landmark_noise: float = Field(default=0.0, ge=0.0, description="landmark position variance added per second [m^2/s]")
     map_threshold: float = Field(default=0.5, gt=0.0, le=1.0, description="existence probability from which a track counts as mapped (LMB)")
-    map_estimate: Literal["best", "seen_mean"] = Field(
-        default="best",
-        description="where the map estimate puts its features: best, at the state the particle that gives the estimate holds "
-        "(the paper's); seen_mean, each label at the particles' weighted mean of its state at the last step the sensor could "
-        "see it (a filtering estimate: it misses what a later loop closure tells). The set of features is the particle's either way",
-    )
-    learn_pd: bool = Field(
-        default=False,
-        description="each track learns a factor on the detection model's P_D from its detections and misses "
-        "(Beta density; slam_runtime.pd_factor)",
-    )
+    map_estimate: Literal["best", "seen_mean"] = Field(default="best", description="best: features at the best particle's states; seen_mean: at the particles' mean when last seen")
+    learn_pd: bool = Field(default=False, description="each track learns a factor on P_D from its detections and misses (Beta density)")
     pd_prior_mean: float = Field(
         default=0.95, gt=0.0, lt=1.0, description="learn_pd: the prior mean of a new track's factor on P_D"
     )
     pd_prior_strength: float = Field(
         default=20.0, gt=0.0, description="learn_pd: the prior's weight, in detections and misses (a + b)"
     )
-    draws: Literal["filter", "particle"] = Field(
-        default="filter",
-        description="the Gibbs sampler's random numbers: filter, one seed per step for every particle of a filter (an "
-        "island): common random numbers, particles whose maps and poses agree draw the same hypotheses; particle, a seed "
-        "per particle: independent draws, among which the weights select (with the poses given, on glmb-paper at 15 "
-        "false alarms per scan, LMB's map OSPA 0.053 -> 0.043 and delta-GLMB's 0.042 -> 0.039 with 5 particles; in full "
-        "SLAM level: docs/labelled-filters.md)",
-    )
-    sum_idle_births: bool = Field(
-        default=True,
-        description="births that gate no measurement (and are likelier absent) are summed out of the Gibbs sampler (exact "
-        "for the particle weight; delta-GLMB does not keep their born-but-missed children, LMB gives them their exact "
-        "existence); false: not summed out (delta-GLMB with factor_independent then updates them exactly as independent "
-        "tracks, as any birth that shares no gated measurement; otherwise they are sampled like every candidate)",
-    )
+    draws: Literal["filter", "particle"] = Field(default="filter", description="Gibbs sampler random numbers: one seed per step and filter (filter) or per particle (particle)")
+    sum_idle_births: bool = Field(default=True, description="sum births that gate no measurement out of the Gibbs sampler (exact for the weights)")
 
 
 class GLMBConfig(LabelledSettings):
@@ -219,22 +176,9 @@ class GLMBConfig(LabelledSettings):
     merge: float = Field(
         default=4.0, ge=0.0, description="squared Mahalanobis distance within which versions of one label merge (0: none, the exact delta-GLMB)"
     )
-    release_unseen: bool = Field(
-        default=True, description="tracks the sensor cannot see leave the hypotheses as independent Bernoulli components (false: the exact delta-GLMB)"
-    )
-    merge_alternatives: float = Field(
-        default=0.1,
-        ge=0.0,
-        le=1.0,
-        description="tracks of different labels within squared Mahalanobis distance merge of each other that the hypotheses hold together "
-        "with at most this share of the lighter's weight become one track under the heavier's label: alternative labels of one "
-        "landmark (0: none)",
-    )
-    factor_independent: bool = Field(
-        default=True,
-        description="births and released tracks that share no gated measurement with another candidate are updated exactly as "
-        "independent Bernoulli components outside the hypotheses (false: they join the sampler)",
-    )
+    release_unseen: bool = Field(default=True, description="tracks the sensor cannot see leave the hypotheses as independent components (false: exact delta-GLMB)")
+    merge_alternatives: float = Field(default=0.1, ge=0.0, le=1.0, description="merge tracks the hypotheses hold as alternatives of one landmark up to this weight share (0: off)")
+    factor_independent: bool = Field(default=True, description="update candidates that share no gated measurement outside the hypotheses, exactly")
     prune_released: float = Field(default=1e-3, gt=0.0, lt=1.0, description="released tracks of smaller existence probability are removed")
 
 

@@ -64,21 +64,8 @@ class LMBConfig(LabelledSettings):
 
     kind: Literal["lmb"] = "lmb"
     prune_tracks: float = Field(default=1e-3, gt=0.0, lt=1.0, description="tracks of smaller existence probability are removed")
-    factor_independent: bool = Field(
-        default=False,
-        description="tracks and births that share no gated measurement with another candidate are updated exactly outside the "
-        "sampler (existence the share of their options in which they exist, density the moment match of their versions: the "
-        "grouping of Reuter et al. 2014); false: every candidate in view joins the sampler's one chain (the fast LMB update)",
-    )
-    merge_alternatives: float = Field(
-        default=0.0,
-        ge=0.0,
-        le=1.0,
-        description="before the LMB approximation, labels whose updated densities lie within squared Mahalanobis distance "
-        "ALTERNATIVES_GATE (4, delta-GLMB's merge) of each other and that the update's hypotheses hold together with at "
-        "most this share of the lighter's weight become one track under the heavier's label, existence the weight of the "
-        "hypotheses that held either: alternative labels of one landmark, as delta-GLMB's merge_alternatives (0: none)",
-    )
+    factor_independent: bool = Field(default=False, description="update candidates that share no gated measurement outside the sampler, exactly (Reuter et al. 2014)")
+    merge_alternatives: float = Field(default=0.0, ge=0.0, le=1.0, description="merge labels the hypotheses hold as alternatives of one landmark up to this weight share (0: off)")
 
 
 @dataclass

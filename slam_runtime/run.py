@@ -28,6 +28,7 @@ from slam_runtime.metrics import axis_rmse, gospa, ospa, trajectory_rmse
 from slam_runtime.refine import refine_map
 from slam_runtime.slam import RBSlam
 from slam_runtime.sources import control_rows, frames
+from slam_runtime.vehicle import VEHICLE_MODELS
 
 
 @dataclass
@@ -368,3 +369,27 @@ def evaluate(log: SensorLog, res: SlamResult, c: float = 1.0, p: float = 1.0, cf
         out["ospa_c_m"], out["ospa_p"] = c, p
     out["stage_ms_per_step"] = {k: round(v / max(res.stamps.size, 1), 4) for k, v in res.stage_ms.items()}
     return out
+
+
+def describe(log: SensorLog, profile, cfg: SlamConfig) -> dict[str, str]:
+    """What a run of ``cfg`` on ``log`` with ``profile`` uses, one line per role: the filter, the vehicle model and its
+    noise, the measurement noise floor, P_D and clutter, each with where it comes from (the settings, the profile or a
+    model's defaults). ``detcal slam run`` prints it when it derived the settings."""
+    b = build(log, profile, cfg)
+    group = next(n for n, c in VEHICLE_MODELS.items() if isinstance(b.vehicle, c))
+    noise = getattr(cfg.motion, group)
+    given = {k: v for k, v in cfg.measurement.model_dump().items() if v is not None}
+    sig = np.sqrt(np.diag(b.mapfilter.feature.r))
+    src = "the settings" if given else ("the profile" if profile.noise is not None or cfg.features == "planes" else "the defaults")
+    pd = profile.pd
+    rows = {
+        "filter": f"{b.mapfilter.name} ({cfg.filter.kind}), {cfg.particles} particles, {cfg.proposal} proposal",
+        "features": cfg.features,
+        "motion": f"{b.vehicle.label} model for {log.odometry.kind} odometry, motion.{group}: "
+        + ", ".join(f"{k} {v:g}" for k, v in noise.model_dump().items()),
+        "measurement noise": f"{', '.join(f'{s:.4g}' for s in sig)} (sigmas of the measurement's components, from {src})",
+        "P_D": f"constant {cfg.detection.constant_pd:g} in view" if cfg.detection.pd_mode == "constant"
+        else f"the profile's {pd.covariate} table ({len(pd.edges) - 1} bins)",
+        "clutter": f"{profile.clutter.rate:.4g} false alarms per frame ({profile.clutter.count_model}, the profile's)",
+    }  # fmt: skip
+    return rows

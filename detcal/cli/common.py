@@ -51,6 +51,50 @@ READER_OPTIONS: dict[str, tuple[type, object, typer.models.OptionInfo]] = {
     "truth_topic": (str | None, None, typer.Option(help="Bags: a ground-truth pose topic (Odometry or PoseStamped).")),
 }
 ALL_READER_OPTIONS = tuple(READER_OPTIONS)
+READER_PANEL = "Reader options"
+for _opt in READER_OPTIONS.values():
+    _opt[2].rich_help_panel = READER_PANEL
+
+
+class SectionedCommand(typer.core.TyperCommand):
+    """A command whose --help lists its options by section (each option's ``rich_help_panel``, in the order the
+    sections first appear) and the options of the sections in :attr:`compact` by their flags only, on a few lines:
+    what most users change fits on one screen, the rest is named where to read about it."""
+
+    #: sections listed by their flags only, and where their options are described
+    compact = {READER_PANEL: "described in detcal log info --help"}
+
+    def format_options(self, ctx, formatter) -> None:
+        args, sections, names = [], {}, {}
+        for param in self.get_params(ctx):
+            rv = param.get_help_record(ctx)
+            if rv is None:
+                continue
+            if param.param_type_name == "argument":
+                args.append(rv)
+                continue
+            panel = getattr(param, "rich_help_panel", None) or ("Options" if param.name != "help" or not sections else list(sections)[-1])
+            if panel in self.compact:
+                names.setdefault(panel, []).append(param.opts[0])
+            else:
+                sections.setdefault(panel, []).append(rv)
+        if args:
+            with formatter.section("Arguments"):
+                formatter.write_dl(args)
+        for title, rows in sections.items():
+            with formatter.section(title):
+                formatter.write_dl(rows)
+        for title, flags in names.items():
+            with formatter.section(title):
+                words, line = [*flags, f"({self.compact[title]})"], ""
+                width = (formatter.width or 80) - formatter.current_indent
+                for w in words:  # whole flags per line (a flag is not broken at its hyphen)
+                    if line and len(line) + 1 + len(w) > width:
+                        formatter.write(f"{'':>{formatter.current_indent}}{line}\n")
+                        line = w
+                    else:
+                        line = f"{line} {w}" if line else w
+                formatter.write(f"{'':>{formatter.current_indent}}{line}\n")
 
 
 def reader_options(*names: str) -> Callable:

@@ -43,7 +43,7 @@ def selfcal_cmd(
     """Self-calibration: run SLAM, measure P_D against range (unoccluded map features), clutter, noise and the
     odometry's steering offset against the run's own map and trajectory, run again, until nothing changes."""
     from detcal.cli.calibrate import typed_command
-    from detcal.cli.slam import slam_config
+    from detcal.pipelines.slam_run import SettingsRequest
     from calib.progress import progress
     from calib.selfcal import SelfCalConfig, pool_self_calibrations, profile_change, self_calibrate
     from detcal.reports.self_calibration import fill_selfcal_run
@@ -54,7 +54,7 @@ def selfcal_cmd(
     from detcal.pipelines.self_calibration import self_calibration
 
     positive("--iterations", iterations)
-    positive("--particles", particles)
+    request = SettingsRequest(config, filter_, particles)
     if seed < 0:
         raise UsageError(f"--seed: expected a non-negative integer, got {seed}")
     if average_from is not None and iterations < 2:
@@ -67,7 +67,7 @@ def selfcal_cmd(
         raise UsageError(f"--tolerance: expected a positive number, got {tolerance}")
     if not SEMVER_RE.match(version):
         raise UsageError(f"--version: {version!r} is not MAJOR.MINOR.PATCH")
-    cfg = slam_config(config, filter_, particles, None)
+    cfg, _ = request.settings()
     start = resolve(profile_ref)
     if start.pd.covariate != "range":
         raise UsageError(f"profile {start.ref}: self-calibration measures P_D against range; this profile has a {start.pd.covariate} table")

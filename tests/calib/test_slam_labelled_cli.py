@@ -77,7 +77,7 @@ def test_sweep_over_filters(tmp_path, capsys, paper):
 
 
 def test_varies_returns_every_combination_with_its_label():
-    from detcal.cli.slam import variants
+    from detcal.pipelines.sweep import variants
 
     assert variants(None) == [(None, {})]
     got = variants(["filter.survival=1, 0.99,1.0", "island_match=null,0.5"])  # (1 and 1.0 are one value)
@@ -100,7 +100,7 @@ def test_sweep_varies_a_setting_and_the_log_evidence_finds_the_simulators_noise(
     simulator's range noise is 0.3 m; with the poses given (80 frames, one particle) the evidence of the true value
     leads both others by tens of nats (measured: 147.6 against 89.5 at 0.1 m and 84.5 at 0.9 m), and the map is no
     worse with it."""
-    from detcal.pipelines.sweep import by_evidence
+    from detcal.reports.sweep import by_evidence
 
     out = tmp_path / "sw"
     code, text, err = run(

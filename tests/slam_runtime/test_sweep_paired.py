@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from detcal.pipelines.sweep import paired
+from detcal.reports.sweep import paired
 
 
 def _rows():
@@ -69,7 +69,7 @@ def test_two_logs_of_one_name_are_both_paired():
 def test_the_varied_settings_are_ranked_by_the_runs_log_evidence():
     """by_evidence: per setting, the variant of the largest mean log evidence and its lead over the next, paired by
     log and seed (the logs' own evidence, which differs by thousands of nats, cancels within a pair)."""
-    from detcal.pipelines.sweep import by_evidence
+    from detcal.reports.sweep import by_evidence
 
     rows = []
     for log, off in (("a", 5000.0), ("b", 100.0)):
