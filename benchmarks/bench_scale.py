@@ -184,7 +184,7 @@ def calibration_bench(work: Path, n_logs: int) -> None:
     from calib.calibrate import CalibrateConfig  # noqa: F401  (imported here, not in the timed blocks)
     from calib.io.native import write_native
     from calib.io.registry import ReadOptions, input_refs, read_log
-    from detcal.pipelines.calibrate import CalibrationJob, run_calibration
+    from detcal.pipelines.calibrate import CalibrationJob, ProfileTarget, run_calibration
     from calib.sim.park import ParkConfig, simulate_park
 
     paths = []
@@ -201,8 +201,8 @@ def calibration_bench(work: Path, n_logs: int) -> None:
         out = work / f"calib_{workers}"
         shutil.rmtree(out, ignore_errors=True)
         job = CalibrationJob(
-            logs, refs, "bench-parks", "1.0.0", out / "run", out / "profiles", command="bench",
-            sources=[(p, None, ReadOptions()) for p in paths], workers=workers,
+            logs=logs, inputs=refs, target=ProfileTarget(name="bench-parks", version="1.0.0", out=out / "run", profiles_dir=out / "profiles"),
+            command="bench", sources=[(p, None, ReadOptions()) for p in paths], workers=workers,
         )  # fmt: skip
         m: dict = {}
         with measured(label, m):

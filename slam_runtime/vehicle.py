@@ -58,6 +58,14 @@ class VehicleModel(ABC):
     features: tuple[str, ...] = ("points", "planes")
     #: its noise settings: a pydantic model refusing unknown keys, the group of ``motion`` it is registered under
     Noise: type[BaseModel]
+    #: the settings of its group a self-calibration measures against a trajectory (:meth:`fit_biases`), with their
+    #: labels, and how little their change must be for the iteration to have settled
+    biases: dict[str, str] = {}
+    settled: dict[str, float] = {}
+
+    def fit_biases(self, controls: list[tuple[np.ndarray, np.ndarray]], trajectory: np.ndarray) -> dict:
+        """The :attr:`biases` measured against a trajectory (T, 3), given each frame's control rows and durations."""
+        raise NotImplementedError(f"{type(self).__name__} has no biases to measure")
 
     @classmethod
     def from_settings(cls, noise: BaseModel, vehicle=None) -> VehicleModel:
@@ -258,6 +266,11 @@ class Ackermann(VehicleModel):
     odometry = ("ackermann",)
     takes = "encoder speed and steering odometry"
     Noise = AckermannNoise
+    biases = {"steer_offset": "steering offset [rad]", "speed_scale": "speed scale"}
+    settled = {"steer_offset": 5e-4}
+
+    def fit_biases(self, controls, trajectory) -> dict:
+        return fit_ackermann_bias(self, controls, trajectory)
 
     @classmethod
     def from_settings(cls, noise: BaseModel, vehicle=None) -> Ackermann:

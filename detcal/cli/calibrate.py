@@ -1,4 +1,4 @@
-"""``detcal calibrate``, ``detcal validate`` and ``detcal icp``."""
+"""``detcal calibrate``, ``detcal validate``, ``detcal selfcal`` and ``detcal icp``: parse, check, call one pipeline, print."""
 
 from __future__ import annotations
 
@@ -81,7 +81,7 @@ def calibrate_cmd(
     ray-traced visible points and incidence angle, clutter planes (profile kind lidar3d-planes).
     """
     from detcal.engine import check_options
-    from detcal.pipelines.calibrate import CalibrationJob, check_name, run_calibration
+    from detcal.pipelines.calibrate import CalibrationJob, ProfileTarget, check_name, run_calibration
 
     check_poses(poses)
     check_name(name, version)
@@ -101,8 +101,9 @@ def calibrate_cmd(
     refs = unique_refs([r for p, lg in zip(paths, loaded, strict=True) for r in input_refs(p, lg)] + landmark_ref)
     sources = [(p, fmt, reader.options_of(lg)) for p, lg in zip(paths, loaded, strict=True)]
     job = CalibrationJob(
-        loaded, refs, prof_name, version, out_dir, profiles_dir, description, config, landmarks, poses, force,
-        typed_command("calibrate"), reader.options.range_sigma is not None, per_sensor, sources, workers, scheduler,
+        logs=loaded, inputs=refs, config=config, landmarks=landmarks, poses=poses, command=typed_command("calibrate"),
+        target=ProfileTarget(name=prof_name, version=version, description=description, profiles_dir=profiles_dir, out=out_dir, force=force),
+        range_sigma_given=reader.options.range_sigma is not None, per_sensor=per_sensor, sources=sources, workers=workers, scheduler=scheduler,
     )  # fmt: skip
     done = run_calibration(job)
     for note in done.notes:
@@ -225,15 +226,10 @@ def _cross_validate(args, reader, cv, config, adapt, landmarks, poses, out_dir, 
     loaded, _ = reader.read_many([Path(a) for a in args], robot)
     target = out_dir or Path("runs") / f"cv_{cv}_{loaded[0].name}"
     fresh(target, force, inputs=[*args, config, landmarks])
-    detection = all(lg.scans is None and lg.detections is not None for lg in loaded)
-    if detection:
-        from calib.detlevel import DetectionCalibConfig
+    from detcal.pipelines.calibrate import METHODS
 
-        cfg = load_yaml_model(DetectionCalibConfig, config)
-    else:
-        from calib.calibrate import CalibrateConfig
-
-        cfg = load_yaml_model(CalibrateConfig, config)
+    detection = METHODS.get("external").takes(loaded)  # cross-validation knows detection-level and laser calibrations
+    cfg = load_yaml_model(METHODS.get("external" if detection else "circle2d").config(), config)
     res = cross_validate(loaded, cv, config=cfg, adapt=adapt, landmarks_csv=landmarks, poses=poses)
     figures = write_cv_run(res, target, overwrite=force)
     out.print(scores_table(f"cross-validation ({cv}) -> {target} ({len(figures)} figures)", res.table, ("fold", "test", "profile")))
@@ -258,3 +254,47 @@ def icp_cmd(
     fresh(target, force, inputs=[log_path, relations])
     summary = write_icp_run(log, target, relations=relations, overwrite=force)
     out.print(summary_table(f"ICP ground truth of {log.name} -> {target}", summary))
+
+
+@reader_options()
+def selfcal_cmd(
+    log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A detection-level log with odometry (no landmark truth needed).")],
+    reader: ReaderArgs,
+    profile_ref: Annotated[str, typer.Option("--profile", help="The starting profile (e.g. a nominal one): name@version or a file.")],
+    config: Annotated[Path | None, typer.Option(help="YAML SLAM settings (see detcal slam run).")] = None,
+    filter_: Annotated[
+        str | None,
+        typer.Option(
+            "--filter", help="Map filter of the SLAM runs: rbphd, lmb or glmb (default: the config's); the profile is measured against its map."
+        ),
+    ] = None,
+    iterations: Annotated[int, typer.Option(help="SLAM runs at most.")] = 5,
+    tolerance: Annotated[float, typer.Option(help="Stop when P_D (absolute) and noise and clutter (relative) change by less than this.")] = 0.02,
+    average_from: Annotated[
+        int | None,
+        typer.Option(
+            help="Average the measurements of the runs from this iteration on (0 = the first) and run on their average: "
+            "each run's map is a random draw, so the plain iteration scatters about its fixed point and only the average settles."
+        ),
+    ] = None,
+    seed: Annotated[int, typer.Option(help="Filter seed of every run.")] = 0,
+    particles: Annotated[int | None, typer.Option(help="Particles (default: the config's).")] = None,
+    name: Annotated[str | None, typer.Option(help="Name of the measured profile (default: <log name>-selfcal).")] = None,
+    version: Annotated[str, typer.Option("--version", help="Its version MAJOR.MINOR.PATCH.")] = "1.0.0",
+    out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/selfcal_<name>@<version>).")] = None,
+    profiles_dir: Annotated[Path | None, typer.Option(help="Where to save the profile (default: the user profile folder).")] = None,
+    force: Annotated[bool, typer.Option(help="Replace an existing run folder and profile version.")] = False,
+) -> None:
+    """Self-calibration: run SLAM, measure P_D against range (unoccluded map features), clutter, noise and the
+    odometry's steering offset against the run's own map and trajectory, run again, until nothing changes."""
+    from calib.progress import progress
+    from detcal.pipelines.self_calibration import SelfCalibrationRequest
+    from detcal.pipelines.slam_run import SettingsRequest
+
+    request = SelfCalibrationRequest(
+        log_path=log_path, read=reader.read, profile=profile_ref, settings=SettingsRequest(config, filter_, particles),
+        iterations=iterations, tolerance=tolerance, average_from=average_from, seed=seed, name=name, version=version,
+        out=out_dir, profiles_dir=profiles_dir, force=force, command=typed_command("selfcal"), inputs=input_refs,
+    )  # fmt: skip
+    rows = request.run(progress, fresh)
+    out.print(summary_table(f"self-calibration of {rows.pop('log')}", rows))

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import yaml
 
-from calib.selfcal import SelfCalConfig, profile_change, self_calibrate
+from calib.map_calibration import SelfCalConfig, profile_change, self_calibrate
 from calib.sim.rfs import RfsSimConfig, simulate_rfs, truth_profile
 from profiles.schema import ClutterParams
 from tests.calib.test_cli import assert_one_line_error, run
@@ -128,7 +128,7 @@ def test_pooled_runs_are_the_same_detections_not_more_data(log):
     """Averaging the iterates: n measurements of the same detections against the same map pool to the very
     same profile with the same counts and Wilson intervals (not sqrt(n) narrower: the runs add no detections);
     against two different maps, P_D is the pooled rate of the two runs' pairs and the clutter rate their mean."""
-    from calib.selfcal import pool_self_calibrations
+    from calib.map_calibration import pool_self_calibrations
 
     truth = log.reference["ground_truth"].poses
     cfg = SelfCalConfig(gate=0.1)
