@@ -49,7 +49,7 @@ One step (:meth:`GLMB.update`, eqs. 11-17):
   better with the poses given, level in full SLAM); a birth that gates no measurement and is
   likelier absent is summed out of the sampler (``sum_idle_births``: exact for
   the weight, its born-but-missed children are not kept; :mod:`slam_runtime.gibbs`);
-* reduction (:func:`slam_runtime.gibbs.reduce_hypotheses`): the versions of
+* reduction (:func:`slam_runtime.hypotheses.reduce_hypotheses`): the versions of
   one label under different association histories whose Gaussians lie within
   squared Mahalanobis distance ``merge`` (4) of each other are merged (moment
   match; eq. 29 with the mixture reduced to one component), hypotheses that
@@ -118,7 +118,8 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from profiles.errors import UsageError
 from slam_runtime.features import FeatureModel, lookup, mean_by_label
-from slam_runtime.gibbs import detection_costs, joint_update, reduce_hypotheses
+from slam_runtime.gibbs import detection_costs, joint_update
+from slam_runtime.hypotheses import reduce_hypotheses
 from slam_runtime.gm import det, inv, matmul, matvec, moment_match, quad, transpose
 from slam_runtime.mapfilter import MAP_FILTERS, MapFilter, Measurements
 from slam_runtime.pd_factor import LabelFactors, beta_update, mean_factor, prior_ab, store_key
@@ -267,7 +268,7 @@ class JointResult:
 
     @classmethod
     def of_reduction(cls, loglik: np.ndarray, out: tuple) -> JointResult:
-        """The hypotheses and slots that :func:`slam_runtime.gibbs.reduce_hypotheses` returned (out), without sources."""
+        """The hypotheses and slots that :func:`slam_runtime.hypotheses.reduce_hypotheses` returned (out), without sources."""
         capped, slot_count, _, _, _, hyp_count, hyp_logw, mem_count, mem_slot = out[:9]
         return cls(loglik, bool(capped), hyp_count, hyp_logw, mem_count, mem_slot, slot_count, np.zeros(0, np.int64), np.zeros(0, np.int64))
 

@@ -26,7 +26,7 @@ P_D, the buffer zone, kappa, survival and adaptive birth as in
 :mod:`slam_runtime.glmb`.
 
 With ``merge_alternatives`` (off by default) the update's delta-GLMB goes
-through delta-GLMB's reduction (:func:`slam_runtime.gibbs.reduce_hypotheses`)
+through delta-GLMB's reduction (:func:`slam_runtime.hypotheses.reduce_hypotheses`)
 before the LMB approximation, so that labels it holds as alternatives of one
 landmark become one track (measured with the poses given: LMB's misses at 15
 false alarms per scan halved; docs/labelled-filters.md).
@@ -48,7 +48,7 @@ import numpy as np
 from pydantic import Field
 
 from slam_runtime.features import FeatureModel, lookup
-from slam_runtime.gibbs import reduce_hypotheses
+from slam_runtime.hypotheses import reduce_hypotheses
 from slam_runtime.glmb import Births, GLMBConfig, JointResult, LabelledFilter, LabelledSettings, Tracks
 from slam_runtime.gm import moment_match
 from slam_runtime.mapfilter import MAP_FILTERS, Measurements
@@ -201,7 +201,7 @@ class LMB(LabelledFilter):
     def _merged(self, sl, res: JointResult, label: np.ndarray, mu: np.ndarray, cov: np.ndarray):
         """The LMB approximation (per source slot, flat (P S,): existence, mean, covariance) of the update's
         delta-GLMB (res; the new slots' label, mu, cov) after its alternative labels of one landmark are merged
-        (``merge_alternatives``; :func:`slam_runtime.gibbs.reduce_hypotheses`, which also merges each label's versions
+        (``merge_alternatives``; :func:`slam_runtime.hypotheses.reduce_hypotheses`, which also merges each label's versions
         within ALTERNATIVES_GATE: the moment match of merged versions is the moment match of them all). A label merged
         into another leaves its slot empty (existence 0). The existence is the weight of the children that hold the
         track, each once (the reduction leaves every child each label once; counted by child, the existence stays
