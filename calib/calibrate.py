@@ -46,7 +46,7 @@ from calib.landmarks import CloudLandmarkConfig
 from calib.rangenoise import RangeNoise, RangeNoiseConfig, pool_range_noise, range_residuals
 from detectors.circle import descriptor_matrix
 from detectors.geometry import compose, interpolate_poses
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from detectors.model import fov_volume
 from profiles.errors import DataError, UsageError
 from profiles.parameters import CalibrateConfig
@@ -324,16 +324,7 @@ def calibrate(
     )
     clut = fit_clutter(counts, cfg.clutter.dispersion_level)
     volume = fov_volume(sensor, cfg.clutter_space)
-    density = None
-    if cfg.clutter.use_density(len(logs)) and cfg.clutter_space == "range_bearing":
-        lo = min(sensor.angle_min, sensor.angle_min + sensor.angle_increment * (sensor.n_beams - 1))
-        re_ = np.linspace(sensor.range_min, sensor.range_max, cfg.clutter.range_bins + 1)
-        be = np.linspace(lo, lo + sensor.field_of_view, cfg.clutter.bearing_bins + 1)
-        if len(logs) > 1:
-            fold, label = fa["log"].to_numpy(), f"sensors ({len(logs)})"
-        else:
-            fold, label = time_folds(len(logs[0].scans), cfg.clutter.folds)[fa["scan"].to_numpy(np.int64)], f"time blocks ({cfg.clutter.folds})"
-        density = fit_density(fa["range"].to_numpy(), fa["bearing"].to_numpy(), fold, re_, be, cfg.clutter, label)
+    density = _clutter_density(fa, logs, sensor, cfg)
     d = len(names)
     ell_vol = pi ** (d / 2) / gamma_fn(d / 2 + 1) * hot.gamma ** (d / 2) * float(np.sqrt(np.linalg.det(hot.cov)))
     seeds = {lg.source.get("seed") for lg in logs if lg.source.get("seed") is not None}
@@ -369,8 +360,31 @@ def calibrate(
             seed=seeds.pop() if len(seeds) == 1 else None,
         ),
     )
+    summary = _summary(logs, sources, lms, sensor, params, dets, true, gated, fa, pairs, rc, clut, density, hot, cfg)
+    if noise is not None:
+        summary["range_noise"] = noise.summary()
+    return Calibration(profile, cfg, Labelled(dets, pairs), hot, rc, clut, logs, poses, lms, gated, summary, noise)
+
+
+def _clutter_density(fa: pd.DataFrame, logs: list[SensorLog], sensor: SensorModel, cfg: CalibrateConfig):
+    """The false alarms' density over range x bearing, chosen against the uniform one by held-out likelihood (folds:
+    the sensors, or time blocks of one log); None when the config or the clutter space leaves it out."""
+    if not (cfg.clutter.use_density(len(logs)) and cfg.clutter_space == "range_bearing"):
+        return None
+    lo = min(sensor.angle_min, sensor.angle_min + sensor.angle_increment * (sensor.n_beams - 1))
+    re_ = np.linspace(sensor.range_min, sensor.range_max, cfg.clutter.range_bins + 1)
+    be = np.linspace(lo, lo + sensor.field_of_view, cfg.clutter.bearing_bins + 1)
+    if len(logs) > 1:
+        fold, label = fa["log"].to_numpy(), f"sensors ({len(logs)})"
+    else:
+        fold, label = time_folds(len(logs[0].scans), cfg.clutter.folds)[fa["scan"].to_numpy(np.int64)], f"time blocks ({cfg.clutter.folds})"
+    return fit_density(fa["range"].to_numpy(), fa["bearing"].to_numpy(), fold, re_, be, cfg.clutter, label)
+
+
+def _summary(logs, sources, lms, sensor, params, dets, true, gated, fa, pairs, rc, clut, density, hot, cfg) -> dict:
+    """What a laser calibration reports (summary.yaml)."""
     n_true = int(true.sum())
-    summary = {
+    return {
         "logs": [lg.name for lg in logs],
         "scans": int(sum(len(lg.scans) for lg in logs)),
         "pose_source": sources,
@@ -398,6 +412,3 @@ def calibrate(
         "hotelling_gamma": hot.gamma,
         "hotelling_gamma_method": cfg.gamma,
     }
-    if noise is not None:
-        summary["range_noise"] = noise.summary()
-    return Calibration(profile, cfg, Labelled(dets, pairs), hot, rc, clut, logs, poses, lms, gated, summary, noise)

@@ -14,7 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from calib.progress import progress
 from detectors.circle import CircleDetections, detect_circles
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.errors import DataError
 from profiles.schema import CircleDetectorParams, HotellingParams
 

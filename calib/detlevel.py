@@ -7,13 +7,12 @@ bearing (thesis eq. 6.2 with the covariates changed). The steps:
 * **camera epochs**: the log only lists frames that detected something, so the
   opportunities to detect are rebuilt as a regular grid at the camera's frame
   period (the median gap between consecutive detection frames when gaps under
-  0.5 s are considered; 0.24 s on UTIAS), each detection frame snapped to the
+  0.5 s are considered), each detection frame snapped to the
   nearest epoch;
 * **identity audit**: a landmark identity whose detections almost all fall on
   another landmark's surveyed position (and almost never on its own) marks a
   swapped entry in the truth; its detections are attributed to the landmark
-  they fall on, and the summary says so (UTIAS dataset 1: landmarks 11 and 17,
-  every one of their 3,600 detections on all five robots);
+  they fall on, and the summary says so;
 * **expected landmarks**: at every epoch the true vehicle pose (Vicon) gives
   each landmark's range and bearing; a landmark is expected when it is inside
   the field of view (|bearing| <= fov / 2, range <= range_max), both estimated
@@ -45,7 +44,7 @@ from calib.io.common import index_of
 from calib.pdmodels import between_sensor_sd, choose_pd_model, pool_sensors, predict, shrink_rates
 from calib.validate import BLOCK_S, Held, Validation, score
 from detectors.geometry import compose, interpolate_poses
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.errors import DataError, UsageError
 from profiles.override import updated
 from profiles.parameters import DetectionCalibConfig, IdentityAudit

@@ -23,7 +23,7 @@ from scipy.spatial import cKDTree
 
 from detectors.circle import detect_circles
 from detectors.geometry import compose
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.errors import DataError
 from profiles.parameters import CloudLandmarkConfig
 from profiles.schema import CircleDetectorParams

@@ -38,7 +38,7 @@ from calib.calibrate import created_now
 from calib.detlevel import fit_noise
 from calib.fits import ClutterFit, clutter_params, fit_clutter, fit_pd_table
 from detectors.geometry import compose
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.errors import DataError
 from profiles.override import updated
 from profiles.parameters import SelfCalConfig
@@ -236,7 +236,7 @@ def pool_self_calibrations(cals: list[SelfCalibration], cfg: SelfCalConfig, *, i
     the self-calibration's iterates).
 
     Each run's map is one random draw of the truth, so each measurement scatters about the fixed point
-    by the run-to-run spread (on Victoria Park 10-20 % in clutter rate and range noise) and the
+    by the run-to-run spread and the
     iteration does not settle; their average does. The runs measure the *same* detections against
     different maps, so their pairs are not new data: P_D per bin is the pooled rate of the runs'
     unoccluded pairs (bins of ``cfg.pd`` with ``min_count`` per run), but the counts, detections and

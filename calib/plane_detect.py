@@ -17,7 +17,7 @@ import pandas as pd
 from pydantic import BaseModel, ConfigDict
 
 from calib.progress import progress
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from detectors.plane import PlaneDetections, detect_planes
 from profiles.errors import DataError
 from profiles.planes import PlaneDetectorParams

@@ -44,7 +44,7 @@ from calib.calibrate import created_now
 from calib.fits import ClutterFit, PdFitConfig, clutter_params, fit_clutter, wilson
 from detectors.geometry import compose, interpolate_poses
 from detectors.geometry3d import chart_from_normal, normal_angle, orient_away, plane_basis, wrap
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from detectors.plane import PlaneDetections, detect_planes
 from detectors.plane_model import PlaneDetectionModel
 from detectors.raytrace3d import BeamGrid, polygon_scene, range_image, visible_planes

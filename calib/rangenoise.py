@@ -27,9 +27,8 @@ This module measures exactly that on ICP-aligned scans:
 
 The thinness test matters: without it, a return whose neighbours form a blob
 (a trunk, a table leg) is scored against their centroid, next to itself, and
-the spread comes out far too small (on a simulated park with sigma_r = 2 cm,
-1.3 cm). With the defaults, simulated parks with sigma_r = 2 cm and 5 cm give
-2.2 cm and 6.0 cm: slightly high (curved trunks pass as lines over 0.5 m),
+the spread comes out far too small. With the defaults the estimate is slightly
+high on simulated parks (curved trunks pass as lines over 0.5 m; docs/results.md),
 which errs on the side of not calling noise an occlusion.
 
 Everything is vectorised over the query returns (one k-d tree query, batched
@@ -43,7 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.errors import DataError
 from profiles.parameters import RangeNoiseConfig
 
@@ -177,12 +176,6 @@ def map_scans(sensor_poses: np.ndarray, move: float, turn: float) -> np.ndarray:
             keep.append(i)
             last = p
     return np.array(keep, dtype=np.int64)
-
-
-def estimate_range_noise(logs: list[SensorLog], sensor_poses: list[np.ndarray], cfg: RangeNoiseConfig | None = None) -> RangeNoise:
-    """Range noise pooled over logs of one laser; ``sensor_poses[k]`` (S_k, 3) world frame for log k."""
-    cfg = cfg or RangeNoiseConfig()
-    return pool_range_noise([range_residuals(lg, sp, cfg) for lg, sp in zip(logs, sensor_poses, strict=True)], cfg)
 
 
 def pool_range_noise(parts: list[tuple[np.ndarray, np.ndarray, int]], cfg: RangeNoiseConfig | None = None) -> RangeNoise:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from calib.io.native import read_native, write_native
 from calib.sim.park import ParkConfig, simulate_park
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 
 DEFAULT_SEED = 1
 DEFAULT_PROFILE_NAME = "sim-park-laser"

@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.errors import DataError, DetcalError, UsageError
 
 #: Logs a worker process keeps in memory after reading them (the last ones used).
@@ -330,9 +330,8 @@ def _quiet_dask(level: int = logging.CRITICAL) -> Iterator[None]:
 #: nothing to gain from queueing on workers, and a lost worker loses one task); patient timeouts for a loaded
 #: machine; one BLAS thread per worker process (the workers are the parallelism), and none of Dask's
 #: ``MALLOC_TRIM_THRESHOLD_=65536``: it pins glibc's mmap threshold, so every array above 128 kB is mapped and
-#: unmapped afresh, and the filter spent a third more CPU per step on a worker than in one process. The worker's
-#: statistical profiler is off: it walks the running task's stack every 10 ms under the GIL, which cost 10-20 % of
-#: the wall time of a sweep on 2 workers (a 12-run sweep on 2 workers: 22.8-24.1 s with it, 19.6-20.1 s without).
+#: unmapped afresh, and the filter spent more CPU per step on a worker than in one process. The worker's
+#: statistical profiler is off: it walks the running task's stack every 10 ms under the GIL (docs/results.md).
 #: Workers import what the tasks use as they start (:data:`PRELOAD`).
 LOCAL_CONFIG = {
     "distributed.worker.profile.enabled": False,

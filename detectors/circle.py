@@ -332,7 +332,7 @@ def detect_circles(
 
     ranges (N, B) or (B,) float, NaN = no return; angles (B,) sensor frame, or
     (N, B) per scan for a laser of several beam layouts
-    (:meth:`detectors.logs.SensorLog.scan_angles`; NaN past a scan's beams).
+    (:meth:`detectors.sensor_log.SensorLog.scan_angles`; NaN past a scan's beams).
     With ``hotelling`` the detections outside its ellipsoid are dropped; the
     squared Mahalanobis distance is reported either way when a model is given.
 

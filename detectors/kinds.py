@@ -48,7 +48,7 @@ class Measurements:
 class Detector(ABC):
     """A detector kind at run time (module docstring)."""
 
-    #: the stream of a :class:`detectors.logs.SensorLog` it reads: "scans", "clouds" or "detections"
+    #: the stream of a :class:`detectors.sensor_log.SensorLog` it reads: "scans", "clouds" or "detections"
     stream: str
     #: what it needs, for the message that refuses a log without that stream ("detects circles in laser scans")
     needs: str
@@ -63,7 +63,7 @@ class Detector(ABC):
 
     @abstractmethod
     def source(self, log, profile, detection, options) -> Callable[[object], Measurements]:
-        """``measure(frame) -> Measurements`` for every frame of ``log`` (a :class:`detectors.logs.Frame`)."""
+        """``measure(frame) -> Measurements`` for every frame of ``log`` (a :class:`detectors.sensor_log.Frame`)."""
 
 
 #: The detector kinds by the profile's ``detector.kind``.

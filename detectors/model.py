@@ -37,10 +37,10 @@ from math import gamma as gamma_fn
 from math import pi
 
 import numpy as np
-from scipy.special import chdtr  # chi-square CDF; scipy.stats (0.6 s to import) is not needed here
+from scipy.special import chdtr  # chi-square CDF; scipy.stats (slow to import) is not needed here
 
 from detectors.circle import hotelling_maha2
-from detectors.logs import SensorModel
+from detectors.sensor_log import SensorModel
 from detectors.raytrace import buffer_zone, count_unoccluded, expected_pd, expected_unoccluded
 from profiles.errors import DataError
 from profiles.schema import PD_COVARIATES, ClutterParams, HotellingParams, MeasurementNoise, PdTable
@@ -161,10 +161,6 @@ class DetectionModel:
 
     def pd_of_np(self, n_p: np.ndarray) -> np.ndarray:
         return self.pd_table.lookup(n_p)
-
-    def pd_covariate(self, v: np.ndarray) -> np.ndarray:
-        """P_D for covariate values (any shape): n_p counts or ranges, as the table says."""
-        return self.pd_table.lookup(v)
 
     def pd_landmarks(
         self,

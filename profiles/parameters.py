@@ -143,8 +143,7 @@ class PdModelConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     candidates: list[Candidate] = Field(default=["range", "additive_logit", "cells_shrunk"], min_length=1)
-    # no zero clamp: inside the field of view a low P_D is real, not a sign of being out of view (the thesis's clamp
-    # below 0.1 scored worse on held-out UTIAS robots: docs/results.md)
+    # no zero clamp: inside the field of view a low P_D is real, not a sign of being out of view (docs/results.md)
     table: PdFitConfig = PdFitConfig(min_count=50, range_bin=0.25, zero_below=0.0)
     grid_range_bin: float = Field(default=0.5, gt=0.0, description="range bin of the range x bearing grids [m]")
     bearing_bins: int = Field(default=8, ge=1, le=90, description="bearing bins across the field of view")
@@ -215,7 +214,7 @@ class RfsSimConfig(BaseModel):
         return self
 
 
-#: the 23 landmarks [m], world frame, 1-2 m beside the default circuit (each in range for 22-58 scans)
+#: the 23 landmarks [m], world frame, 1-2 m beside the default circuit
 LANDMARKS = [
     [1.6, 1.1], [5.6, -1.8], [9.1, 1.1], [12.6, -1.5], [16.2, 1.7], [20.5, -1.2], [22.5, 2.9], [27.2, 4.7],
     [24.6, 8.6], [27.1, 12.5], [22.5, 14.6], [20.6, 18.0], [16.3, 15.5], [12.6, 18.8], [9.1, 16.1], [5.7, 18.2],

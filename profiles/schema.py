@@ -84,7 +84,7 @@ class SensorModel(Strict):
     angles; CARMEN ``ROBOTLASER1`` lines that carry their own geometry) lists
     its layouts in ``geometries`` instead; ``n_beams`` is then the widest
     count (the width of the scan arrays) and each scan says which layout it
-    used (:meth:`detectors.logs.SensorLog.scan_angles`). Detection-only
+    used (:meth:`detectors.sensor_log.SensorLog.scan_angles`). Detection-only
     sensors (a camera, a vendor's tree extractor) give ``fov`` instead of a
     beam geometry. A 3D lidar gives its ring and column layout in ``lidar``
     (written only when present).

@@ -163,7 +163,7 @@ _NOT_CONTENT = ("created", "command")
 
 #: Relative tolerance within which two profiles' numbers are the same content: a calibration's sums (a
 #: covariance through BLAS, say) round differently in the last bits under another numpy or BLAS build, which
-#: does not make it another profile. Measured: 1-2 units in the last place (about 1e-16) between numpy builds.
+#: does not make it another profile (a few units in the last place between numpy builds).
 SAME_REL_TOL = 1e-9
 
 

@@ -32,7 +32,7 @@ from __future__ import annotations
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from detectors.logs import wrap_angle
+from detectors.sensor_log import wrap_angle
 from slam_runtime.vehicle import VEHICLE_MODELS, VehicleModel
 
 #: columns of the planar pose (X, Y, phi) in the state

@@ -1,6 +1,7 @@
-"""Compiled kernels of the labelled map filters (delta-GLMB, LMB): optimal assignment, the Gibbs
-sampler of the joint prediction/update (Vo, Vo & Hoang 2017; delta-GLMB-SLAM paper eqs. 11-17), the
-reduction of its hypotheses, and the detections' log eta of point landmarks (:func:`detection_costs`).
+"""Compiled kernels of the labelled map filters (delta-GLMB, LMB): the Gibbs sampler of the joint
+prediction/update (Vo, Vo & Hoang 2017; delta-GLMB-SLAM paper eqs. 11-17) and the detections' log eta of point
+landmarks (:func:`detection_costs`); the reduction of the hypotheses it draws is :mod:`slam_runtime.hypotheses`,
+the helpers both share (the optimal assignment among them) :mod:`slam_runtime.kernels`.
 
 The joint prediction/update of one prior hypothesis ``(I, xi)`` with weight w
 draws association maps gamma over the hypothesis's candidate tracks (its
@@ -20,8 +21,7 @@ the P particles (-inf where an option is impossible or a measurement lies
 outside the gate).
 
 For every prior hypothesis, the chain starts at the optimal assignment (the
-highest-weight child, :func:`hungarian`: a shortest-augmenting-path solver
-checked against ``scipy.optimize.linear_sum_assignment`` in the tests) and then
+highest-weight child, :func:`slam_runtime.kernels.hungarian`) and then
 makes one Gibbs sweep per further sample (Vo, Vo & Hoang 2017, Algorithm 1:
 each gamma_i drawn from its conditional given the others, with the
 measurements the others hold locked out). Samples are allocated to the prior
@@ -52,19 +52,16 @@ exactly; the caller updates it on its own (``held``, ``l_held``):
 * a birth that gates no measurement and is likelier not born (r_B <
   1 / (2 - P_D): any birth probability of the paper's kind) is dropped by
   delta-GLMB (its born-but-missed children are not kept) and given its exact
-  existence, r_B (1 - P_D) / (1 - r_B P_D), by LMB (``sum_idle_births``).
-  Sampled, these births (one per measurement of the previous scan: 15-17 at
-  15 false alarms per scan) took a share of the samples that changed from
+  existence, r_B (1 - P_D) / (1 - r_B P_D), by LMB (``sum_idle_births``):
+  sampled, such births would take a share of the samples that changes from
   particle to particle, and with it each particle's missing mass, its weight;
 * delta-GLMB updates the other independent births and released tracks exactly
   as Bernoulli components outside the hypotheses (``factor_independent``):
   existence the share of its options in which it exists, density the moment
-  match of its missed and detected versions. Sampled, a new landmark's first
-  detections (a child of weight r_B P_D g / kappa, 0.01 x 3.5 at 15 false
-  alarms per scan) were drawn in only some steps with 60 samples, and the
-  tentative track's existence stayed 5-10 times below the exact one (measured
-  against 2,000 samples on glmb-paper), so landmarks seen 14-18 times were
-  never confirmed.
+  match of its missed and detected versions; sampled, a new landmark's first
+  detections (a child of small weight r_B P_D g / kappa) are drawn in only
+  some steps, and a tentative track's existence stays below the exact one
+  (docs/results.md).
 
 Why compiled: the sweep is sequential by nature (each gamma_i is drawn given
 the current values of all the others, so no two draws of one chain can be
@@ -480,7 +477,7 @@ def _inv2(s00, s01, s10, s11):  # pragma: no cover - compiled
 @numba.njit(cache=True, nogil=True)
 def detection_costs(zhat, hph, z, rz, own_cov, r, logdet_r, wrap_bearing, gate, dzlog, l_base, log_kappa, in_a, pd_pos):  # pragma: no cover - compiled
     """log eta of the detections of 2-d measurements, fused over (particle, candidate, measurement): the same
-    arithmetic as the vectorised form in :meth:`slam_runtime.glmb.LabelledFilter._det_costs` (one pass instead of
+    arithmetic as the vectorised form in :meth:`slam_runtime.labelled.LabelledFilter._det_costs` (one pass instead of
     some twenty (P, A, M) temporaries).
 
     zhat (P, A, 2), hph (P, A, 2, 2): the candidates' predicted measurements and H P H^T; z (M, 2); the innovation

@@ -28,8 +28,7 @@ P_D, the buffer zone, kappa, survival and adaptive birth as in
 With ``merge_alternatives`` (off by default) the update's delta-GLMB goes
 through delta-GLMB's reduction (:func:`slam_runtime.hypotheses.reduce_hypotheses`)
 before the LMB approximation, so that labels it holds as alternatives of one
-landmark become one track (measured with the poses given: LMB's misses at 15
-false alarms per scan halved; docs/labelled-filters.md).
+landmark become one track (docs/labelled-filters.md).
 
 P_D learned per track (``learn_pd``): :mod:`slam_runtime.pd_factor`, per track.
 
@@ -49,7 +48,8 @@ from pydantic import Field
 
 from slam_runtime.features import FeatureModel, lookup
 from slam_runtime.hypotheses import reduce_hypotheses
-from slam_runtime.glmb import Births, GLMBConfig, JointResult, LabelledFilter, LabelledSettings, Tracks
+from slam_runtime.glmb import GLMBConfig
+from slam_runtime.labelled import Births, JointResult, LabelledFilter, LabelledSettings, Tracks
 from slam_runtime.gm import moment_match
 from slam_runtime.mapfilter import MAP_FILTERS, Measurements
 from slam_runtime.pd_factor import beta_update, mean_factor, prior_ab, store_key

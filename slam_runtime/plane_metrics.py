@@ -25,7 +25,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from detectors.geometry import compose, interpolate_poses
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from detectors.raytrace3d import BeamGrid, polygon_scene, range_image, visible_planes
 from slam_runtime.metrics import gospa, ospa
 from slam_runtime.plane_features import embed, plane_distance

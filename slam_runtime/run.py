@@ -1,6 +1,6 @@
 """Run a SLAM filter over a log, then evaluate it: run -> evaluate -> write (the CLI writes).
 
-Takes a :class:`detectors.logs.SensorLog` in memory and a profile object; no
+Takes a :class:`detectors.sensor_log.SensorLog` in memory and a profile object; no
 file paths. :func:`build` turns the settings into a vehicle model, a feature
 model, the profile's detection model, a map filter and a measurement source;
 :func:`run_slam` drives the particle loop (:class:`slam_runtime.slam.RBSlam`)
@@ -20,7 +20,7 @@ import numpy as np
 
 from detectors.geometry import compose, interpolate_poses, relative
 from detectors.kinds import DETECTORS
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.errors import DataError, UsageError
 from profiles.schema import PD_COVARIATES
 from slam_runtime.config import SlamConfig, detection_model, feature_model, map_filter, vehicle_model

@@ -1,6 +1,6 @@
 """Measurement sources and controls: what the filter loop gets from a log, frame by frame.
 
-A log in memory (:class:`detectors.logs.SensorLog`) becomes a sequence of
+A log in memory (:class:`detectors.sensor_log.SensorLog`) becomes a sequence of
 :class:`FrameInput`: the control rows since the previous frame (for the
 vehicle model) and the frame's :class:`detectors.kinds.Measurements`, made by
 the measurement source of the profile's detector kind
@@ -23,7 +23,7 @@ import numpy as np
 
 from detectors.geometry import relative
 from detectors.kinds import Measurements
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.errors import DataError
 
 

@@ -38,7 +38,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from detectors.geometry import compose
-from detectors.logs import wrap_angle
+from detectors.sensor_log import wrap_angle
 from profiles.errors import DataError
 from profiles.registry import Registry
 
@@ -314,7 +314,7 @@ class Ackermann(VehicleModel):
 
     def predict_gaussian(self, x, controls, dts):
         """As :meth:`VehicleModel.predict_gaussian`, with the control Jacobian in closed form and the rows of a
-        frame integrated in one compiled loop (a frame of Victoria Park holds ~7 odometry rows; the generic
+        frame integrated in one compiled loop (a frame holds several odometry rows; the generic
         form costs six vectorised model evaluations per row)."""
         if np.ndim(self.steer_offset) or np.ndim(self.speed_scale):  # one bias per state: the generic form
             return super().predict_gaussian(x, controls, dts)

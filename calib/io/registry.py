@@ -24,7 +24,7 @@ from calib.io.native import SUFFIX, is_native, read_native, write_native
 from calib.io.rosbag import looks_like_bag, read_rosbag, write_ros2
 from calib.io.utias import looks_like_utias, read_utias
 from calib.io.victoria import looks_like_victoria, read_victoria
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.errors import UsageError
 from profiles.registry import Registry
 

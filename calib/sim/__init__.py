@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.registry import Registry
 
 

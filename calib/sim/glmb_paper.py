@@ -39,7 +39,7 @@ from __future__ import annotations
 import numpy as np
 
 from calib.sim import SIMULATORS, Option, Simulated, Simulator
-from detectors.logs import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, Vehicle, wrap_angle
+from detectors.sensor_log import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, Vehicle, wrap_angle
 from profiles.errors import UsageError
 from profiles.parameters import GlmbPaperConfig
 

@@ -31,7 +31,7 @@ from scipy.spatial import cKDTree
 from calib.config import dump_yaml
 from calib.sim import SIMULATORS, Simulated, Simulator
 from detectors.geometry import cast, compose, relative
-from detectors.logs import Landmarks, Mount, Odometry, ReferencePoses, ScanBatch, SensorLog, SensorModel, seconds_to_stamp
+from detectors.sensor_log import Landmarks, Mount, Odometry, ReferencePoses, ScanBatch, SensorLog, SensorModel, seconds_to_stamp
 from profiles.errors import DataError
 from profiles.parameters import check_order
 
@@ -70,8 +70,7 @@ class BushesConfig(_Strict):
     """Irregular shrubs: the main source of false alarms.
 
     Many small ones rather than a few big ones: the clutter rate of a world then
-    varies little between worlds of the same statistics (with 40 bushes of
-    0.6-2 m it varied by +-25 % between seeds; with 150 of 0.3-1 m by +-8 %).
+    varies little between worlds of the same statistics (docs/results.md).
     """
 
     count: int = Field(default=150, ge=0)

@@ -31,7 +31,7 @@ import numpy as np
 
 from calib.sim import SIMULATORS, Option, Simulated, Simulator
 from detectors.geometry import compose
-from detectors.logs import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, wrap_angle
+from detectors.sensor_log import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, wrap_angle
 from profiles.parameters import RfsSimConfig
 
 

@@ -35,7 +35,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from calib.sim import SIMULATORS, Option, Simulated, Simulator
 from detectors.geometry import compose
-from detectors.logs import Mount, Odometry, PlaneLandmarks, PointClouds, ReferencePoses, SensorLog, SensorModel, seconds_to_stamp, wrap_angle
+from detectors.sensor_log import Mount, Odometry, PlaneLandmarks, PointClouds, ReferencePoses, SensorLog, SensorModel, seconds_to_stamp, wrap_angle
 from detectors.raytrace3d import BeamGrid, Scene, cast, hdl64_elevations
 from profiles.errors import DataError
 from profiles.parameters import check_order

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from calib.config import load_yaml_model
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.atomic import Output, atomic_outputs, check_replaceable
 from profiles.errors import UsageError
 from profiles.profile import NAME_RE, SEMVER_RE, InputRef

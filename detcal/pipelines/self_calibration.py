@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from detcal.pipelines.slam_run import SettingsRequest
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.errors import UsageError
 from profiles.profile import NAME_RE, SEMVER_RE
 from slam_runtime.config import SlamConfig, with_settings

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from calib.config import load_yaml_model
 from detcal.reports.slam_run import write_slam_run
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.errors import UsageError
 from slam_runtime.config import SlamConfig, with_filter
 from slam_runtime.labels import labelled_hooks

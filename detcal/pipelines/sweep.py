@@ -36,7 +36,7 @@ from detcal.reports.sweep import (
     write_failed,
     write_tables,
 )
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.atomic import MARKER
 from profiles.errors import DataError, DetcalError, UsageError
 from slam_runtime.config import SlamConfig

@@ -36,7 +36,7 @@ from calib.detect import DetectConfig, detections_table, run_detector  # noqa: E
 from calib.io.atomic import atomic_output  # noqa: E402
 from calib.plane_detect import PlaneDetectConfig, frame_sensor_poses, outlines_table, planes_table, run_plane_detector  # noqa: E402
 from detectors.circle import CircleDetections  # noqa: E402
-from detectors.logs import SensorLog  # noqa: E402
+from detectors.sensor_log import SensorLog  # noqa: E402
 from detectors.plane import PlaneDetections, detect_planes  # noqa: E402
 from detectors.raytrace import pd_grid  # noqa: E402
 from profiles.errors import DataError, UsageError  # noqa: E402

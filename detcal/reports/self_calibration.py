@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 
 from calib.config import dump_yaml
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.store import dump_profile
 
 

@@ -24,7 +24,7 @@ from calib.sim import SIMULATORS
 from calib.sim.park import Simulation, World, sensor_poses
 from calib.sim.street import StreetSimulation
 from detectors.geometry import compose
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.errors import DataError
 
 

@@ -27,7 +27,7 @@ import numpy as np
 import yaml
 
 from detectors.geometry import compose, interpolate_poses, rigid_transform
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.atomic import atomic_output
 from slam_runtime.run import SlamResult
 

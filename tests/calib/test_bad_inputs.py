@@ -265,7 +265,7 @@ def empty_scans_log(t: Path) -> str:
     import dataclasses
 
     from calib.io.native import write_native
-    from detectors.logs import ScanBatch
+    from detectors.sensor_log import ScanBatch
     from tests.calib.io.test_native import full_log
 
     log = full_log()

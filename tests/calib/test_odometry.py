@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from detectors.logs import Odometry, ReferencePoses, SensorLog
+from detectors.sensor_log import Odometry, ReferencePoses, SensorLog
 from profiles.errors import DataError
 
 

@@ -10,7 +10,7 @@ import yaml
 import calib.calibrate
 from calib.io.native import write_native
 from calib.truth import check_within_truth, trim_to_truth
-from detectors.logs import ReferencePoses
+from detectors.sensor_log import ReferencePoses
 from profiles.errors import DataError
 from profiles.store import BUILTIN
 from tests.calib.test_calibrate import park

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from detectors.logs import (
+from detectors.sensor_log import (
     Detections,
     Landmarks,
     Odometry,

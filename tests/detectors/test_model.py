@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from detectors.logs import SensorModel
+from detectors.sensor_log import SensorModel
 from detectors.model import DetectionModel, fov_volume
 from profiles.errors import DataError
 from profiles.schema import ClutterParams, HotellingParams, PdTable

@@ -13,7 +13,8 @@ from profiles.errors import UsageError
 from profiles.schema import ClutterParams, MeasurementNoise, PdTable, SensorModel
 from slam_runtime.config import SlamConfig, override
 from slam_runtime.features import RangeBearing, lookup
-from slam_runtime.glmb import GLMB, Births, GLMBConfig, GLMBMaps, Tracks, _Slots, label_parts
+from slam_runtime.glmb import GLMB, GLMBConfig, GLMBMaps
+from slam_runtime.labelled import Births, Tracks, _Slots, label_parts
 from slam_runtime.labels import labelled_hooks
 from slam_runtime.lmb import LMB, LMBConfig, LMBMaps
 from slam_runtime.mapfilter import Measurements

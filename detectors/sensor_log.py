@@ -510,11 +510,6 @@ class SensorLog:
             i = int(bad[0])
             raise DataError(f"scans.ranges[{i}]: readings past the scan's {int(counts[i])} beams (pad with NaN)")
 
-    @property
-    def uniform_beams(self) -> bool:
-        """True when every scan has the sensor's one beam layout (``sensor.angles()`` applies)."""
-        return self.sensor is None or self.sensor.geometries is None
-
     def scan_angles(self, rows: int | slice | np.ndarray | None = None) -> np.ndarray:
         """Beam angles of scans, sensor frame [rad]; the one accessor for per-scan beam geometry.
 
