@@ -7,7 +7,7 @@ import pytest
 import yaml
 
 from detcal.reports.simulation import write_simulation_run
-from tests.calib.test_cli import assert_one_line_error, run
+from tests.detcal.cli.test_cli import assert_one_line_error, run
 from tests.conftest import VENDORED, small_park_config
 from profiles.override import updated
 

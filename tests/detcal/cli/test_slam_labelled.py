@@ -8,7 +8,7 @@ import yaml
 
 from calib.sim.glmb_paper import GlmbPaperConfig
 from detcal.reports.simulation import write_simulation_run
-from tests.calib.test_cli import assert_one_line_error, run
+from tests.detcal.cli.test_cli import assert_one_line_error, run
 
 
 @pytest.fixture(scope="module")

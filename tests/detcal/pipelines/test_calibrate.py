@@ -14,7 +14,7 @@ from detectors.sensor_log import ReferencePoses
 from profiles.errors import DataError
 from profiles.store import BUILTIN
 from tests.calib.test_calibrate import park
-from tests.calib.test_cli import assert_one_line_error, run
+from tests.detcal.cli.test_cli import assert_one_line_error, run
 
 
 @pytest.fixture(scope="module")

@@ -31,7 +31,7 @@ SIGKILL_EXIT = -9
 def killed(argv: list[str], target: str, when: str = "after", call: int = 1, no_exchange: bool = False) -> None:
     """Run detcal in a subprocess armed to SIGKILL itself at ``target``; the kill must happen."""
     spec = {"argv": [str(a) for a in argv], "kill": {"target": target, "call": call, "when": when}, "no_exchange": no_exchange}
-    r = subprocess.run([sys.executable, "-m", "tests.calib.crash_driver", json.dumps(spec)], cwd=ROOT, capture_output=True, text=True, env=os.environ.copy(), check=False)
+    r = subprocess.run([sys.executable, "-m", "tests.detcal.cli.crash_driver", json.dumps(spec)], cwd=ROOT, capture_output=True, text=True, env=os.environ.copy(), check=False)
     assert r.returncode == SIGKILL_EXIT, f"the kill at {target} did not happen (exit {r.returncode}): {r.stderr[-2000:]}"
 
 

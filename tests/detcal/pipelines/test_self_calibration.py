@@ -7,7 +7,7 @@ import yaml
 from calib.map_calibration import SelfCalConfig, profile_change, self_calibrate
 from calib.sim.rfs import RfsSimConfig, simulate_rfs, truth_profile
 from profiles.schema import ClutterParams
-from tests.calib.test_cli import assert_one_line_error, run
+from tests.detcal.cli.test_cli import assert_one_line_error, run
 from profiles.override import updated
 
 SIM = RfsSimConfig(steps=300, pd=0.6, clutter_intensity=2.0 / (2.0 * 2 * np.pi))  # P_D 0.6, 2 false alarms per scan

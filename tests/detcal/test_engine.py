@@ -26,7 +26,7 @@ import yaml
 from detcal.cli import main
 from detcal.reports.simulation import write_simulation_run
 from profiles.atomic import MARKER
-from tests.calib.test_cli import assert_one_line_error, run
+from tests.detcal.cli.test_cli import assert_one_line_error, run
 from tests.conftest import small_park_config
 from profiles.override import updated
 

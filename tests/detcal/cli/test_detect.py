@@ -3,7 +3,7 @@ import pandas as pd
 
 from detcal.cli import main
 from calib.io.native import write_native
-from tests.calib.test_cli import assert_one_line_error, run
+from tests.detcal.cli.test_cli import assert_one_line_error, run
 from tests.conftest import VENDORED
 
 COLUMNS = ["time", "scan", "frame", "x", "y", "range", "bearing", "radius", "fit_error", "convexity", "points", "maha2"]

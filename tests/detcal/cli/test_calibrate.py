@@ -6,7 +6,7 @@ import yaml
 
 from calib.io.native import write_native
 from tests.calib.test_calibrate import park
-from tests.calib.test_cli import assert_one_line_error, run
+from tests.detcal.cli.test_cli import assert_one_line_error, run
 
 
 def test_calibrate_validate_and_profile_commands(tmp_path, capsys):

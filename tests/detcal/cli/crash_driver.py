@@ -1,6 +1,6 @@
 """Run ``detcal`` in this process and SIGKILL it at a chosen point (for the crash tests).
 
-    python -m tests.calib.crash_driver '{"argv": [...], "kill": {"target": "module:attr", "call": 1, "when": "after"}}'
+    python -m tests.detcal.cli.crash_driver '{"argv": [...], "kill": {"target": "module:attr", "call": 1, "when": "after"}}'
 
 ``target`` names a function (``module:name`` or ``module:Class.method``) that is
 wrapped so that on its ``call``-th call the process kills itself with SIGKILL
