@@ -441,11 +441,6 @@ class CircleDetector(Detector):
     stream = "scans"
     needs = "detects circles in laser scans"
 
-    def detection_model(self, profile, sensor, options, k_sigma):
-        from detectors.model import DetectionModel
-
-        return DetectionModel.from_options(profile, sensor, options, k_sigma)
-
     def source(self, log, profile, detection, options):
         return ScanCircles(log, profile, detection, descriptor_likelihood=options.descriptor_likelihood)
 

@@ -35,11 +35,6 @@ class ExternalDetector(Detector):
     stream = "detections"
     needs = "takes the log's detections"
 
-    def detection_model(self, profile, sensor, options, k_sigma):
-        from detectors.model import DetectionModel
-
-        return DetectionModel.from_options(profile, sensor, options, k_sigma)
-
     def source(self, log, profile, detection, options):
         return LoggedDetections(log, landmarks_only=options.landmarks_only)
 

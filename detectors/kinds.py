@@ -55,11 +55,14 @@ class Detector(ABC):
     #: the feature kind of its detections (the SLAM settings' ``features``)
     features: str = "points"
 
-    @abstractmethod
     def detection_model(self, profile, sensor, options, k_sigma: float | None):
         """The runtime detection model of ``profile`` with the filter's detection ``options`` (an object with the
         attributes of ``slam_runtime.config.DetectionOptions``); ``k_sigma``: the occlusion tolerance [range sigmas]
-        the filter runs with (None: the profile's); ``sensor``: the log's sensor model (None: the profile's)."""
+        the filter runs with (None: the profile's); ``sensor``: the log's sensor model (None: the profile's). By
+        default the point features' model (:class:`detectors.model.DetectionModel`)."""
+        from detectors.model import DetectionModel
+
+        return DetectionModel.from_options(profile, sensor, options, k_sigma)
 
     @abstractmethod
     def source(self, log, profile, detection, options) -> Callable[[object], Measurements]:

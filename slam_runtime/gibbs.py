@@ -76,7 +76,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from slam_runtime.kernels import BIG, argsort_stable, grow_f, grow_i, hungarian, log_norm, logaddexp, prune_cap
+from slam_runtime.kernels import BIG, argsort_stable, grow, hungarian, log_norm, logaddexp, prune_cap
 
 @numba.njit(cache=True, nogil=True)
 def _splitmix(x):  # pragma: no cover - compiled
@@ -421,8 +421,8 @@ def joint_update(seeds, logw, member, act, nact, l_death, l_miss, l_det, total, 
         for q in range(nk):
             c = kept[q]
             h = ch_parent[c]
-            hyp_logw = grow_f(hyp_logw, n_hyp + 1)
-            mem_count = grow_i(mem_count, n_hyp + 1)
+            hyp_logw = grow(hyp_logw, n_hyp + 1)
+            mem_count = grow(mem_count, n_hyp + 1)
             hyp_logw[n_hyp] = ch_lw[c] - lnorm
             cnt = 0
             for s in range(S):
@@ -437,12 +437,12 @@ def joint_update(seeds, logw, member, act, nact, l_death, l_miss, l_det, total, 
                 t = s * (M + 1) + a
                 if table[t] < 0:
                     table[t] = ns
-                    slot_src = grow_i(slot_src, n_slot + ns + 1)
-                    slot_a = grow_i(slot_a, n_slot + ns + 1)
+                    slot_src = grow(slot_src, n_slot + ns + 1)
+                    slot_a = grow(slot_a, n_slot + ns + 1)
                     slot_src[n_slot + ns] = s
                     slot_a[n_slot + ns] = a
                     ns += 1
-                mem_slot = grow_i(mem_slot, n_mem + 1)
+                mem_slot = grow(mem_slot, n_mem + 1)
                 mem_slot[n_mem] = table[t]
                 n_mem += 1
                 cnt += 1

@@ -142,16 +142,8 @@ def maha2(c, ci, x, a, b, work):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def grow_i(a, need):  # pragma: no cover - compiled
-    if need <= a.shape[0]:
-        return a
-    b = np.empty(max(need, 2 * a.shape[0]), a.dtype)
-    b[: a.shape[0]] = a
-    return b
-
-
-@numba.njit(cache=True, nogil=True)
-def grow_f(a, need):  # pragma: no cover - compiled
+def grow(a, need):  # pragma: no cover - compiled
+    """``a`` (an output buffer of ints or floats) with room for ``need`` entries: itself, or a copy twice as long."""
     if need <= a.shape[0]:
         return a
     b = np.empty(max(need, 2 * a.shape[0]), a.dtype)

@@ -28,6 +28,14 @@ class Simulated:
     result: object = None
 
 
+def with_truth(log: SensorLog, summary: dict, profile) -> Simulated:
+    """A scenario's run whose truth is a profile (rfs-sim, glmb-paper): the log, its summary, and profile.yaml, the
+    profile of the simulator's true statistics."""
+    from profiles.store import dump_profile
+
+    return Simulated(log, summary, {"profile.yaml": dump_profile(profile)}, log)
+
+
 @dataclass(frozen=True)
 class Option:
     """The scenario setting a simulate command offers as an option (``--<name>``): its config field, type and help."""

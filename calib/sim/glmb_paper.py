@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.sim import SIMULATORS, Option, Simulated, Simulator
+from calib.sim import SIMULATORS, Option, Simulated, Simulator, with_truth
 from detectors.sensor_log import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, Vehicle, wrap_angle
 from profiles.errors import UsageError
 from profiles.parameters import GlmbPaperConfig
@@ -197,10 +197,8 @@ def summary(log: SensorLog, cfg: GlmbPaperConfig) -> dict:
 
 
 def _run(cfg: GlmbPaperConfig, seed: int, progress=None) -> Simulated:
-    from profiles.store import dump_profile
-
     log = simulate_glmb_paper(cfg, seed)
-    return Simulated(log, {"seed": seed, **summary(log, cfg)}, {"profile.yaml": dump_profile(truth_profile(cfg))}, log)
+    return with_truth(log, {"seed": seed, **summary(log, cfg)}, truth_profile(cfg))
 
 
 SIMULATORS.add("glmb-paper", Simulator(

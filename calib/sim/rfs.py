@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.sim import SIMULATORS, Option, Simulated, Simulator
+from calib.sim import SIMULATORS, Option, Simulated, Simulator, with_truth
 from detectors.geometry import compose
 from detectors.sensor_log import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, wrap_angle
 from profiles.parameters import RfsSimConfig
@@ -150,10 +150,8 @@ def summary(log: SensorLog, cfg: RfsSimConfig) -> dict:
 
 
 def _run(cfg: RfsSimConfig, seed: int, progress=None) -> Simulated:
-    from profiles.store import dump_profile
-
     log = simulate_rfs(cfg, seed)
-    return Simulated(log, {"seed": seed, **summary(log, cfg)}, {"profile.yaml": dump_profile(truth_profile(cfg))}, log)
+    return with_truth(log, {"seed": seed, **summary(log, cfg)}, truth_profile(cfg))
 
 
 SIMULATORS.add("rfs-sim", Simulator(

@@ -133,6 +133,8 @@ def plot_street_overview(sim: StreetSimulation, path) -> None:
     fig.tight_layout()
     fig.savefig(path, metadata={"Software": None})
     plt.close(fig)
+
+
 def plot_rfs_overview(log: SensorLog, path) -> None:
     import matplotlib
 
@@ -151,6 +153,8 @@ def plot_rfs_overview(log: SensorLog, path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
 def plot_glmb_paper_overview(log: SensorLog, path) -> None:
     import matplotlib
 

@@ -35,11 +35,6 @@ class NearDetections(Detector):
     stream = "detections"
     needs = "takes the log's detections"
 
-    def detection_model(self, profile, sensor, options, k_sigma):
-        from detectors.model import DetectionModel
-
-        return DetectionModel.from_options(profile, sensor, options, k_sigma)
-
     def source(self, log, profile, detection, options):
         d = log.detections
         z = np.column_stack([d.range, d.bearing])
