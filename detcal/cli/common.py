@@ -163,7 +163,8 @@ class ReaderArgs:
         loaded, used = [], []
         for p in paths:
             kind = self.fmt or detect_format(p)
-            for r in list(dict.fromkeys(robots or [self.options.robot])) if getattr(READERS.get(kind, None), "robots", False) else [None]:
+            several = kind in READERS and READERS.get(kind).robots  # a dataset of several robots: one log each
+            for r in list(dict.fromkeys(robots or [self.options.robot])) if several else [None]:
                 loaded.append(self.read(p, r))
                 used.append(p)
         return loaded, used
