@@ -30,6 +30,7 @@ import numpy as np
 import pandas as pd
 
 from calib import __version__
+from profiles.version import build_stamp
 from calib.clutter import density_summary, fit_density, time_folds
 from calib.fits import (
     ClutterFit,
@@ -354,6 +355,7 @@ def calibrate(
         provenance=Provenance(
             inputs=input_refs if input_refs is not None else [r for lg in logs for r in _log_digest(lg)],
             detcal_version=__version__,
+            **build_stamp(),
             command=command,
             parameters=params,
             created=created_now(),

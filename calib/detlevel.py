@@ -37,6 +37,7 @@ import numpy as np
 import pandas as pd
 
 from calib import __version__
+from profiles.version import build_stamp
 from calib.calibrate import created_now
 from calib.clutter import density_summary, fit_density, time_folds
 from calib.fits import ClutterFit, clutter_params, fit_clutter
@@ -320,7 +321,7 @@ def calibrate_detections(
             clutter_between_sd=tau,
         )
     params = {**cfg.model_dump(mode="json"), "frame_period": period, "identity_remap": {str(k): v for k, v in remap.items()}}
-    prov = Provenance(inputs=input_refs or [], detcal_version=__version__, command=command, parameters=params, created=created_now())
+    prov = Provenance(inputs=input_refs or [], detcal_version=__version__, **build_stamp(), command=command, parameters=params, created=created_now())
     base = dict(
         version=version,
         description=description,

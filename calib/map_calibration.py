@@ -34,6 +34,7 @@ import pandas as pd
 from scipy.optimize import linear_sum_assignment
 
 from calib import __version__
+from profiles.version import build_stamp
 from calib.calibrate import created_now
 from calib.detlevel import fit_noise
 from calib.fits import ClutterFit, clutter_params, fit_clutter, fit_pd_table
@@ -205,6 +206,7 @@ def self_calibrate(
         provenance=Provenance(
             inputs=input_refs or [],
             detcal_version=__version__,
+            **build_stamp(),
             command=command,
             parameters={**cfg.model_dump(mode="json"), "slam_run": run, "iteration": iteration, "prior": prior.ref},
             created=created_now(),

@@ -40,6 +40,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.optimize import linear_sum_assignment
 
 from calib import __version__
+from profiles.version import build_stamp
 from calib.calibrate import created_now
 from calib.fits import ClutterFit, PdFitConfig, clutter_params, fit_clutter, wilson
 from detectors.geometry import compose, interpolate_poses
@@ -352,6 +353,7 @@ def calibrate_planes(
         provenance=Provenance(
             inputs=input_refs or [],
             detcal_version=__version__,
+            **build_stamp(),
             command=command,
             parameters=cfg.model_dump(mode="json"),
             created=created_now(),

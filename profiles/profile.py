@@ -2,7 +2,7 @@
 
 A profile is a versioned YAML document (schema version ``SCHEMA_VERSION``)::
 
-    schema_version: 2
+    schema_version: 3
     name: park-laser            # [a-z0-9][a-z0-9._-]*
     version: 1.0.0              # semantic version; a written version is never replaced silently
     description: ...
@@ -12,12 +12,13 @@ A profile is a versioned YAML document (schema version ``SCHEMA_VERSION``)::
     hotelling: {names, mean, covariance, confidence, gamma, auc_hotelling, auc_fisher}
     pd:        {covariate: n_p | range | range_bearing, edges, bearing_edges, pd, counts, detections, wilson_low,
                 wilson_high, clamping, model, shrinkage, between_sensor_sd, selection}
+               (written as bins: one row {from, to, pd, counts, ...} per bin)
     clutter:   {rate, space, volume, kappa, chi2, dof, p_value, dispersion, count_model, size, dispersion_test,
                 nb_gof, density}
     sensors:   {names, member, pairs, pd_observed, pd_predicted, frames, clutter_rate, ...}   (optional)
     descriptor_likelihoods: {true: truncated_gaussian, false: uniform_ellipsoid, gaussian_mass, ellipsoid_volume}
     planes:    {pd_grid, noise, max_elevation_deg, min_points, min_width, offset_max, slab_k_sigma, slab_ratio}  (plane3d only)
-    provenance: {inputs: [{name, sha256}], detcal_version, command, parameters, created, seed}
+    provenance: {inputs: [{name, sha256}], detcal_version, commit, packages, command, parameters, created, seed}
 
 Every level forbids unknown keys; a wrong value is reported with its field path.
 A ``plane3d`` detector on a ``lidar3d`` sensor with a P_D table over ``points``
@@ -31,6 +32,13 @@ with a default meaning the schema-1 behaviour, so schema-1 documents load
 unchanged and are written back byte for byte as schema 1 (:data:`V2_FIELDS` are
 left out); a schema-1 document that uses a schema-2 field is refused by name.
 The planar path (``plane3d`` detectors, ``sensor.lidar``, ``planes``) is schema 2.
+
+Schema 3 changed how a profile is written, for a person who reads and diffs it
+(:func:`profiles.store.dump_profile`): a unit in a comment after every
+quantity (:mod:`profiles.units`), fitted figures to six significant digits, the
+P_D table as ``pd.bins`` with one row per bin (so a change of one bin is a
+one-line diff), and the provenance's ``commit`` and ``packages``. Schema-1 and
+-2 documents load and are written back in their own form.
 """
 
 from __future__ import annotations
@@ -45,8 +53,8 @@ from profiles.planes import PlaneDetectorParams, PlaneStats
 from profiles.registry import Registry, literal_field
 from profiles.schema import PD_COVARIATES, CircleDetectorParams, ClutterParams, HotellingParams, MeasurementNoise, PdTable, SensorModel, Strict
 
-SCHEMA_VERSION = 2
-SUPPORTED_SCHEMAS = (1, 2)
+SCHEMA_VERSION = 3
+SUPPORTED_SCHEMAS = (1, 2, 3)
 # fields added in schema 2, as a pydantic ``exclude`` spec (left out when writing a schema-1 document)
 V2_FIELDS: dict = {
     "pd": {"bearing_edges", "model", "shrinkage", "between_sensor_sd", "selection"},
@@ -55,6 +63,8 @@ V2_FIELDS: dict = {
     "sensors": True,
     "planes": True,
 }
+# fields added in schema 3 (left out when writing a schema-1 or -2 document)
+V3_FIELDS: dict = {"provenance": {"commit", "packages"}}
 NAME_RE = re.compile(r"^[a-z0-9][a-z0-9._-]*$")
 SEMVER_RE = re.compile(r"^(0|[1-9]\d*)\.(0|[1-9]\d*)\.(0|[1-9]\d*)$")
 
@@ -200,16 +210,23 @@ class InputRef(Strict):
 
 
 class Provenance(Strict):
+    """How a profile was made: from which inputs, by which detcal (version, source commit, the versions of the
+    numerical packages), with which command line, parameters and seed."""
+
     inputs: list[InputRef] = Field(default_factory=list)
     detcal_version: str
-    command: str = ""
+    commit: str | None = Field(
+        default=None, description="git commit of the detcal source that made it ('+dirty': with uncommitted changes); schema 3"
+    )
+    packages: dict[str, str] = Field(default_factory=dict, description="versions of the packages the numbers depend on; schema 3")
+    command: str = Field(default="", description="the command line, paths as typed (absolute ones relative to the working folder or ~)")
     parameters: dict[str, Any] = Field(default_factory=dict)
     created: str = Field(description="ISO 8601 UTC time (SOURCE_DATE_EPOCH when set, for reproducible bytes)")
     seed: int | None = None
 
 
 class DetectorProfile(Strict):
-    schema_version: Literal[1, 2] = SCHEMA_VERSION
+    schema_version: Literal[1, 2, 3] = SCHEMA_VERSION
     name: str
     version: str
     description: str = ""
@@ -264,6 +281,10 @@ class DetectorProfile(Strict):
             used = schema2_fields_used(self)
             if used:
                 raise ValueError(f"{used[0]} needs schema_version 2 (this document says 1)")
+        if self.schema_version < 3:
+            used = [f"provenance.{k}" for k in sorted(V3_FIELDS["provenance"]) if getattr(self.provenance, k)]
+            if used:
+                raise ValueError(f"{used[0]} needs schema_version 3 (this document says {self.schema_version})")
         return self
 
     @property

@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_serializer, model_valid
 from profiles.errors import DataError
 from profiles.override import updated
 from profiles.registry import Registry, literal_field
+from profiles.units import WRITTEN_REL_TOL
 
 
 class Strict(BaseModel):
@@ -451,7 +452,7 @@ class ClutterDensity(Strict):
         if np.any(d < 0):
             raise ValueError("density values must be >= 0")
         mass = float((d * np.diff(re_)[:, None] * np.diff(be)[None, :]).sum())
-        if not np.isclose(mass, 1.0, rtol=1e-6):
+        if not np.isclose(mass, 1.0, rtol=WRITTEN_REL_TOL):  # a written density is rounded (profiles.units)
             raise ValueError(f"density integrates to {mass:.9g} over the grid, not 1")
         return self
 
@@ -502,7 +503,7 @@ class ClutterParams(Strict):
         k = self.rate / self.volume
         if self.kappa is None:
             self.kappa = k
-        elif not np.isclose(self.kappa, k, rtol=1e-9, atol=0.0):
+        elif not np.isclose(self.kappa, k, rtol=WRITTEN_REL_TOL, atol=0.0):  # written rate and kappa are rounded (profiles.units)
             raise ValueError(f"kappa {self.kappa} is not rate / volume = {k}")
         if (self.count_model == "negative_binomial") != (self.size is not None):
             raise ValueError("size is given exactly when the count model is negative_binomial")

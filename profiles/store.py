@@ -25,7 +25,8 @@ from pydantic import ValidationError
 
 from profiles.atomic import atomic_output
 from profiles.errors import DataError, DetcalError, UsageError
-from profiles.profile import DETECTOR_KINDS, SCHEMA_VERSION, SUPPORTED_SCHEMAS, V2_FIELDS, DetectorProfile, semver_key
+from profiles.document import columns_from_bins, render, written
+from profiles.profile import DETECTOR_KINDS, SCHEMA_VERSION, SUPPORTED_SCHEMAS, V2_FIELDS, V3_FIELDS, DetectorProfile, semver_key
 from profiles.provenance import parameter_models
 
 BUILTIN = Path(__file__).resolve().parent / "builtin"
@@ -81,6 +82,7 @@ def parse_profile(data: object, where: str) -> DetectorProfile:
             f"{where}: schema_version {version!r} is not supported; this detcal reads schemas "
             f"{', '.join(map(str, SUPPORTED_SCHEMAS))} and has no migration from it"
         )
+    data = columns_from_bins(data, where)
     try:
         prof = DetectorProfile.model_validate(data)
     except ValidationError as exc:
@@ -130,13 +132,16 @@ def looks_like_profile(path: Path) -> bool:
 looks_like_profile.kind = "profile"  # named when --force is refused (profiles.atomic.check_replaceable)
 
 
-def dump_profile(profile: DetectorProfile, fmt: str = "yaml") -> str:
-    """Deterministic text: schema order, floats written exactly (round trip is lossless).
-
-    A schema-1 profile is written without the fields schema 2 added (it cannot
-    use them), so it keeps its bytes.
-    """
-    data = profile.model_dump(mode="json", exclude=V2_FIELDS if profile.schema_version == 1 else None)
+def document(profile: DetectorProfile) -> dict:
+    """The profile as its file holds it: a schema-1 or -2 profile without the fields later schemas added (so it keeps
+    its bytes); a schema-3 profile with its fitted figures rounded and its P_D table as bins
+    (:mod:`profiles.document`)."""
+    exclude = {}
+    if profile.schema_version < 3:
+        exclude = {k: set(v) for k, v in V3_FIELDS.items()}
+    if profile.schema_version == 1:
+        exclude |= V2_FIELDS
+    data = profile.model_dump(mode="json", exclude=exclude or None)
     for section in ("noise", "sensors", "planes"):  # optional sections: absent rather than null, so older profiles keep their bytes
         if data.get(section) is None:
             data.pop(section, None)
@@ -146,10 +151,25 @@ def dump_profile(profile: DetectorProfile, fmt: str = "yaml") -> str:
     kind = DETECTOR_KINDS.get(det.get("kind"), None)
     if det.get("circle", 0) is None and kind is not None and kind.schema >= 2:
         det.pop("circle")  # kinds that came with schema 2 never wrote the circle: null schema-1 documents carry
+    return written(profile, data) if profile.schema_version >= 3 else data
+
+
+def comparable(profile: DetectorProfile) -> dict:
+    """The profile as schema 3 writes it (rounded, the P_D table as bins), whatever its schema: what diffs and
+    content comparisons look at."""
+    return written(profile, profile.model_dump(mode="json"))
+
+
+def dump_profile(profile: DetectorProfile, fmt: str = "yaml") -> str:
+    """Deterministic text (same profile, same bytes): schema order; schema 3 with units in comments, fitted figures
+    rounded and the P_D table one bin per line (:mod:`profiles.document`); schema 1 and 2 as they were written."""
+    if fmt not in ("yaml", "json"):
+        raise UsageError(f"--format: expected yaml or json, got {fmt!r}")
+    data = document(profile)
     if fmt == "json":
         return json.dumps(data, indent=2) + "\n"
-    if fmt != "yaml":
-        raise UsageError(f"--format: expected yaml or json, got {fmt!r}")
+    if profile.schema_version >= 3:
+        return render(profile, data)
     return yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=100, allow_unicode=True)
 
 
@@ -157,22 +177,25 @@ def profile_filename(profile: DetectorProfile) -> str:
     return f"{profile.name}@{profile.version}.yaml"
 
 
-#: Provenance fields that say when and how a profile was made, not what it holds.
-_NOT_CONTENT = ("created", "command")
+#: Provenance fields that say when and how a profile was made, not what it holds (the source commit and the
+#: package versions: another build of the same detcal computes the same profile within the tolerance below).
+_NOT_CONTENT = ("created", "command", "commit", "packages")
 
 
 #: Relative tolerance within which two profiles' numbers are the same content: a calibration's sums (a
 #: covariance through BLAS, say) round differently in the last bits under another numpy or BLAS build, which
-#: does not make it another profile (a few units in the last place between numpy builds).
-SAME_REL_TOL = 1e-9
+#: does not make it another profile; compared as written (rounded to six digits), such a difference can flip
+#: the last written digit, a relative change below 1e-5.
+SAME_REL_TOL = 1e-5
 
 
 def same_content(a: DetectorProfile, b: DetectorProfile) -> bool:
-    """Equal in everything but the creation time and the command line (its output options do not change the
-    content); numbers equal within :data:`SAME_REL_TOL`, every other value exactly."""
-    da, db = a.model_dump(mode="json"), b.model_dump(mode="json")
+    """Equal as written (:func:`comparable`) in everything but the creation time, the command line (its output
+    options do not change the content) and the build that ran; numbers equal within :data:`SAME_REL_TOL`,
+    every other value exactly."""
+    da, db = comparable(a), comparable(b)
     for k in _NOT_CONTENT:
-        da["provenance"].pop(k), db["provenance"].pop(k)
+        da["provenance"].pop(k, None), db["provenance"].pop(k, None)
     return _same(da, db)
 
 
@@ -362,7 +385,14 @@ def _lookup(ref: str | Path) -> tuple[Path, Entry | None]:
     cands = [e for e in entries if e.name == name and (not version or e.version == version) and e.shadowed_by is None]
     if not cands:
         known = sorted({f"{e.name}@{e.version}" for e in entries})
-        raise UsageError(f"no profile {ref_s!r}; known: {', '.join(known) or 'none'}")
+        where = ", ".join(str(d) for d in user_dirs())
+        env = "set by DETCAL_PROFILES" if os.environ.get("DETCAL_PROFILES") else "DETCAL_PROFILES to change"
+        if p.suffix in (".yaml", ".yml", ".json"):
+            raise UsageError(f"{ref_s}: no such profile file")
+        raise UsageError(
+            f"no profile {ref_s!r}; known: {', '.join(known) or 'none'}. Profiles are searched in the bundled ones and in "
+            f"{where} ({env}); give a profile file by its path (e.g. ./my-laser@1.0.0.yaml)"
+        )
     best = max(cands, key=lambda e: semver_key(e.version))
     return best.path, best
 
@@ -399,6 +429,6 @@ def flatten(data: object, prefix: str = "") -> dict[str, object]:
 
 def diff_profiles(a: DetectorProfile, b: DetectorProfile) -> list[tuple[str, object, object]]:
     """(field path, value in a, value in b) for every field that differs."""
-    fa, fb = flatten(a.model_dump(mode="json")), flatten(b.model_dump(mode="json"))
+    fa, fb = flatten(comparable(a)), flatten(comparable(b))
     keys = sorted(set(fa) | set(fb))
     return [(k, fa.get(k), fb.get(k)) for k in keys if fa.get(k) != fb.get(k)]

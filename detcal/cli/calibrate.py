@@ -28,9 +28,23 @@ def check_poses(poses: str | None) -> None:
 EXECUTION_OPTIONS = ("--workers", "--scheduler")
 
 
+def portable_path(word: str) -> str:
+    """An absolute path as the same command would name it from the working folder: relative to it when inside it
+    (or near it), else from the home folder (``~/...``); the machine's absolute paths stay out of a profile."""
+    if not os.path.isabs(word):
+        return word
+    p, cwd, home = Path(word), Path.cwd(), Path.home()
+    if p.is_relative_to(cwd):
+        return str(p.relative_to(cwd))
+    if p.is_relative_to(home) and not cwd.is_relative_to(home):
+        return str(Path("~") / p.relative_to(home))
+    return os.path.relpath(p, cwd)
+
+
 def typed_command(name: str) -> str:
-    """The command as typed; absolute paths lose their folders (a profile names inputs by file name and hash);
-    ``--workers`` and ``--scheduler`` are left out, so a profile is the same bytes wherever it was computed."""
+    """The command as typed, every argument and option; absolute paths made relative to the working folder
+    (:func:`portable_path`); ``--workers`` and ``--scheduler`` are left out, so a profile is the same bytes
+    wherever it was computed."""
     from detcal.cli.common import ARGV
 
     words, skip = [], False
@@ -40,7 +54,8 @@ def typed_command(name: str) -> str:
         elif a in EXECUTION_OPTIONS:
             skip = True
         elif not a.startswith(tuple(f"{o}=" for o in EXECUTION_OPTIONS)):
-            words.append(Path(a).name if os.path.isabs(a) else a)
+            opt, eq, value = a.partition("=")
+            words.append(f"{opt}={portable_path(value)}" if eq and opt.startswith("--") else portable_path(a))
     return " ".join([f"detcal {name}", *(shlex.quote(w) for w in words)])
 
 

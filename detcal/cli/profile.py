@@ -49,11 +49,65 @@ def profile_list() -> None:
 
 
 @app.command("show")
-def profile_show(ref: ProfileArg) -> None:
-    """Print a profile as YAML."""
+def profile_show(
+    ref: ProfileArg,
+    as_yaml: Annotated[bool, typer.Option("--yaml", help="Print the profile file's YAML instead of tables.")] = False,
+) -> None:
+    """Show a profile as tables: what it is and how it was made, its quantities with their units, the P_D table one
+    bin per row."""
     from profiles.store import dump_profile, resolve
 
-    sys.stdout.write(dump_profile(resolve(ref)))
+    prof = resolve(ref)
+    if as_yaml:
+        sys.stdout.write(dump_profile(prof))
+        return
+    for table in profile_tables(prof):
+        out.print(table)
+
+
+def profile_tables(prof) -> list[Table]:
+    """A profile as rich tables: (1) every quantity outside the P_D table, with its unit, (2) the P_D table."""
+    from pydantic import BaseModel
+
+    from profiles.store import comparable
+    from profiles.units import unit
+
+    doc = comparable(prof)
+    fields = Table(title=f"{prof.ref} ({prof.kind}){': ' + prof.description if prof.description else ''}")
+    fields.add_column("field", no_wrap=True)
+    fields.add_column("value", overflow="fold")
+    fields.add_column("unit", overflow="fold")
+
+    def walk(model: BaseModel, data: dict, prefix: str) -> None:
+        for key, value in data.items():
+            sub = getattr(model, key, None)
+            if key in ("bins", "parameters") or value is None or value in ({}, []):
+                continue
+            if isinstance(sub, BaseModel) and isinstance(value, dict):
+                walk(sub, value, f"{prefix}{key}.")
+            else:
+                fields.add_row(prefix + key, _cell(value), unit(type(model).__name__, key, data) or "")
+
+    walk(prof, doc, "")
+    bins = doc["pd"]["bins"]
+    covariate = prof.pd.covariate
+    pd = Table(title=f"P_D against {covariate} [{unit('PdTable', 'edges', {'covariate': covariate})}]: one row per bin")
+    cols = [c for c in bins[0] if c not in ("from", "to")]
+    for col in (covariate, *cols):
+        pd.add_column(col, justify="right")
+    for b in bins:
+        pd.add_row(f"[{_cell(b['from'])}, {_cell(b['to'])})", *(_cell(b[c]) for c in cols))
+    return [fields, pd]
+
+
+def _cell(v) -> str:
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if isinstance(v, list):
+        return "[" + ", ".join(_cell(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return ", ".join(f"{k}: {_cell(x)}" for k, x in v.items())
+    return str(v)
 
 
 @app.command("validate")
