@@ -170,7 +170,7 @@ CASES = [
     ("profile-unknown", "profile with an unknown key", lambda t: ["profile", "validate", text(t, "p.yaml", yaml.safe_dump(profile_doc(clutter__lamda=3)))], 1, "p.yaml: clutter.lamda: unknown key"),
     ("profile-parameters", "unknown key under provenance.parameters", lambda t: ["profile", "validate", text(t, "p.yaml", yaml.safe_dump(profile_doc(provenance__parameters__colour="red")))], 1, "p.yaml: provenance.parameters.colour: unknown key"),
     ("profile-parameters-nested", "misspelt key inside provenance.parameters.pd", lambda t: ["profile", "validate", text(t, "p.yaml", yaml.safe_dump(profile_doc(provenance__parameters__pd={"min_cont": 3})))], 1, "p.yaml: provenance.parameters.pd.min_cont: unknown key"),
-    ("profile-schema", "profile of schema version 3", lambda t: ["profile", "validate", text(t, "p.yaml", yaml.safe_dump(profile_doc(schema_version=3)))], 1, "p.yaml: schema_version 3 is newer than this detcal reads (2); upgrade detcal"),
+    ("profile-schema", "profile of schema version 4", lambda t: ["profile", "validate", text(t, "p.yaml", yaml.safe_dump(profile_doc(schema_version=4)))], 1, "p.yaml: schema_version 4 is newer than this detcal reads (3); upgrade detcal"),
     ("profile-not-mapping", "profile that is a list", lambda t: ["profile", "validate", text(t, "p.yaml", "- a\n")], 1, "p.yaml: a profile is a mapping at the top level"),
     ("profile-json", "JSON profile with a syntax error", lambda t: ["profile", "validate", text(t, "p.json", '{"name": ')], 1, "p.json:1: not valid YAML/JSON"),
     ("profile-unknown-ref", "unknown profile name", lambda t: ["profile", "show", "nope@9.9.9"], 2, "no profile 'nope@9.9.9'"),

@@ -110,7 +110,7 @@ def test_a_bundled_profile_is_never_shadowed(calibrated, capsys, monkeypatch):
 def test_the_list_marks_files_that_do_not_hold_what_their_name_says(tmp_path, capsys, monkeypatch):
     user = tmp_path / "user"
     user.mkdir()
-    (user / "newer@1.0.0.yaml").write_text("schema_version: 3\nname: newer\nversion: 1.0.0\n")
+    (user / "newer@1.0.0.yaml").write_text("schema_version: 4\nname: newer\nversion: 1.0.0\n")
     (user / "other@2.0.0.yaml").write_bytes((BUILTIN / "sim-park-laser@1.0.0.yaml").read_bytes())
     monkeypatch.setenv("DETCAL_PROFILES", str(user))
     from detcal.cli.common import out
@@ -119,7 +119,7 @@ def test_the_list_marks_files_that_do_not_hold_what_their_name_says(tmp_path, ca
     code, out, _ = run(capsys, "profile", "list")
     assert code == 0
     row = {p: next(ln for ln in out.splitlines() if p in ln) for p in ("newer@1.0.0", "other@2.0.0", "sim-park-laser@1.0.0")}
-    assert "unreadable (schema_version 3 is newer than this detcal reads" in row["newer@1.0.0"]
+    assert "unreadable (schema_version 4 is newer than this detcal reads" in row["newer@1.0.0"]
     assert "holds sim-park-laser@1.0.0, not what its file name says" in row["other@2.0.0"]
     assert "active" in row["sim-park-laser@1.0.0"]
     # a DETCAL_PROFILES entry that is a file is said, not silently listed as empty
