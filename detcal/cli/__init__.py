@@ -52,6 +52,13 @@ def _root(
     """detcal: measure a feature detector's P_D and clutter statistics for RFS SLAM."""
 
 
+def command():
+    """The click command of the app, each option's value shown as its choices (:mod:`detcal.cli.choices`)."""
+    from detcal.cli.choices import label
+
+    return label(typer.main.get_command(app))
+
+
 def error_line(message: str) -> None:
     """One plain-text line on stderr (never console markup: file names may hold brackets)."""
     sys.stderr.write(f"detcal: error: {' '.join(str(message).split())}\n")
@@ -67,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
 
     common.ARGV = list(sys.argv[1:] if argv is None else argv)
     try:
-        app(args=argv, prog_name="detcal")
+        command().main(args=argv, prog_name="detcal")
     except SystemExit as exc:
         code = exc.code
         if code == 130:  # typer turns a Ctrl-C into exit 130 itself

@@ -1,5 +1,6 @@
 """The CLI: exit codes (0 ok, 1 bad data, 2 usage), one-line messages, never a traceback."""
 
+import re
 import subprocess
 import sys
 
@@ -105,3 +106,27 @@ def test_simulate_and_info_through_the_console_script(tmp_path):
 def test_every_command_has_help(capsys, cmd):
     code, out, _ = run(capsys, *cmd, "--help")
     assert code == 0 and "Usage" in out
+
+
+def _commands(cmd, path=()):
+    yield path, cmd
+    for name, sub in getattr(cmd, "commands", {}).items():
+        yield from _commands(sub, (*path, name))
+
+
+def test_help_lists_each_options_choices_from_the_registries(capsys):
+    """Every option with a fixed set of values shows them (read from the registries), no help shows typer's `<str>`."""
+    from calib.io.registry import READERS
+    from detcal.cli import command
+    from slam_runtime.mapfilter import MAP_FILTERS
+
+    code, out, _ = run(capsys, "slam", "run", "--help")
+    assert code == 0 and f"--filter [{'|'.join(MAP_FILTERS.names())}]" in out and "--pd-mode [profile|constant]" in out
+    code, out, _ = run(capsys, "log", "info", "--help")
+    assert code == 0 and f"--format [{'|'.join(READERS.names())}]" in out and "--laser [front|rear]" in out
+    code, out, _ = run(capsys, "calibrate", "--help")
+    assert code == 0 and "--poses [auto|reference|icp]" in out
+    for path, _cmd in _commands(command()):
+        if path:
+            code, out, _ = run(capsys, *path, "--help")
+            assert code == 0 and not re.search(r"<(str|int|float|path|list\[\w+\])>", out), (path, out)
