@@ -13,6 +13,8 @@ when it has one (so the map and the truth share a frame), else the origin.
 
 from __future__ import annotations
 
+import re
+
 import time
 from dataclasses import dataclass, field
 
@@ -298,6 +300,22 @@ def dead_reckoning(log: SensorLog, stamps: np.ndarray, start: np.ndarray, cfg: S
             j = stop
         out[k] = veh.pose(x)[0]
     return compose(start, relative(out[0], out))
+
+
+#: Why a metric of :func:`evaluate` can be NaN (not defined for the run), by metric name pattern: what a summary
+#: prints instead of ``nan``.
+UNDEFINED_WHY: dict[str, str] = {
+    r"final_position_error_vs_gps_m": "a rigid fit to GPS places the end; the whole path's RMSE is the measure",
+    r"(mean_)?trajectory_rmse_vs_\w+_m|odometry_rmse_vs_\w+_m": "fewer than 3 reference points in the run; a rigid fit needs 3",
+    r"cpu_ms_per_step_mean": "no step was timed",
+    r"log_evidence": "this filter does not compute it",
+    r"map_ospa\w*|map_gospa": "no map and no truth to compare",
+}
+
+
+def why_undefined(metric: str) -> str:
+    """Why ``metric`` is NaN in a run's metrics (:data:`UNDEFINED_WHY`), or a plain 'not defined for this run'."""
+    return next((why for pat, why in UNDEFINED_WHY.items() if re.fullmatch(pat, metric)), "not defined for this run")
 
 
 def evaluate(log: SensorLog, res: SlamResult, c: float = 1.0, p: float = 1.0, cfg: SlamConfig | None = None) -> dict:

@@ -217,12 +217,15 @@ def positive(flag: str, value: int | None) -> None:
         raise UsageError(f"{flag}: expected a positive integer, got {value}")
 
 
-def summary_table(title: str, rows: dict) -> Table:
+def summary_table(title: str, rows: dict, why_undefined: Callable[[str], str] | None = None) -> Table:
+    """A two-column table of quantities; a NaN is printed ``n/a`` with the reason ``why_undefined(key)`` gives."""
     t = Table(title=title)
     t.add_column("quantity")
     t.add_column("value", justify="right")
     for k, v in rows.items():
-        if isinstance(v, float):
+        if isinstance(v, float) and v != v:
+            v = f"n/a ({why_undefined(k)})" if why_undefined is not None else "n/a (not defined here)"
+        elif isinstance(v, float):
             v = f"{v:.4g}"
         elif isinstance(v, list):
             v = ", ".join(f"{x:.4g}" if isinstance(x, float) else str(x) for x in v)

@@ -50,7 +50,7 @@ def slam_run_cmd(
     from calib.progress import progress
     from detcal.pipelines.slam_run import SettingsRequest, SlamRun, parse_sets
     from profiles.store import profile_path, resolve
-    from slam_runtime.run import check_inputs, describe
+    from slam_runtime.run import check_inputs, describe, why_undefined
 
     request = SettingsRequest(config, filter_, particles, pd_mode, features, poses, parse_sets(sets))
     if frames is not None and frames < 1:
@@ -72,7 +72,7 @@ def slam_run_cmd(
     res = SlamRun(log, log_path.name, inputs, prof, cfg, seed, target, frames, force).run(progress)
     shown = {k: v for k, v in res.metrics.items() if not isinstance(v, dict)}
     mode = " (poses: ground truth, mapping only)" if cfg.poses == "ground_truth" else ""
-    out.print(summary_table(f"{res.filter}-SLAM{mode} on {log.name} with {prof.ref} -> {target}", shown))
+    out.print(summary_table(f"{res.filter}-SLAM{mode} on {log.name} with {prof.ref} -> {target}", shown, why_undefined))
 
 
 def seed_list(text: str) -> list[int]:

@@ -19,6 +19,7 @@ from calib.config import dump_yaml  # noqa: E402
 from detcal.reports.detect import plot_scan_detections  # noqa: E402
 from detectors.circle import descriptor_matrix  # noqa: E402
 from profiles.store import dump_profile  # noqa: E402
+from detcal.reports.figures import wrapped_title  # noqa: E402
 
 GZ = {"method": "gzip", "mtime": 0}  # fixed header time: same tables, same bytes
 SAVE = {"metadata": {"Software": None}}
@@ -47,7 +48,7 @@ def plot_pd(cal: Calibration, path: Path) -> None:
     ax.set_ylim(0, 1.15)
     ax.set_xlabel(f"{t.covariate} (last bin: {t.covariate} >= {x[-1]:g})")
     ax.set_ylabel("P_D")
-    ax.set_title(f"P_D against {t.covariate} (numbers: pairs per bin)", pad=28)
+    wrapped_title(ax, f"P_D against {t.covariate} (numbers: pairs per bin)", pad=28)
     ax.legend(loc="lower right")
     ax.grid(alpha=0.3)
     _save(fig, path)
@@ -61,7 +62,7 @@ def plot_roc(cal: Calibration, path: Path) -> None:
     ax.plot([0, 1], [0, 1], "k:", lw=0.8)
     ax.set_xlabel("false-alarm rate (share of false detections kept)")
     ax.set_ylabel("detection rate (share of true detections kept)")
-    ax.set_title("ROC of the false-alarm reduction (in-sample)")
+    wrapped_title(ax, "ROC of the false-alarm reduction (in-sample)")
     ax.legend(loc="lower right")
     ax.grid(alpha=0.3)
     _save(fig, path)
@@ -86,7 +87,7 @@ def plot_clutter(cal, path: Path) -> None:
         if disp is not None
         else f"dispersion {c.dispersion:.2f}"
     )
-    ax.set_title(f"false alarms per frame: Poisson chi2 = {c.chi2:.1f} on {c.dof} dof, p = {c.p_value:.3g} ({verdict} at 0.05)\n{line2}", fontsize=9)
+    wrapped_title(ax, f"false alarms per frame: Poisson chi2 = {c.chi2:.1f} on {c.dof} dof, p = {c.p_value:.3g} ({verdict} at 0.05)\n{line2}", fontsize=9)
     ax.set_xlabel("false alarms in a frame")
     ax.set_ylabel("frames")
     ax.legend()
@@ -107,7 +108,7 @@ def plot_pd_grid(table, pairs, path: Path) -> None:
     ax.set_xlabel("bearing [deg] (sensor frame, left positive)")
     ax.set_ylabel("range [m]")
     sel = table.selection
-    ax.set_title(f"P_D model: {table.model}" + (f" (held-out choice over {sel.folds})" if sel else ""), fontsize=9)
+    wrapped_title(ax, f"P_D model: {table.model}" + (f" (held-out choice over {sel.folds})" if sel else ""), fontsize=9)
     pred = predict(table, pairs)
     y = pairs["detected"].to_numpy(float)
     for ax, col, edges, unit, scale in ((axes[1], "range", e, "range [m]", 1.0), (axes[2], "bearing", be, "bearing [deg]", np.degrees(1.0))):
@@ -151,7 +152,7 @@ def plot_clutter_density(clutter, path: Path) -> None:
         parts = [f"{c} {v:.3f}" for c, v in zip(sel.candidates, sel.loglik, strict=True)]
         lines = [", ".join(parts[i : i + 3]) for i in range(0, len(parts), 3)]
         title += f"\nheld-out mean log density per false alarm ({sel.folds}):\n" + "\n".join(lines) + f"\n-> {sel.chosen}"
-    ax.set_title(title, fontsize=9)
+    wrapped_title(ax, title, fontsize=9)
     ax.set_xlabel("bearing [deg] (sensor frame)")
     ax.set_ylabel("range [m]")
     _save(fig, path)
@@ -183,7 +184,8 @@ def plot_sensors(cal, path: Path) -> None:
     ax.set_xlabel("range [m]")
     ax.set_ylabel("detection rate (dotted: pooled model on the same pairs)")
     sp = cal.profile.sensors
-    ax.set_title(
+    wrapped_title(
+        ax,
         f"P_D per sensor; between-sensor sd {sp.pd_between_sd:.3f} (logit offsets sd {sp.pd_logit_sd:.2f}"
         + (f", cells m = {sp.pd_concentration:.3g})" if sp.pd_concentration else ")"),
         fontsize=9,
@@ -200,7 +202,7 @@ def plot_sensors(cal, path: Path) -> None:
     ax2.axhline(cal.profile.clutter.rate, color="tab:red", label=f"pooled {cal.profile.clutter.rate:.3f}")
     ax2.set_xticks(x, cal.names)
     ax2.set_ylabel("false alarms per frame")
-    ax2.set_title(f"clutter per sensor; between-sensor sd {sp.clutter_between_sd:.3f}", fontsize=9)
+    wrapped_title(ax2, f"clutter per sensor; between-sensor sd {sp.clutter_between_sd:.3f}", fontsize=9)
     ax2.legend(fontsize=8)
     _save(fig, path)
 
@@ -266,7 +268,7 @@ def plot_map(cal: Calibration, path: Path, k: int = 0, every: int = 10) -> None:
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.set_title(f"{lg.name}: registered scans (every {every}th) and landmarks")
+    wrapped_title(ax, f"{lg.name}: registered scans (every {every}th) and landmarks")
     ax.legend(loc="upper right")
     _save(fig, path)
 

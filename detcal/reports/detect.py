@@ -43,6 +43,7 @@ from profiles.errors import DataError, UsageError  # noqa: E402
 from profiles.planes import PlaneDetectorParams  # noqa: E402
 from profiles.schema import PD_COVARIATES, HotellingParams, PdTable  # noqa: E402
 from profiles.store import resolve  # noqa: E402
+from detcal.reports.figures import wrapped_title  # noqa: E402
 
 FIELD_RADIUS = 0.1  # hypothetical landmark radius of the P_D field, as in thesis fig. 6.1
 PLOT_REACH = 40.0  # metres shown around the sensor
@@ -80,7 +81,7 @@ def plot_scan_detections(log: SensorLog, det: CircleDetections, k: int, table: P
     ax.set_ylim(ys[0], ys[-1])
     ax.set_xlabel("x [m], sensor frame")
     ax.set_ylabel("y [m]")
-    ax.set_title(f"{log.name}: scan {k}")
+    wrapped_title(ax, f"{log.name}: scan {k}")
     ax.legend(loc="lower left", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, metadata={"Software": None})
@@ -218,8 +219,8 @@ def plot_planes_top(log: SensorLog, k: int, params: PlaneDetectorParams, path: P
         ax.set_aspect("equal")
         ax.set_xlabel("x [m] (sensor frame)")
         ax.set_ylabel("y [m]")
-    axes[0].set_title(f"{log.name}, frame {k}: {len(det)} planes from {cloud.shape[0]:,} returns ({(lab >= 0).mean() * 100:.0f} % on a plane)", fontsize=9)
-    axes[1].set_title("the same, within 20 m", fontsize=9)
+    wrapped_title(axes[0], f"{log.name}, frame {k}: {len(det)} planes from {cloud.shape[0]:,} returns ({(lab >= 0).mean() * 100:.0f} % on a plane)", fontsize=9)
+    wrapped_title(axes[1], "the same, within 20 m", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, metadata={"Software": None})
     plt.close(fig)
@@ -257,8 +258,8 @@ def plot_transition(log: SensorLog, det: PlaneDetections, poses: np.ndarray, k: 
         ax.legend(loc="upper right", fontsize=8)
     med = pairs["normal_angle_deg"].median() if len(pairs) else float("nan")
     vd = np.median(pairs.filter(like="vertex_").to_numpy()) if len(pairs) else float("nan")
-    axes[0].set_title(f"top view, frame {k}: {len(pairs)} pairs, median normal angle {med:.2f} deg, median vertex distance {vd:.2f} m ({source} poses)", fontsize=9)
-    axes[1].set_title("side view (x-z)", fontsize=9)
+    wrapped_title(axes[0], f"top view, frame {k}: {len(pairs)} pairs, median normal angle {med:.2f} deg, median vertex distance {vd:.2f} m ({source} poses)", fontsize=9)
+    wrapped_title(axes[1], "side view (x-z)", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, metadata={"Software": None})
     plt.close(fig)

@@ -8,6 +8,7 @@ from calib.config import dump_yaml
 from calib.planes import PlaneCalibration
 from detcal.reports.calibration import plot_clutter
 from profiles.store import dump_profile
+from detcal.reports.figures import wrapped_title
 
 
 def fill_plane_run(cal: PlaneCalibration, folder) -> list[str]:
@@ -54,7 +55,7 @@ def plot_pd_points(cal: PlaneCalibration, path) -> None:
     ax.set_ylim(0, 1.05)
     ax.set_xlabel("expected returns on the visible part of the plane (ray-traced n_p)")
     ax.set_ylabel("P_D")
-    ax.set_title(f"plane P_D against visible points ({int(n.sum()):,} plane-frame pairs)")
+    wrapped_title(ax, f"plane P_D against visible points ({int(n.sum()):,} plane-frame pairs)")
     ax.legend(fontsize=7, loc="lower right")
     ax.grid(alpha=0.3)
     fig.tight_layout()

@@ -26,6 +26,7 @@ from calib.sim.street import StreetSimulation
 from detectors.geometry import compose
 from detectors.sensor_log import SensorLog
 from profiles.errors import DataError
+from detcal.reports.figures import wrapped_title
 
 
 def write_simulation_run(name: str, cfg, seed: int, out: Path, *, overwrite: bool = False, figure: bool = True) -> dict:
@@ -87,7 +88,7 @@ def plot_park_overview(sim: Simulation, path: Path) -> None:
     ax.set_ylim(-5, sim.config.height + 5)
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.set_title(f"simulated park, seed {sim.seed}: {w.tree_r.size} trees, {len(log.scans)} scans")
+    wrapped_title(ax, f"simulated park, seed {sim.seed}: {w.tree_r.size} trees, {len(log.scans)} scans")
     ax.legend(loc="upper right")
     fig.tight_layout()
     fig.savefig(path, metadata={"Software": None})
@@ -124,7 +125,8 @@ def plot_street_overview(sim: StreetSimulation, path) -> None:
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.set_title(
+    wrapped_title(
+        ax,
         f"simulated street, seed {sim.seed}: {len(log.planes)} planes, {len(w.cyl)} cylinders, {len(w.sph)} spheres; "
         f"cloud of frame {k} ({cloud.shape[0]:,} returns)",
         fontsize=9,
@@ -148,7 +150,7 @@ def plot_rfs_overview(log: SensorLog, path) -> None:
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.set_title(f"{log.name}: {len(log.detections)} detections over {log.detections.n_frames} steps", fontsize=9)
+    wrapped_title(ax, f"{log.name}: {len(log.detections)} detections over {log.detections.n_frames} steps", fontsize=9)
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -177,7 +179,7 @@ def plot_glmb_paper_overview(log: SensorLog, path) -> None:
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.set_title(f"{log.name}: {len(d)} detections over {d.n_frames} scans", fontsize=9)
+    wrapped_title(ax, f"{log.name}: {len(d)} detections over {d.n_frames} scans", fontsize=9)
     ax.legend(fontsize=7, loc="upper right")
     fig.tight_layout()
     fig.savefig(path, dpi=110, metadata={"Software": None})

@@ -79,14 +79,17 @@ def test_slam_run_on_a_detection_log_with_gps(tmp_path, capsys):
     prof = VENDORED.parent.parent / "benchmarks/profiles/victoria-park-nominal@1.0.0.yaml"
     folder = tmp_path / "vp"
     shutil.copytree(VENDORED / "victoria_park", folder)
-    code, _, err = run(capsys, "slam", "run", str(folder), "--profile", str(prof), "--particles", "5", "--out", str(tmp_path / "r"))
+    code, out, err = run(capsys, "slam", "run", str(folder), "--profile", str(prof), "--particles", "5", "--out", str(tmp_path / "r"))
     assert code == 0, err
+    # the summary says why a figure is not defined instead of printing nan (GPS: the end is placed by the rigid fit)
+    assert "nan" not in out and "n/a (a rigid fit to GPS places the end" in " ".join(out.split())
     m = yaml.safe_load((tmp_path / "r/metrics.yaml").read_text())
     assert m["alignment_vs_gps"].startswith("rigid") and m["points_vs_gps"] > 0
     assert m["trajectory_rmse_vs_gps_m"] >= 0 and "map_ospa" not in m
     # two frames see one GPS point: a rigid fit (3 degrees of freedom) matches it exactly, so no RMSE is claimed
-    code, _, err = run(capsys, "slam", "run", str(folder), "--profile", str(prof), "--particles", "2", "--frames", "2", "--out", str(tmp_path / "r2"))
+    code, out, err = run(capsys, "slam", "run", str(folder), "--profile", str(prof), "--particles", "2", "--frames", "2", "--out", str(tmp_path / "r2"))
     assert code == 0, err
+    assert "nan" not in out and "n/a (fewer than 3 reference points" in " ".join(out.split())
     m = yaml.safe_load((tmp_path / "r2/metrics.yaml").read_text())
     assert m["points_vs_gps"] < 3 and m["trajectory_rmse_vs_gps_m"] != m["trajectory_rmse_vs_gps_m"]  # NaN
 
