@@ -26,7 +26,10 @@ parameters -- is written exactly as given.
 from __future__ import annotations
 
 import math
+import typing
 from collections.abc import Callable
+
+from pydantic import BaseModel
 
 #: significant digits of a fitted float in a written profile (see the module text for why six)
 SIGNIFICANT = 6
@@ -117,3 +120,24 @@ def rounded(x: float, digits: int = SIGNIFICANT) -> float:
     if x == 0.0 or not math.isfinite(x):
         return x
     return float(f"{x:.{digits}g}")
+
+
+def models_of(root: type[BaseModel]) -> list[type[BaseModel]]:
+    """Every pydantic model reachable from ``root`` through its fields' annotations, ``root`` first (the models a
+    profile is made of, for the unit check and the schema reference)."""
+    found: list[type[BaseModel]] = []
+    todo = [root]
+    while todo:
+        cls = todo.pop(0)
+        if cls in found:
+            continue
+        found.append(cls)
+        for f in cls.model_fields.values():
+            stack = [f.annotation]
+            while stack:
+                t = stack.pop()
+                if isinstance(t, type) and issubclass(t, BaseModel):
+                    todo.append(t)
+                else:
+                    stack.extend(typing.get_args(t))
+    return found

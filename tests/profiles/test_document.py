@@ -12,7 +12,7 @@ from pydantic import BaseModel
 from profiles.errors import DataError
 from profiles.profile import DetectorProfile
 from profiles.store import dump_profile, load_profile_file, parse_profile
-from profiles.units import SIGNIFICANT, UNITS
+from profiles.units import SIGNIFICANT, UNITS, models_of
 from tests.profiles.test_store import make_profile, v2_profile
 
 
@@ -28,20 +28,6 @@ def wilson_profile(detections=(0, 5, 27, 38)) -> DetectorProfile:
     )  # fmt: skip
 
 
-def _models(cls: type[BaseModel], seen: set) -> None:
-    """Every pydantic model reachable from ``cls`` through its fields' annotations."""
-    if cls in seen:
-        return
-    seen.add(cls)
-    for f in cls.model_fields.values():
-        stack = [f.annotation]
-        while stack:
-            t = stack.pop()
-            if isinstance(t, type) and issubclass(t, BaseModel):
-                _models(t, seen)
-            stack.extend(typing.get_args(t))
-
-
 def _numeric(annotation) -> bool:
     stack = [annotation]
     while stack:
@@ -54,8 +40,7 @@ def _numeric(annotation) -> bool:
 
 
 def test_every_numeric_field_of_a_profile_has_a_unit():
-    seen: set = set()
-    _models(DetectorProfile, seen)
+    seen = models_of(DetectorProfile)
     missing = [
         f"{m.__name__}.{name}" for m in seen for name, f in m.model_fields.items()
         if _numeric(f.annotation) and f"{m.__name__}.{name}" not in UNITS and name != "schema_version"
