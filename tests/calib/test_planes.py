@@ -16,8 +16,8 @@ def test_profile_is_a_valid_lidar3d_planes_profile(street_profile):
     assert p.kind == "lidar3d-planes" and p.pd.covariate == "points" and p.clutter.space == "plane"
     import yaml
 
-    back = parse_profile(yaml.safe_load(dump_profile(p)), "round trip")
-    assert back == p and dump_profile(back) == dump_profile(p)
+    back = parse_profile(yaml.safe_load(dump_profile(p)), "round trip")  # the written figures: six digits
+    assert dump_profile(back) == dump_profile(p) and back.planes.pd_grid.points_edges == p.planes.pd_grid.points_edges
 
 
 def test_pd_and_noise_recover_the_simulator(street_profile):

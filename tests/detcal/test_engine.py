@@ -286,13 +286,15 @@ def unstated_sigma_logs(tmp_path_factory) -> list[Path]:
     return out
 
 
-def test_a_calibration_of_several_logs_on_workers_gives_the_serial_bytes(tmp_path, capsys, unstated_sigma_logs, cluster):
+def test_a_calibration_of_several_logs_on_workers_gives_the_serial_bytes(tmp_path, capsys, unstated_sigma_logs, cluster, monkeypatch):
     c, _ = cluster
     logs = [str(p) for p in unstated_sigma_logs]
     outs = {}
     for tag, engine_opts in (("serial", ["--workers", "0"]), ("dask", ["--scheduler", c.scheduler_address])):
         folder = tmp_path / tag
-        code, out, err = run(capsys, "calibrate", *logs, "--name", "two-parks", "--out", str(folder / "run"), "--profiles-dir", str(folder / "profiles"), *engine_opts)
+        folder.mkdir()
+        monkeypatch.chdir(folder)  # the same command typed in two folders of one depth: the recorded command is the same
+        code, out, err = run(capsys, "calibrate", *logs, "--name", "two-parks", "--out", "run", "--profiles-dir", "profiles", *engine_opts)
         assert code == 0, err
         assert ("in this process" if tag == "serial" else f"on the cluster at {c.scheduler_address}") in out
         outs[tag] = folder

@@ -73,7 +73,7 @@ def test_model_from_the_bundled_profile():
     from profiles.store import resolve
 
     m = DetectionModel.from_profile(resolve("sim-park-laser@1.0.0"))
-    assert m.clutter.kappa == pytest.approx(m.clutter.rate / fov_volume(m.sensor))
+    assert m.clutter.kappa == pytest.approx(m.clutter.rate / fov_volume(m.sensor), rel=5e-5)  # figures written to 6 digits (profiles.units)
     pd, _ = m.pd_landmarks(np.zeros(3), np.full(361, np.nan), np.array([[4.0, 0.0]]), 0.3)
     assert pd[0] > 0.9
     assert m.g_true(np.asarray([m.hotelling.mean]))[0] > m.g_false(np.asarray([m.hotelling.mean]))[0]
