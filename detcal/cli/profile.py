@@ -95,6 +95,7 @@ def profile_tables(prof) -> list[Table]:
     cols = [c for c in bins[0] if c not in ("from", "to")]
     for col in (covariate, *cols):
         pd.add_column(col, justify="right")
+    pd.caption = "units: " + "; ".join(f"{c} [{unit('PdTable', c, {'covariate': covariate})}]" for c in cols)
     for b in bins:
         pd.add_row(f"[{_cell(b['from'])}, {_cell(b['to'])})", *(_cell(b[c]) for c in cols))
     return [fields, pd]

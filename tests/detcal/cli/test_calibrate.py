@@ -1,5 +1,6 @@
 import dataclasses
 import json
+import re
 
 import numpy as np
 import yaml
@@ -24,6 +25,20 @@ def test_calibrate_validate_and_profile_commands(tmp_path, capsys):
     )
     saved = prof_dir / "small@1.0.0.yaml"
     assert saved.read_bytes() == (tmp_path / "run/profile.yaml").read_bytes()
+    # provenance: the full command with every path as the same command would name it from here (no absolute path of
+    # this machine), the source commit when detcal runs from a git checkout, the numerical packages' versions
+    from pathlib import Path
+
+    from profiles.store import load_profile_file
+
+    prov = load_profile_file(saved).provenance
+    words = prov.command.split()
+    assert words[:2] == ["detcal", "calibrate"] and not any(w.startswith("/") for w in words), prov.command
+    assert (Path.cwd() / words[2]).resolve() == a.resolve() and "--profiles-dir" in words and "--config" in words
+    assert prov.commit is None or re.fullmatch(r"[0-9a-f]{40}(\+dirty)?", prov.commit)
+    assert prov.packages["numpy"] == np.__version__ and "scipy" in prov.packages
+    code, out, _ = run(capsys, "profile", "show", str(saved))
+    assert code == 0 and "P_D against n_p [points]" in out and "probability" in out and "false alarms /" in out
     # same inputs again: the profile is unchanged, not rewritten
     code, out, _ = run(capsys, *args, "--out", str(tmp_path / "run2"))
     assert code == 0 and "unchanged" in out
@@ -66,6 +81,7 @@ def test_profile_errors(tmp_path, capsys):
     code, _, err = run(capsys, "profile", "show", "nope@9.9.9")
     assert code == 2
     assert_one_line_error(err, "no profile 'nope@9.9.9'")
+    assert "Profiles are searched in the bundled ones and in" in err and "give a profile file by its path" in err
     code, _, err = run(capsys, "calibrate", str(tmp_path / "missing.dlog"))
     assert code == 2
     assert_one_line_error(err, "missing.dlog: no such file")
