@@ -153,7 +153,9 @@ def register_scan(
             m, recovered = wide, True
     if m is None:
         return guess, float("nan"), None, False
-    pose, fit = align(pts, local.tree, local.p, local.n, m.pose, icp)
+    # ICP starts at the search's pose; its prior stays at the prediction (independent of the scan, which
+    # matched to a sparse map tends to stay where the map's own scans were), unless the prediction was wrong
+    pose, fit = align(pts, local.tree, local.p, local.n, m.pose, icp, prior_at=m.pose if recovered else guess)
     if fit.fitness < cfg.min_fitness:
         return (m.pose if m.score >= cfg.min_score else guess), m.score, fit, recovered and m.score >= cfg.min_score
     return pose, m.score, fit, recovered

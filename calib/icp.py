@@ -142,16 +142,24 @@ _NO_FIT = Fit(0.0, 0.0, float("inf"), np.zeros((3, 3)))
 
 
 def align(
-    src: np.ndarray, tree: cKDTree, mp: np.ndarray, mn: np.ndarray, init: np.ndarray, cfg: IcpConfig, prior: bool = True
+    src: np.ndarray,
+    tree: cKDTree,
+    mp: np.ndarray,
+    mn: np.ndarray,
+    init: np.ndarray,
+    cfg: IcpConfig,
+    prior: bool = True,
+    prior_at: np.ndarray | None = None,
 ) -> tuple[np.ndarray, Fit]:
     """Point-to-line ICP of vehicle-frame points ``src`` (N, 2) to a world map (points ``mp``, normals ``mn``, (M, 2)).
 
     Residual r_i = n_q . (R p_i + t - q), nearest map point q; Gauss-Newton on (x, y, theta) with Cauchy
-    weights w_i = 1 / (1 + (r_i / c)^2). With ``prior`` the start pose ``init`` is a Gaussian prior
-    (``prior_xy``, ``prior_theta``): it decides the directions the scan leaves free (a corridor's axis),
-    where plain Gauss-Newton would wander. Returns (pose (3,), :class:`Fit`).
+    weights w_i = 1 / (1 + (r_i / c)^2), started at ``init``. With ``prior`` the pose ``prior_at`` (default
+    ``init``) is a Gaussian prior (``prior_xy``, ``prior_theta``): it decides the directions the scan leaves
+    free (a corridor's axis), where plain Gauss-Newton would wander. Returns (pose (3,), :class:`Fit`).
     """
     pose = init.astype(np.float64).copy()
+    centre = init if prior_at is None else np.asarray(prior_at, dtype=np.float64)
     lam = np.diag([cfg.prior_xy**-2, cfg.prior_xy**-2, cfg.prior_theta**-2]) if prior else np.zeros((3, 3))
     corr = cfg.max_corr
     for it in range(cfg.iterations):
@@ -174,7 +182,7 @@ def align(
         dth = np.column_stack([-s * ps[:, 0] - c * ps[:, 1], c * ps[:, 0] - s * ps[:, 1]])
         j = np.column_stack([n[:, 0], n[:, 1], np.einsum("ij,ij->i", n, dth)])
         h = (j * wt[:, None]).T @ j
-        off = pose - init
+        off = pose - centre
         off[2] = np.mod(off[2] + np.pi, 2 * np.pi) - np.pi
         g = (j * wt[:, None]).T @ r + lam @ off
         try:
