@@ -7,9 +7,10 @@ keyframes, in two steps:
    window around the odometry prediction on the local map's likelihood field,
    with a mild motion prior so that, where the scan cannot tell poses apart (a
    corridor's axis), the one nearest the prediction wins;
-2. **ICP refinement** (:func:`calib.icp.align`) from the correlative pose,
-   point-to-line against the local map's points, which resolves the raster's
-   cell to millimetres.
+2. **ICP refinement** (:func:`calib.icp.align`) point-to-line against the
+   local map's points, which resolves the raster's cell to millimetres; it
+   starts from the correlative pose when that scores clearly better
+   (``search_gain``) than the prediction, else from the prediction.
 
 A scan whose best score stays below ``min_score`` is searched again in a wide
 window without the prior (``recovery_*``): odometry that jumped (a wheel slip,
@@ -56,6 +57,9 @@ class FrontEndConfig(BaseModel):
     recovery_linear_window: float = Field(default=3.0, gt=0.0, description="half-width of the recovery search [m]")
     recovery_angular_window: float = Field(default=0.8, gt=0.0, description="half-width of the recovery search's headings [rad]")
     recovery_gain: float = Field(default=0.1, gt=0.0, description="score a recovered pose must gain over the small window's best")
+    search_gain: float = Field(
+        default=0.05, ge=0.0, description="score the search's pose must gain over the prediction's to be where ICP starts"
+    )
     min_fitness: float = Field(default=0.5, gt=0.0, le=1.0, description="ICP fitness (overlap x agreement) below which ICP's pose is not used")
     keyframe_dist: float = Field(default=0.5, ge=0.0, description="travel that makes a new keyframe [m]")
     keyframe_turn: float = Field(default=0.1, gt=0.0, description="turn that makes a new keyframe [rad]")
@@ -69,6 +73,7 @@ class ScanGeometry:
 
     points: list[np.ndarray]  # per scan (N_k, 2) [m], vehicle frame
     normals: list[np.ndarray]  # per scan (N_k, 2) unit normals, NaN where the neighbours are too far
+    origin: np.ndarray  # (2,) the sensor's position in the vehicle frame [m]: where every beam starts
 
     @classmethod
     def of(cls, log: SensorLog, icp: IcpConfig, max_range: float | None) -> ScanGeometry:
@@ -80,7 +85,7 @@ class ScanGeometry:
             pv, nv = _to_world(mount, p, q)
             pts.append(pv)
             nrm.append(nv)
-        return cls(pts, nrm)
+        return cls(pts, nrm, mount[:2].copy())
 
 
 @dataclass
@@ -153,9 +158,11 @@ def register_scan(
             m, recovered = wide, True
     if m is None:
         return guess, float("nan"), None, False
-    # ICP starts at the search's pose; its prior stays at the prediction (independent of the scan, which
-    # matched to a sparse map tends to stay where the map's own scans were), unless the prediction was wrong
-    pose, fit = align(pts, local.tree, local.p, local.n, m.pose, icp, prior_at=m.pose if recovered else guess)
+    # ICP starts at the search's pose when it is clearly better than the prediction, and its prior stays at
+    # the prediction unless the prediction was wrong: a scan matched to a sparse map (one or two scans) scores
+    # best where the map's own scans were, which is not where the vehicle went
+    start = m.pose if recovered or m.score >= local.field.score(_to_world(guess, cp)) + cfg.search_gain else guess
+    pose, fit = align(pts, local.tree, local.p, local.n, start, icp, prior_at=m.pose if recovered else guess)
     if fit.fitness < cfg.min_fitness:
         return (m.pose if m.score >= cfg.min_score else guess), m.score, fit, recovered and m.score >= cfg.min_score
     return pose, m.score, fit, recovered

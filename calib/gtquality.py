@@ -13,13 +13,16 @@ Figures (each a named :class:`calib.checks.Check` against a threshold of
 - ``loop_residual_p95_m``: 95th percentile of the translation residual of the
   kept loop closures after the solve;
 - ``map_consistency_p95_m`` and ``inconsistent_pair_share``: scans taken at
-  the same place (within ``consistency_radius``) at least
-  ``consistency_gap_s`` apart are laid on each other with the final poses;
-  a pair's residual is the median point-to-line distance of one scan's points
-  to the other's (nearest point within ``consistency_max_corr``, line from its
-  neighbours). A map with a doubled or skewed stretch has pairs whose median
-  is the offset between the copies, however well each scan fitted its local
-  map when it was registered. The figures are the 95th percentile of the pair
+  the same place and heading (within ``consistency_radius`` and
+  ``consistency_max_turn``) at least ``consistency_gap_s`` apart are laid on
+  each other with the final poses; a pair's residual is the median
+  point-to-line distance of one scan's points to the other's (nearest point,
+  line from its neighbours), a point with no neighbour within
+  ``consistency_max_corr`` counting as that far. Two scans taken from one pose
+  see the same surfaces, so a consistent pair's median is the range noise; a
+  map with a doubled or skewed stretch has pairs whose median is the offset
+  between the copies (up to the gate), however well each scan fitted its
+  local map when it was registered. The figures are the 95th percentile of the pair
   medians, and the share of pairs over ``inconsistent_pair_m``;
 - ``relation_trans_mean_m``, ``relation_rot_mean_deg``: the error against
   benchmark relations (Kümmerle et al. 2009), when they are given;
@@ -61,8 +64,10 @@ class QualityThresholds(BaseModel):
     consistency_gap_s: float = Field(default=30.0, gt=0.0, description="scans compared are at least this far apart in time [s]")
     consistency_radius: float = Field(default=1.0, gt=0.0, description="and at most this far apart in space [m]")
     consistency_spacing: float = Field(default=0.5, gt=0.0, description="scans compared are picked every this much travel [m] (or 0.2 rad)")
-    consistency_max_corr: float = Field(default=0.3, gt=0.0, description="nearest-point gate of a pair [m]")
-    consistency_min_overlap: float = Field(default=0.3, gt=0.0, le=1.0, description="a pair counts when this share of points has a neighbour")
+    consistency_max_turn: float = Field(default=0.5, gt=0.0, description="and headings at most this far apart [rad]: both see the same things")
+    consistency_max_corr: float = Field(
+        default=0.5, gt=0.0, description="nearest-point gate of a pair [m]; a point without a neighbour counts as this far"
+    )
     consistency_pairs: int = Field(default=3000, ge=1, description="pairs compared at most (evenly picked)")
     inconsistent_pair_m: float = Field(default=0.15, gt=0.0, description="a pair whose median residual exceeds this is inconsistent [m]")
     max_consistency_p95_m: float = Field(default=0.08, gt=0.0)
@@ -127,13 +132,14 @@ def map_consistency(geo: ScanGeometry, stamps_s: np.ndarray, poses: np.ndarray, 
     if pairs.size == 0:
         return Consistency(np.zeros((0, 2), int), np.zeros(0), np.zeros(0), sel)
     pairs = sel[pairs]
-    pairs = pairs[np.abs(stamps_s[pairs[:, 0]] - stamps_s[pairs[:, 1]]) >= th.consistency_gap_s]
+    turn = np.abs(relative(poses[pairs[:, 0]], poses[pairs[:, 1]])[:, 2])
+    pairs = pairs[(np.abs(stamps_s[pairs[:, 0]] - stamps_s[pairs[:, 1]]) >= th.consistency_gap_s) & (turn <= th.consistency_max_turn)]
     pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
     if pairs.shape[0] > th.consistency_pairs:
         pairs = pairs[np.unique(np.linspace(0, pairs.shape[0] - 1, th.consistency_pairs).round().astype(int))]
     med = np.full(pairs.shape[0], np.nan)
     ovl = np.zeros(pairs.shape[0])
-    trees: dict[int, tuple] = {}
+    trees: dict[int, tuple | None] = {}
     for n, (i, j) in enumerate(pairs):
         if i not in trees:
             trees.clear()  # pairs are sorted by their first scan: one tree at a time
@@ -146,11 +152,12 @@ def map_consistency(geo: ScanGeometry, stamps_s: np.ndarray, poses: np.ndarray, 
         d, idx = t[0].query(q, distance_upper_bound=th.consistency_max_corr)
         near = np.isfinite(d)
         ovl[n] = near.mean()
-        if ovl[n] < th.consistency_min_overlap:
-            continue
+        r = np.full(q.shape[0], th.consistency_max_corr)
         diff = q[near] - t[1][idx[near]]
         nrm = t[2][idx[near]]
-        r = np.where(np.isfinite(nrm[:, 0]), np.abs(np.einsum("ij,ij->i", diff, np.nan_to_num(nrm))), np.hypot(diff[:, 0], diff[:, 1]))
+        r[near] = np.where(
+            np.isfinite(nrm[:, 0]), np.abs(np.einsum("ij,ij->i", diff, np.nan_to_num(nrm))), np.hypot(diff[:, 0], diff[:, 1])
+        )
         med[n] = float(np.median(r))
     return Consistency(pairs, med, ovl, sel)
 

@@ -18,7 +18,12 @@ nearest ``max_candidates`` submaps:
    fix every direction: the smallest eigenvalue of the translation block of
    the ICP information, relative to the largest, at least
    ``min_information_ratio`` (a corridor seen without its ends fixes no
-   position along its axis, whatever the score).
+   position along its axis, whatever the score); and at most
+   ``max_see_through`` of the query's beams may pass through the submap's
+   surfaces (:func:`calib.raster.see_through`). The likelihood field scores
+   only where returns land, so a look-alike place (another room with the
+   same furniture, a corridor shifted by one door) can score well; the free
+   space the scan saw cannot be laid over the other place's walls.
 
 A candidate that passes becomes a loop edge of the pose graph, whose robust
 cost (:mod:`calib.posegraph`) still neutralises a wrong one that looked right
@@ -36,8 +41,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial import cKDTree
 
 from calib.frontend import LocalMap, ScanGeometry, depth_for
-from calib.icp import IcpConfig, align
-from calib.raster import correlative_match, voxel_filter
+from calib.icp import IcpConfig, _to_world, align
+from calib.raster import correlative_match, see_through, voxel_filter
 from detectors.geometry import relative
 
 
@@ -64,6 +69,9 @@ class LoopConfig(BaseModel):
     min_information_ratio: float = Field(
         default=0.02, ge=0.0, le=1.0, description="smallest / largest eigenvalue of the match's translation information"
     )
+    max_see_through: float = Field(
+        default=0.3, ge=0.0, le=1.0, description="share of the query's beams that may pass through the submap's surfaces"
+    )
     rounds: int = Field(default=3, ge=1, description="loop search + graph solve rounds")
 
 
@@ -80,6 +88,7 @@ class LoopDecision:
     agreement: float = float("nan")
     rms: float = float("nan")
     information_ratio: float = float("nan")
+    see_through: float = float("nan")
     rel: np.ndarray | None = None  # (3,) measured pose of the query in the anchor's frame
 
 
@@ -166,7 +175,14 @@ def verify(geo, kf, a: int, anchor: int, sub: LocalMap | None, guess: np.ndarray
     pose, fit = align(pts, sub.tree, sub.p, sub.n, m.pose, icp)
     ev = np.linalg.eigvalsh(fit.information[:2, :2]) if np.isfinite(fit.information).all() else np.zeros(2)
     ratio = float(ev[0] / ev[1]) if ev[1] > 0 else 0.0
-    dec = LoopDecision(a, anchor, False, "", m.score, fit.overlap, fit.agreement, fit.rms, ratio, pose)
+    ends, nrm = _to_world(pose, pts, geo.normals[kf[a]])
+    start = _to_world(pose, geo.origin[None, :])[0]
+    beam = ends - start
+    beam /= np.maximum(np.hypot(beam[:, 0], beam[:, 1]), 1e-9)[:, None]
+    # a beam runs within a sigma of the surface it ends on for sigma / cos(incidence) before its return
+    cos_inc = np.abs(np.einsum("ij,ij->i", beam, np.nan_to_num(nrm, nan=1.0 / np.sqrt(2))))
+    seen = float(see_through(sub.field, start, ends, np.minimum(3 * cfg.sigma / np.maximum(cos_inc, 1e-3), 2.0)).mean())
+    dec = LoopDecision(a, anchor, False, "", m.score, fit.overlap, fit.agreement, fit.rms, ratio, seen, pose)
     if fit.overlap < cfg.min_overlap:
         dec.reason = f"overlap {fit.overlap:.2f} < {cfg.min_overlap:g}"
     elif fit.agreement < cfg.min_agreement:
@@ -175,6 +191,8 @@ def verify(geo, kf, a: int, anchor: int, sub: LocalMap | None, guess: np.ndarray
         dec.reason = f"rms {fit.rms:.3f} m > {cfg.max_rms:g} m"
     elif ratio < cfg.min_information_ratio:
         dec.reason = f"degenerate (information ratio {ratio:.3f} < {cfg.min_information_ratio:g})"
+    elif seen > cfg.max_see_through:
+        dec.reason = f"see-through {seen:.2f} > {cfg.max_see_through:g} (beams cross the submap's surfaces)"
     else:
         dec.accepted = True
     return dec

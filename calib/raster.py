@@ -40,7 +40,7 @@ class LikelihoodField:
     """A likelihood field over a rectangle of the world, with its block-maximum levels.
 
     origin: (2,) world x, y [m] of the lower-left corner of cell (row 0, column 0); rows run along y.
-    resolution: cell side [m].
+    resolution: cell side [m]; sigma: the field's spread [m].
     levels: ``levels[h]`` (H, W) float32; ``levels[0]`` is the field, ``levels[h][r, c]`` the maximum
     of ``levels[0]`` over rows r..r+2^h-1 and columns c..c+2^h-1. The outermost ring of cells is 0, so
     clipped indices read 0 for points off the raster.
@@ -49,6 +49,7 @@ class LikelihoodField:
     origin: np.ndarray
     resolution: float
     levels: tuple[np.ndarray, ...]
+    sigma: float
 
     @classmethod
     def from_points(cls, pts: np.ndarray, resolution: float, sigma: float, depth: int = 0, margin: float = 1.0) -> LikelihoodField:
@@ -69,7 +70,7 @@ class LikelihoodField:
         dist = cv2.distanceTransform(free, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
         field = np.exp(-0.5 * (dist * (resolution / sigma)) ** 2).astype(np.float32)
         field[0, :] = field[-1, :] = field[:, 0] = field[:, -1] = 0.0
-        return cls(lo, float(resolution), (field,)).deepened(depth)
+        return cls(lo, float(resolution), (field,), float(sigma)).deepened(depth)
 
     def deepened(self, depth: int) -> LikelihoodField:
         """This field with block-maximum levels up to ``depth`` (itself when it has them already)."""
@@ -82,7 +83,12 @@ class LikelihoodField:
             levels.append(
                 cv2.dilate(levels[0], np.ones((k, k), np.uint8), anchor=(0, 0), borderType=cv2.BORDER_CONSTANT, borderValue=0.0)
             )
-        return LikelihoodField(self.origin, self.resolution, tuple(levels))
+        return LikelihoodField(self.origin, self.resolution, tuple(levels), self.sigma)
+
+    @property
+    def occupied(self) -> float:
+        """Field value of a cell whose centre is half a cell from a map point (the occupied cells are above it)."""
+        return float(np.exp(-0.5 * (0.5 * self.resolution / self.sigma) ** 2))
 
     @property
     def depth(self) -> int:
@@ -95,6 +101,32 @@ class LikelihoodField:
         c[:, 0] = np.clip(c[:, 0], 0, f.shape[1] - 1)
         c[:, 1] = np.clip(c[:, 1], 0, f.shape[0] - 1)
         return float(f[c[:, 1], c[:, 0]].mean()) if world.shape[0] else 0.0
+
+
+def see_through(field: LikelihoodField, origin: np.ndarray, ends: np.ndarray, clearance: np.ndarray | float) -> np.ndarray:
+    """(N,) bool: beams from ``origin`` (2,) to their returns ``ends`` (N, 2) (world frame) that pass through the map.
+
+    A beam passes through the map when it crosses an occupied cell (within half a cell of a map point)
+    between 0.3 m after its start and ``clearance`` (scalar or (N,)) [m] before its return: the scan saw
+    free space where the map has a surface. A correct alignment has few such beams (moving things); an
+    aliased one, laid over a look-alike place, has many. The clearance must cover the stretch where a beam
+    runs close to the surface it ends on (long for grazing incidence).
+    """
+    res = field.resolution
+    d = ends - origin
+    length = np.hypot(d[:, 0], d[:, 1])
+    start = 0.3
+    steps = np.arange(start, max(float(length.max(initial=0.0)), start), res / 2)
+    if steps.size == 0:
+        return np.zeros(ends.shape[0], dtype=bool)
+    u = d / np.maximum(length, 1e-9)[:, None]
+    inside = steps[None, :] <= (length - np.broadcast_to(clearance, length.shape))[:, None]  # (N, T)
+    x = origin[0] + u[:, 0:1] * steps[None, :]
+    y = origin[1] + u[:, 1:2] * steps[None, :]
+    f = field.levels[0]
+    c = np.clip(np.floor((x - field.origin[0]) / res).astype(np.int64), 0, f.shape[1] - 1)
+    r = np.clip(np.floor((y - field.origin[1]) / res).astype(np.int64), 0, f.shape[0] - 1)
+    return ((f[r, c] >= field.occupied) & inside).any(axis=1)
 
 
 @dataclass(frozen=True)
@@ -120,8 +152,12 @@ def voxel_filter(points: np.ndarray, size: float) -> np.ndarray:
 
 
 def angle_step_for(points: np.ndarray, resolution: float) -> float:
-    """Angular step [rad] that moves the farthest point by about one cell (Hess et al. 2016, eq. 7)."""
-    d_max = float(np.max(np.hypot(points[:, 0], points[:, 1]))) if points.shape[0] else 1.0
+    """Angular step [rad] that moves a far point by about one cell (Hess et al. 2016, eq. 7).
+
+    "Far" is the 90th percentile of the points' distances rather than the farthest (a few stray far returns
+    would make the step, and the search's cost, several times finer for nothing the ICP refinement needs).
+    """
+    d_max = float(np.quantile(np.hypot(points[:, 0], points[:, 1]), 0.9)) if points.shape[0] else 1.0
     d_max = max(d_max, resolution)
     return float(np.arccos(max(-1.0, 1.0 - resolution**2 / (2.0 * d_max**2))))
 
