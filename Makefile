@@ -5,14 +5,14 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 DEMO   := runs/demo
 
-.PHONY: demo test bench clean builtin-profile
+.PHONY: demo test bench clean builtin-profile lock
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 
-$(STAMP): pyproject.toml | $(BIN)/python
+$(STAMP): pyproject.toml constraints.txt | $(BIN)/python
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e ".[test]"
+	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[test]"
 	touch $(STAMP)
 
 # The main job on the embedded default: calibrate the default simulated park log,
@@ -35,6 +35,14 @@ bench: $(STAMP)
 # Regenerate the bundled profile with detcal's own calibration (reproducible bytes).
 builtin-profile: $(STAMP)
 	SOURCE_DATE_EPOCH=1763683200 $(BIN)/detcal calibrate --out runs/builtin --profiles-dir profiles/builtin --force
+
+# Refresh constraints.txt to the newest releases the ranges in pyproject.toml allow (then: make builtin-profile, make test).
+lock:
+	rm -rf .lock-venv && $(PYTHON) -m venv .lock-venv
+	.lock-venv/bin/python -m pip install --quiet --upgrade pip
+	.lock-venv/bin/python -m pip install --quiet -e ".[test]"
+	{ head -n 2 constraints.txt; .lock-venv/bin/python -m pip freeze --exclude-editable | grep -v '^detcal'; } > constraints.tmp && mv constraints.tmp constraints.txt
+	rm -rf .lock-venv
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache
