@@ -16,14 +16,17 @@ Figures (each a named :class:`calib.checks.Check` against a threshold of
   the same place and heading (within ``consistency_radius`` and
   ``consistency_max_turn``) at least ``consistency_gap_s`` apart are laid on
   each other with the final poses; a pair's residual is the median
-  point-to-line distance of one scan's points to the other's (nearest point,
-  line from its neighbours), a point with no neighbour within
-  ``consistency_max_corr`` counting as that far. Two scans taken from one pose
-  see the same surfaces, so a consistent pair's median is the range noise; a
-  map with a doubled or skewed stretch has pairs whose median is the offset
-  between the copies (up to the gate), however well each scan fitted its
-  local map when it was registered. The figures are the 95th percentile of the pair
-  medians, and the share of pairs over ``inconsistent_pair_m``;
+  point-to-line distance of one scan's points to the other's (nearest point
+  within ``consistency_max_corr``, line from its neighbours). Two scans taken
+  from one pose see the same surfaces, so a consistent pair's median is the
+  range noise (points hidden by someone walking by find no neighbour and do
+  not count); a map with a doubled or skewed stretch has pairs whose median
+  is the offset between the copies, however well each scan fitted its local
+  map when it was registered, or, offset beyond the gate, pairs with fewer
+  than ``consistency_min_overlap`` of their points within it. The figures
+  are the 95th percentile of the pair medians, and the share of pairs that
+  are inconsistent (median over ``inconsistent_pair_m``, or overlap under
+  ``consistency_min_overlap``);
 - ``relation_trans_mean_m``, ``relation_rot_mean_deg``: the error against
   benchmark relations (Kümmerle et al. 2009), when they are given;
 - ``reference_ate_m``: position RMSE against the log's reference poses after a
@@ -65,8 +68,9 @@ class QualityThresholds(BaseModel):
     consistency_radius: float = Field(default=1.0, gt=0.0, description="and at most this far apart in space [m]")
     consistency_spacing: float = Field(default=0.5, gt=0.0, description="scans compared are picked every this much travel [m] (or 0.2 rad)")
     consistency_max_turn: float = Field(default=0.5, gt=0.0, description="and headings at most this far apart [rad]: both see the same things")
-    consistency_max_corr: float = Field(
-        default=0.5, gt=0.0, description="nearest-point gate of a pair [m]; a point without a neighbour counts as this far"
+    consistency_max_corr: float = Field(default=0.5, gt=0.0, description="nearest-point gate of a pair [m]")
+    consistency_min_overlap: float = Field(
+        default=0.2, gt=0.0, le=1.0, description="a pair with a smaller share of points within the gate is inconsistent outright"
     )
     consistency_pairs: int = Field(default=3000, ge=1, description="pairs compared at most (evenly picked)")
     inconsistent_pair_m: float = Field(default=0.15, gt=0.0, description="a pair whose median residual exceeds this is inconsistent [m]")
@@ -80,8 +84,8 @@ class QualityThresholds(BaseModel):
 
 @dataclass
 class Consistency:
-    """Pairs of scans (P, 2) far apart in time at one place, their median residual [m] (P,) and overlap (P,);
-    ``spaced`` (M,) the scans pairs were drawn from."""
+    """Pairs of scans (P, 2) far apart in time at one place, their median residual [m] (P,; NaN where the overlap
+    is under the minimum) and overlap (P,; NaN where not compared); ``spaced`` (M,) the scans pairs were drawn from."""
 
     pairs: np.ndarray
     median: np.ndarray
@@ -138,7 +142,7 @@ def map_consistency(geo: ScanGeometry, stamps_s: np.ndarray, poses: np.ndarray, 
     if pairs.shape[0] > th.consistency_pairs:
         pairs = pairs[np.unique(np.linspace(0, pairs.shape[0] - 1, th.consistency_pairs).round().astype(int))]
     med = np.full(pairs.shape[0], np.nan)
-    ovl = np.zeros(pairs.shape[0])
+    ovl = np.full(pairs.shape[0], np.nan)  # NaN: not compared (a scan with too few returns)
     trees: dict[int, tuple | None] = {}
     for n, (i, j) in enumerate(pairs):
         if i not in trees:
@@ -152,12 +156,11 @@ def map_consistency(geo: ScanGeometry, stamps_s: np.ndarray, poses: np.ndarray, 
         d, idx = t[0].query(q, distance_upper_bound=th.consistency_max_corr)
         near = np.isfinite(d)
         ovl[n] = near.mean()
-        r = np.full(q.shape[0], th.consistency_max_corr)
+        if ovl[n] < th.consistency_min_overlap:
+            continue  # laid too far apart for the gate (or hidden behind something near): counted apart
         diff = q[near] - t[1][idx[near]]
         nrm = t[2][idx[near]]
-        r[near] = np.where(
-            np.isfinite(nrm[:, 0]), np.abs(np.einsum("ij,ij->i", diff, np.nan_to_num(nrm))), np.hypot(diff[:, 0], diff[:, 1])
-        )
+        r = np.where(np.isfinite(nrm[:, 0]), np.abs(np.einsum("ij,ij->i", diff, np.nan_to_num(nrm))), np.hypot(diff[:, 0], diff[:, 1]))
         med[n] = float(np.median(r))
     return Consistency(pairs, med, ovl, sel)
 
@@ -224,11 +227,12 @@ def assess(
         )
     cons = map_consistency(geo, stamps_s, poses, th)
     counted = cons.counted
-    figures["consistency_pairs"] = int(counted.sum())
+    compared = counted | (cons.overlap < th.consistency_min_overlap)
+    figures["consistency_pairs"] = int(compared.sum())
     figures["map_consistency_median_m"] = float(np.median(cons.median[counted])) if counted.any() else nan
     figures["map_consistency_p95_m"] = float(np.quantile(cons.median[counted], 0.95)) if counted.any() else nan
-    bad_pair = counted & (np.nan_to_num(cons.median, nan=0.0) > th.inconsistent_pair_m)
-    figures["inconsistent_pair_share"] = float(bad_pair[counted].mean()) if counted.any() else nan
+    bad_pair = compared & ((np.nan_to_num(cons.median, nan=0.0) > th.inconsistent_pair_m) | ~counted)
+    figures["inconsistent_pair_share"] = float(bad_pair[compared].mean()) if compared.any() else nan
     checks.append(
         Check("map_consistency_p95_m", figures["map_consistency_p95_m"], th.max_consistency_p95_m, "max", "scans at one place far apart in time disagree", "m")
     )
