@@ -135,6 +135,7 @@ def scan_sensor_poses(log: SensorLog, source: str) -> tuple[np.ndarray, str]:
         src = "reference"
     else:
         from calib.icp import icp_ground_truth
+        from calib.progress import progress
 
         # ICP poses live in the frame of the first scan; a log with reference poses anchors
         # that frame at its first one so the log's landmark truth applies
@@ -142,7 +143,7 @@ def scan_sensor_poses(log: SensorLog, source: str) -> tuple[np.ndarray, str]:
         if "ground_truth" in log.reference:
             ref = log.reference["ground_truth"]
             origin = interpolate_poses(ref.stamp, ref.poses, log.scans.stamp[:1])[0]
-        veh = icp_ground_truth(log, origin=origin).poses
+        veh = icp_ground_truth(log, origin=origin, progress=progress).poses  # bars on a terminal, quiet on workers
         src = "icp"
     m = log.sensor.mount
     return compose(veh, np.array([m.x, m.y, m.theta])), src
