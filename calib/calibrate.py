@@ -183,6 +183,18 @@ def with_range_sigma(log: SensorLog, sigma: float) -> SensorLog:
     return dataclasses.replace(log, sensor=type(log.sensor).model_validate({**log.sensor.model_dump(), "range_sigma": sigma}))
 
 
+def check_landmark_source(logs: list[SensorLog], landmarks_csv: Path | str | None) -> None:
+    """Refuse, before any registration, logs whose landmark truth is nowhere: no landmarks of their own and
+    neither a CSV nor ``cloud`` (the mistake used to be reported after the whole ICP)."""
+    if landmarks_csv is not None:
+        return
+    for lg in logs:
+        if lg.landmarks is None:
+            raise UsageError(f"log {lg.name!r} has no landmark truth; pass --landmarks FILE.csv (id, x, y, radius) or --landmarks cloud")
+        if np.isnan(lg.landmarks.radius).any():
+            raise DataError(f"log {lg.name!r}: landmark radii are unknown; the n_p ray tracer needs them (--landmarks)")
+
+
 def log_landmarks(
     log: SensorLog,
     landmarks_csv: Path | str | None,
@@ -315,6 +327,7 @@ def calibrate(
     sensor = _check_same_sensor(logs)
     if sensor.range_max is None:
         raise DataError("the sensor model has no range_max")
+    check_landmark_source(logs, landmarks_csv)
     params = parameters(logs, cfg, landmarks_csv, range_sigma_given)
     each = per_log or _in_turn
     noise = None

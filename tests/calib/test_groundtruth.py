@@ -14,6 +14,7 @@ from calib.posegraph import GraphConfig, solve
 from calib.sim.park import simulate_park
 from calib.sufficiency import check_calibration, check_counts
 from detectors.geometry import compose, interpolate_poses, relative
+from profiles.errors import UsageError
 from tests.calib.floorplan import floorplan_log, path_poses, rectangle
 from tests.conftest import small_park_config
 
@@ -132,3 +133,15 @@ def test_counts_that_suffice_pass_and_a_table_of_zeros_does_not():
     assert [c.name for c in zeros.failures] == ["pd_bins_with_detections"]
     thin = check_counts(12, 900, [500, 120, 30], [10, 10, 3], 200)
     assert [c.name for c in thin.failures] == ["populated_pd_bins"] and "populated_pd_bins 1 < 2" in thin.message("x")
+
+
+def test_a_log_without_landmarks_is_refused_before_the_registration(small_sim, monkeypatch):
+    import calib.mapping
+
+    def no_registration(*a, **k):
+        raise AssertionError("the registration ran before the landmark source was checked")
+
+    monkeypatch.setattr(calib.mapping, "build_ground_truth", no_registration)
+    bare = dataclasses.replace(small_sim.log, landmarks=None, reference={})  # a real log: no truth, no landmarks
+    with pytest.raises(UsageError, match="has no landmark truth; pass --landmarks FILE.csv .* or --landmarks cloud"):
+        calibrate([bare], CalibrateConfig(), name="x", version="1.0.0")
