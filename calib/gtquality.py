@@ -40,6 +40,7 @@ map figure marks.
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -299,11 +300,11 @@ def _loop_figures(reg) -> tuple[pd.DataFrame, dict]:
     verified = int(table["verified"].sum())
     off = int((back == "turned off by the robust graph").sum())
     kept = back == "kept"
-    reasons = table.loc[~table["verified"], "reason"].str.split(" ").str[0].value_counts().sort_index()
+    reasons = Counter(d.reason.split(" ")[0] for d in decisions if not d.accepted)
     figs = {
         "loop_candidates": len(decisions),
         "loops_verified": verified,
-        "loops_rejected": {str(k): int(v) for k, v in reasons.items()},
+        "loops_rejected": {k: int(reasons[k]) for k in sorted(reasons)},
         "loops_turned_off_by_back_end": off,
         "loops_kept": int(kept.sum()),
         "back_end_rejected_share": off / verified if verified else float("nan"),

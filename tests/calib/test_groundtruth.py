@@ -145,3 +145,14 @@ def test_a_log_without_landmarks_is_refused_before_the_registration(small_sim, m
     bare = dataclasses.replace(small_sim.log, landmarks=None, reference={})  # a real log: no truth, no landmarks
     with pytest.raises(UsageError, match="has no landmark truth; pass --landmarks FILE.csv .* or --landmarks cloud"):
         calibrate([bare], CalibrateConfig(), name="x", version="1.0.0")
+
+
+def test_a_log_of_one_or_two_scans_gets_a_ground_truth_and_a_report():
+    walls = rectangle(0, 0, 10, 6)
+    for n in (1, 2):
+        truth = path_poses(np.array([[1.0, 1.0], [1.4, 1.0]]), 1.0)[:n]
+        log = floorplan_log(walls, truth, 1)
+        res = build_ground_truth(log, origin=truth[0])
+        q = assess(log, res.poses, res.details)
+        np.testing.assert_allclose(res.poses[:, :2], truth[:, :2], atol=0.05)  # 1 cm noise: the second scan is placed
+        assert q.figures["loop_candidates"] == 0 and q.figures["consistency_pairs"] == 0  # nothing to measure: n/a, not a crash
