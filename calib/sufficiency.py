@@ -49,11 +49,3 @@ def check_counts(
             Check("pd_bins_with_detections", float((populated & (dets > 0)).sum()), th.min_pd_bins_with_detections, "min", "populated P_D bins where the detector fired"),
         ),
     )
-
-
-def check_calibration(cal, thresholds: SufficiencyThresholds | None = None) -> Verdict:
-    """:func:`check_counts` of a :class:`calib.calibrate.Calibration` (its summary and its profile's P_D table)."""
-    pdt = cal.profile.pd
-    return check_counts(
-        int(cal.summary["landmarks"]), int(cal.summary["true_detections"]), pdt.counts, pdt.detections, cal.config.pd.min_count, thresholds
-    )

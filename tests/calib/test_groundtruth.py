@@ -12,7 +12,9 @@ from calib.icp import odometry_poses
 from calib.mapping import GroundTruthConfig, build_ground_truth
 from calib.posegraph import GraphConfig, solve
 from calib.sim.park import simulate_park
-from calib.sufficiency import check_calibration, check_counts
+from calib.icp import IcpResult
+from calib.sufficiency import check_counts
+from profiles.errors import DataError
 from detectors.geometry import compose, interpolate_poses, relative
 from profiles.errors import UsageError
 from tests.calib.floorplan import floorplan_log, path_poses, rectangle
@@ -116,14 +118,29 @@ def test_quality_verdict_fails_on_corrupted_poses_and_names_the_figure(park_two_
 def test_degenerate_data_are_refused_with_their_counts():
     cfg = small_park_config()
     cfg.trees.count = 2
-    cal = calibrate([simulate_park(cfg, 5).log], CalibrateConfig(), name="thin", version="1.0.0")
-    v = check_calibration(cal)
-    assert not v.passed
-    msg = v.message("park_seed5")
-    assert msg.startswith("park_seed5: data fails: landmarks 2 < 5")
-    assert f"(and 1 more: true_detections)" in msg or "(and 2 more: true_detections" in msg
-    assert [c.name for c in v.failures][:2] == ["landmarks", "true_detections"]
-    assert cal.summary["true_detections"] < 100
+    log = simulate_park(cfg, 5).log
+    with pytest.raises(DataError, match=r"^park_seed5: data fails: landmarks 2 < 5 \(landmarks labelled\) \(and 2 more: true_detections, populated_pd_bins\); no profile written"):
+        calibrate([log], CalibrateConfig(), name="thin", version="1.0.0", quality_gate="refuse")
+    cal = calibrate([log], CalibrateConfig(), name="thin", version="1.0.0", quality_gate="accept")
+    assert cal.summary["true_detections"] < 100 and cal.summary["data_sufficiency"].startswith("fails: landmarks 2 < 5")
+    assert cal.summary["accepted_poor"] == [cal.data.message("park_seed5")]
+    assert cal.profile.provenance.parameters["accept_poor_ground_truth"] is True  # the profile records the override
+    assert "accept_poor_ground_truth" not in calibrate([log], CalibrateConfig(), name="thin", version="1.0.0").profile.provenance.parameters
+
+
+def test_the_gate_refuses_a_calibration_on_corrupted_icp_poses(park_two_laps, monkeypatch):
+    import calib.icp
+
+    log = park_two_laps
+    ref = log.reference["ground_truth"]
+    truth = interpolate_poses(ref.stamp, ref.poses, log.scans.stamp)
+    k0 = len(truth) // 2
+    bad = truth.copy()
+    bad[k0:] = compose(compose(truth[k0], np.array([0.0, 0.0, np.radians(3.0)])), relative(truth[k0], truth[k0:]))
+    # "ICP" that returns the corrupted poses: the gate judges poses, whoever made them
+    monkeypatch.setattr(calib.icp, "icp_ground_truth", lambda lg, cfg=None, origin=None, progress=None: IcpResult(bad, np.arange(len(bad)), [], bad))
+    with pytest.raises(DataError, match=r"^park_seed51: ground truth fails: map_consistency_p95_m 0\.\d+ m > 0\.08 m .*no profile written"):
+        calibrate([log], CalibrateConfig(poses="icp"), name="bad", version="1.0.0", quality_gate="refuse")
 
 
 def test_counts_that_suffice_pass_and_a_table_of_zeros_does_not():
