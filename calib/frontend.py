@@ -38,7 +38,7 @@ from scipy.spatial import cKDTree
 from calib.icp import Fit, IcpConfig, _to_world, align, scan_points
 from calib.raster import LikelihoodField, correlative_match, voxel_filter
 from detectors.geometry import compose, relative
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 
 
 class FrontEndConfig(BaseModel):

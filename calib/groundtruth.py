@@ -27,7 +27,7 @@ from calib.io.atomic import atomic_output
 from calib.progress import progress
 from calib.trajectory import kitti_text, relation_scores, tum_text
 from detectors.geometry import interpolate_poses
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 
 
 def score_against_truth(log: SensorLog, res: IcpResult) -> dict:

@@ -53,7 +53,7 @@ from calib.frontend import ScanGeometry
 from calib.icp import IcpConfig, _to_world
 from calib.trajectory import relation_scores
 from detectors.geometry import interpolate_poses, relative, rigid_align
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 
 
 class QualityThresholds(BaseModel):

@@ -29,7 +29,7 @@ from calib.icp import IcpConfig, IcpResult, odometry_poses
 from calib.loops import LoopConfig, LoopDecision, find_loops
 from calib.posegraph import Edges, GraphConfig, Solution, sequential_sigma, solve
 from detectors.geometry import compose, relative
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.errors import DataError
 
 

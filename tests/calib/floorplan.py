@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from detectors.geometry import cast, compose, relative
-from detectors.logs import ReferencePoses, ScanBatch, SensorLog, SensorModel
+from detectors.sensor_log import ReferencePoses, ScanBatch, SensorLog, SensorModel
 
 RATE_HZ = 5.0
 
