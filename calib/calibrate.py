@@ -471,7 +471,8 @@ def _summary(logs, sources, lms, sensor, params, dets, true, gated, fa, pairs, r
 
 
 def _verdict_line(v) -> str:
-    return "passes" if v.passed else "fails: " + "; ".join(c.describe() for c in v.failures)
+    """'passes: <every figure and its threshold>' or 'fails: <the failed ones>' (calib.checks.Check.describe)."""
+    return ("passes: " if v.passed else "fails: ") + "; ".join(c.describe() for c in (v.checks if v.passed else v.failures))
 
 
 def _gate(verdicts: list[tuple[str, object]], policy: str) -> list[str]:

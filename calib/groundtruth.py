@@ -98,6 +98,11 @@ def write_trajectories(folder: Path, stamps_ns: np.ndarray, poses: np.ndarray) -
 def write_quality(folder: Path, quality: QualityReport) -> None:
     """quality.yaml, and keyframes.csv / loops.csv when the poses came from a registration."""
     (folder / "quality.yaml").write_text(dump_yaml(quality.as_dict()))
+    write_quality_tables(folder, quality)
+
+
+def write_quality_tables(folder: Path, quality: QualityReport) -> None:
+    """keyframes.csv (fitness per keyframe) and loops.csv (every loop candidate) of a registration's report."""
     if quality.keyframes is not None:
         quality.keyframes.to_csv(folder / "keyframes.csv", index=False, float_format="%.6g")
     if quality.loops is not None:

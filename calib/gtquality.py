@@ -51,6 +51,7 @@ from scipy.spatial import cKDTree
 from calib.checks import Check, Verdict
 from calib.frontend import ScanGeometry
 from calib.icp import IcpConfig, _to_world
+from calib.progress import progress
 from calib.trajectory import relation_scores
 from detectors.geometry import interpolate_poses, relative, rigid_align
 from detectors.sensor_log import SensorLog
@@ -145,7 +146,7 @@ def map_consistency(geo: ScanGeometry, stamps_s: np.ndarray, poses: np.ndarray, 
     med = np.full(pairs.shape[0], np.nan)
     ovl = np.full(pairs.shape[0], np.nan)  # NaN: not compared (a scan with too few returns)
     trees: dict[int, tuple | None] = {}
-    for n, (i, j) in enumerate(pairs):
+    for n, (i, j) in enumerate(progress(pairs, pairs.shape[0], "checking map consistency")):
         if i not in trees:
             trees.clear()  # pairs are sorted by their first scan: one tree at a time
             wp, wn = _to_world(poses[i], geo.points[i], geo.normals[i])
