@@ -18,8 +18,7 @@ import pandas as pd
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
-from calib.detect import detections_table
-from detectors.circle import detect_circles
+from calib.detect import DetectConfig, detections_table, run_detector
 from detectors.geometry import compose
 from detectors.sensor_log import SensorLog
 from detectors.raytrace import count_unoccluded
@@ -136,7 +135,7 @@ def label_log(
     if log.sensor.range_sigma is None:
         raise DataError(f"log {log.name!r}: the sensor model has no range_sigma; pass --range-sigma")
     ang = log.scan_angles()  # (B,), or (S, B) for a laser of several beam layouts
-    det = detect_circles(log.scans.ranges, ang, params, range_sigma=log.sensor.range_sigma)
+    det = run_detector(log, DetectConfig(detector=params), label="detecting circles")
     sp = sensor_poses[det.scan]
     world = compose(sp, np.column_stack([det.x, det.y, np.zeros(len(det))]))
     tol = k_sigma * log.sensor.range_sigma
