@@ -114,7 +114,7 @@ def time_order(stamps: np.ndarray, lines: np.ndarray, path: Path, what: str, max
         back = int(np.maximum.accumulate(stamps)[first] - stamps[first])
         raise DataError(
             f"{path}:{int(lines[first])}: {what} time goes backwards by {back / 1e9:.6f} s "
-            f"(more than the tolerated {max_backstep:g} s)"
+            f"(more than the tolerated {max_backstep:g} s); --max-backstep SECONDS tolerates more, as logs rewritten by SLAM tools may need"
         )
     perm = np.argsort(stamps, kind="stable")
     return perm, int(np.count_nonzero(perm != np.arange(stamps.size)))

@@ -72,8 +72,16 @@ def test_small_backsteps_are_resorted_and_strict_mode_refuses(tmp_path):
     p = write(tmp_path, [*BASE, flaser(1.12, [1.0, 2.0, 3.0, 4.0])])
     log = read_carmen(p)
     assert np.all(np.diff(log.scans.stamp) >= 0) and log.source["reordered"]["scan"] == 2
-    with pytest.raises(DataError, match=r"t.clf:7: FLASER time goes backwards by 0.030000 s \(more than the tolerated 0 s\)"):
+    with pytest.raises(DataError, match=r"t.clf:7: FLASER time goes backwards by 0.030000 s \(more than the tolerated 0 s\); --max-backstep"):
         read_carmen(p, max_backstep=0.0)
+
+
+def test_stamps_collapsed_to_few_values_are_reported(tmp_path):
+    # a "corrected" log rewritten by a SLAM tool: 40 scans sharing two stamps, 10,000 s apart
+    lines = [flaser(1000.0 if k < 20 else 11000.0, [1.0, 2.0, 3.0, 4.0]) for k in range(40)]
+    log = read_carmen(write(tmp_path, lines))
+    assert log.source["collapsed_stamps"] == {"scan": {"distinct": 2, "records": 40}}
+    assert "collapsed_stamps" not in read_carmen(write(tmp_path, BASE * 5, "u.clf")).source  # distinct stamps: nothing to say
 
 
 def test_truncated_compressed_log(tmp_path):
