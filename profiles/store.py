@@ -23,6 +23,7 @@ from pathlib import Path
 import yaml
 from pydantic import ValidationError
 
+from profiles import strict_yaml
 from profiles.atomic import atomic_output
 from profiles.errors import DataError, DetcalError, UsageError
 from profiles.profile import DETECTOR_KINDS, SCHEMA_VERSION, SUPPORTED_SCHEMAS, V2_FIELDS, DetectorProfile, semver_key
@@ -109,13 +110,29 @@ def read_document(path: Path) -> object:
     except OSError as exc:
         raise DataError(f"{path}: cannot read ({exc.strerror or exc})") from None
     try:
-        return json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
+        return json.loads(text, object_pairs_hook=_unique_keys) if path.suffix == ".json" else strict_yaml.load(text)
     except (yaml.YAMLError, json.JSONDecodeError) as exc:
         mark = getattr(exc, "problem_mark", None)
         line = f":{mark.line + 1}" if mark is not None else (f":{exc.lineno}" if isinstance(exc, json.JSONDecodeError) else "")
         raise DataError(f"{path}{line}: not valid YAML/JSON ({getattr(exc, 'problem', None) or getattr(exc, 'msg', exc)})") from None
+    except _DuplicateKey as exc:
+        raise DataError(f"{path}: not valid JSON ({exc})") from None
     except (RecursionError, ValueError) as exc:
         raise DataError(f"{path}: not valid YAML/JSON ({type(exc).__name__})") from None
+
+
+class _DuplicateKey(ValueError):
+    pass
+
+
+def _unique_keys(pairs: list[tuple[str, object]]) -> dict:
+    """A JSON object refusing a key given twice (json keeps the last one without a word)."""
+    out: dict = {}
+    for k, v in pairs:
+        if k in out:
+            raise _DuplicateKey(f"key {k!r} is given twice in one object")
+        out[k] = v
+    return out
 
 
 def looks_like_profile(path: Path) -> bool:

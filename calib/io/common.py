@@ -8,6 +8,7 @@ import hashlib
 import io
 import lzma
 import math
+import zlib
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
@@ -48,7 +49,7 @@ def iter_lines(path: Path) -> Iterator[tuple[int, str]]:
         with open_text(path) as fh:
             for lineno, line in enumerate(fh, start=1):  # noqa: B007
                 yield lineno, line.strip()
-    except (EOFError, OSError, ValueError, lzma.LZMAError) as exc:
+    except (EOFError, OSError, ValueError, lzma.LZMAError, zlib.error) as exc:
         raise DataError(f"{path}: compressed stream is truncated or corrupt after line {lineno} ({exc})") from None
 
 
