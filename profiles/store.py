@@ -88,6 +88,8 @@ def parse_profile(data: object, where: str) -> DetectorProfile:
         errs = exc.errors()
         e = errs[0]
         msg = "unknown key" if e["type"] == "extra_forbidden" else e["msg"]
+        if e["type"] == "value_error" and "error" in e.get("ctx", {}):
+            msg = str(e["ctx"]["error"])  # a model's own check: its text names the fields, without pydantic's "Value error, "
         more = f" (and {len(errs) - 1} more)" if len(errs) > 1 else ""
         raise DataError(f"{where}: {_field_path(e['loc'])}: {msg}{more}") from None
     _check_parameters(prof, where)
