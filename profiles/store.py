@@ -47,7 +47,9 @@ def _field_path(loc: tuple) -> str:
 def _check_parameters(prof: DetectorProfile, where: str) -> None:
     """The recorded parameters must fit one of the models of the way this detcal makes such profiles
     (:mod:`profiles.provenance`); a profile written by hand (none recorded) or by another detcal version is kept as
-    recorded."""
+    recorded. So is one whose record only lacks keys this detcal records (written by an earlier build of the same
+    version, before those keys were recorded: its statistics are what they were, its record says less): a misspelt
+    key or a wrong value is refused, a missing one is not (a profile once written keeps loading)."""
     models = parameter_models(prof.detector.kind, prof.provenance.detcal_version)
     if not models or not prof.provenance.parameters:
         return
@@ -57,9 +59,11 @@ def _check_parameters(prof: DetectorProfile, where: str) -> None:
             model.model_validate(prof.provenance.parameters)
             return
         except ValidationError as exc:
+            if all(e["type"] == "missing" for e in exc.errors()):
+                return
             if closest is None or exc.error_count() < closest.error_count():
                 closest = exc
-    e = closest.errors()[0]
+    e = next(x for x in closest.errors() if x["type"] != "missing")  # what is wrong, rather than what is not recorded
     msg = "unknown key" if e["type"] == "extra_forbidden" else e["msg"]
     raise DataError(f"{where}: provenance.parameters.{_field_path(e['loc'])}: {msg}") from None
 

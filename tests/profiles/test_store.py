@@ -289,3 +289,23 @@ def test_recorded_parameters_are_checked_the_same_without_calib(tmp_path):
     )
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert res.stdout.splitlines() == [f"{f}: provenance.parameters.pd.min_cont: unknown key", "[]"]
+
+
+def test_a_profile_recorded_before_a_parameter_was_recorded_still_loads(tmp_path):
+    """A profile written by an earlier build of this version, before `landmarks` and `range_sigma_source` were
+    recorded, loads with its record as it is (it was refused: `provenance.parameters.landmarks: Field required`);
+    a misspelt key is still refused."""
+    import yaml
+
+    from profiles.store import BUILTIN
+
+    doc = yaml.safe_load((BUILTIN / "sim-park-laser@1.0.0.yaml").read_text())
+    for key in ("landmarks", "range_sigma_source"):
+        doc["provenance"]["parameters"].pop(key)
+    (tmp_path / "old.yaml").write_text(yaml.safe_dump(doc))
+    prof = load_profile_file(tmp_path / "old.yaml")
+    assert "landmarks" not in prof.provenance.parameters and prof.sensor.n_beams == 361
+    doc["provenance"]["parameters"]["landmark"] = "log"
+    (tmp_path / "typo.yaml").write_text(yaml.safe_dump(doc))
+    with pytest.raises(DataError, match=r"typo.yaml: provenance.parameters.landmark: unknown key"):
+        load_profile_file(tmp_path / "typo.yaml")
