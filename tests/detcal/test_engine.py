@@ -73,9 +73,13 @@ def serial(park_log, tmp_path_factory) -> Path:
     return out
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture
 def cluster():
-    """A 2-worker local Dask cluster of the test's own (commands reach it with --scheduler), loopback only."""
+    """A 2-worker local Dask cluster of the test's own (commands reach it with --scheduler), loopback only.
+
+    One per test: a test that kills a worker leaves its cluster a worker short until the nanny has started another,
+    which on a busy machine may take longer than the next test waits; a fresh cluster has both workers when it is
+    handed over (LocalCluster waits for them)."""
     import dask
     from distributed import Client
 
@@ -94,9 +98,9 @@ def arm_kill(client, run_name: str, flag: Path) -> None:
     """In every worker process, present or yet to start: the first attempt at ``run_name`` (anywhere: ``flag`` says)
     SIGKILLs its worker.
 
-    A worker plugin rather than a one-off ``Client.run``: a worker the nanny is still restarting after an earlier
-    test's kill is armed as it comes up, whenever that is on a busy machine, so the armed run cannot slip onto an
-    unarmed worker. The cluster is first back to its two workers (Dask's own wait, no clock of ours).
+    A worker plugin rather than a one-off ``Client.run``: a worker that starts later (a nanny's restart) is armed as
+    it comes up, whenever that is on a busy machine, so the armed run cannot slip onto an unarmed worker. Both
+    workers are there first (Dask's own wait; a fresh cluster has them already).
     """
     from distributed.diagnostics.plugin import WorkerPlugin
 
