@@ -1,6 +1,6 @@
 """CARMEN log reader (``FLASER``, ``RLASER``, ``ROBOTLASER1``, ``ODOM``, ``TRUEPOS``).
 
-Plain, ``.gz`` or ``.bz2``. Line formats (``../shared/data/README.md``)::
+Plain, ``.gz``, ``.bz2`` or ``.xz``. Line formats (``../shared/data/README.md``)::
 
     FLASER n r1..rn x y theta odom_x odom_y odom_theta ipc_timestamp hostname logger_timestamp
     ODOM x y theta tv rv accel ipc_timestamp hostname logger_timestamp
@@ -36,7 +36,7 @@ _SATURATION_SHARE = 5e-4
 
 def looks_like_carmen(path: Path) -> bool:
     name = path.name.lower()
-    return any(name.endswith(s) for s in (".clf", ".clf.gz", ".clf.bz2", ".log", ".log.gz", ".log.bz2", ".carmen"))
+    return any(name.endswith(s + z) for s in (".clf", ".log", ".carmen") for z in ("", ".gz", ".bz2", ".xz"))
 
 
 def read_carmen(
