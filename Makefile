@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed-stamp
 DOCS_STAMP := $(VENV)/.docs-stamp
 DEMO   := runs/demo
 
-.PHONY: demo test docs bench clean builtin-profile lock
+.PHONY: demo test test-busy docs bench clean builtin-profile lock
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -33,6 +33,10 @@ $(DOCS_STAMP): $(STAMP)
 # (docs/hooks.py); a broken link or a missing page fails the build. Output: site/.
 docs: $(DOCS_STAMP)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir site
+
+# The suite beside two CPU-burning processes, three times in a row (CI on a shared machine): prints wall and CPU time.
+test-busy: $(STAMP)
+	$(BIN)/python -m tests.beside_busy --busy 2 --repeat 3 -- -n 2 -q
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_readers.py

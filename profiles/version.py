@@ -11,7 +11,7 @@ from pathlib import Path
 __version__ = "0.1.0"
 
 #: the packages a profile's numbers depend on (fits, ray tracing, compiled kernels), recorded with their versions
-NUMERIC_PACKAGES = ("numpy", "scipy", "pandas", "numba", "opencv-python-headless", "scikit-image")
+NUMERIC_PACKAGES = ("numpy", "scipy", "pandas", "numba", "opencv-python-headless", "scikit-image", "gtsam")
 
 #: the top-level folders of detcal's source: a change in them makes a checkout "dirty" for the recorded commit
 SOURCE_PARTS = ("calib", "detcal", "detectors", "profiles", "slam_runtime", "pyproject.toml")
