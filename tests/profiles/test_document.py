@@ -109,5 +109,5 @@ def test_a_schema_2_document_cannot_carry_schema_3_provenance(tmp_path):
     d = v2_profile().model_dump(mode="json")
     d["provenance"]["commit"] = "0" * 40
     (tmp_path / "old.yaml").write_text(yaml.safe_dump(d))
-    with pytest.raises(DataError, match=r"old.yaml: \(top level\): Value error, provenance.commit needs schema_version 3 \(this document says 2\)"):
+    with pytest.raises(DataError, match=r"old.yaml: \(top level\): provenance.commit needs schema_version 3 \(this document says 2\)"):
         load_profile_file(tmp_path / "old.yaml")
