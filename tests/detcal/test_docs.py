@@ -76,7 +76,7 @@ def test_slam_run_help_fits_on_a_screen(capsys):
 #: one script. Real logs of ../shared/data are replaced by the shipped excerpts of tests/data (the same formats, a
 #: few hundred frames), so the blocks run on a fresh clone and in CI within a minute or two.
 SMALL_INPUTS = {
-    "../shared/data/radish/aces.clf.bz2": "tests/data/radish/aces-1200.clf.bz2",
+    "../shared/data/radish/aces.clf.bz2": "tests/data/radish/aces-2500.clf.bz2",
     "../shared/data/victoria_park": "tests/data/victoria_park",
     "../shared/data/utias_mrclam/dataset1": "tests/data/utias_dataset1",
 }
