@@ -124,15 +124,6 @@ class SlamConfig(_Strict):
 
     poses: Literal["estimated", "ground_truth"] = Field(default="estimated", description="estimated (full SLAM) or ground_truth (mapping only: the particles on the log's true path)")
 
-    @field_validator("poses")
-    @classmethod
-    def _planar_poses_only(cls, value: str, info: ValidationInfo) -> str:
-        if value == "ground_truth" and info.data.get("features") == "planes":
-            raise PydanticCustomError(
-                "poses", "poses: ground_truth puts planar poses (x, y, heading); the planes' vehicle model has six states", {}
-            )
-        return value
-
     @field_validator("map_refine", "island_match", "proposal")
     @classmethod
     def _points_only(cls, value, info: ValidationInfo):
