@@ -12,7 +12,9 @@ For planar landmarks on simulated streets (``--kind street``) and circle landmar
   can win at best;
 * ablations (street; ``--variants``): ``truth_pd`` (the calibrated profile with the truth's P_D table, grid and slab
   ratio), ``truth_clutter`` (with the truth's clutter), ``calibrated_poisson`` / ``truth_poisson`` (the profile's
-  clutter count model forced to Poisson, to isolate the negative-binomial clutter term).
+  clutter count model forced to Poisson, to isolate the negative-binomial clutter term); a ``+ext`` suffix bounds
+  the map planes by their detections' outlines (``detection.plane_extents``), ``+dup`` lowers the survival of a
+  track an older one lies near (``filter.survival_duplicate: 0.9``), ``+nobuf`` turns the buffer zone off.
 
 with the poses given (``--poses given``: the map filter alone, every particle on the true path, 1 particle) and in
 full SLAM (``--poses slam``: ``--particles``, 20 by default), over ``--streets`` logs x ``--seeds`` filter seeds.
@@ -67,17 +69,30 @@ def _write_text(path: Path, text: str) -> None:
     tmp.replace(path)
 
 
-def simulated(kind: str, seed: int, frames: int | None):
-    """The log of a street or park seed (simulated again where it is used: same seed, same log; cheaper than
-    writing hundreds of MB of clouds)."""
+def simulated(kind: str, seed: int, frames: int | None, cache: Path | None = None):
+    """The log of a street or park seed, kept in ``cache`` as a pickle (the native format's compression of
+    hundreds of MB of clouds costs more than the simulation; same seed, same log)."""
+    import pickle
+
+    path = cache / f"{kind}{seed}_f{frames or 'all'}.pkl" if cache is not None else None
+    if path is not None and path.is_file():
+        with path.open("rb") as fh:
+            return pickle.load(fh)
     if kind == "street":
         from calib.sim.street import StreetConfig, simulate_street
 
-        return simulate_street(StreetConfig(frames=frames), seed).log
-    from calib.config import load_yaml_model
-    from calib.sim.park import ParkConfig, simulate_park
+        log = simulate_street(StreetConfig(frames=frames), seed).log
+    else:
+        from calib.config import load_yaml_model
+        from calib.sim.park import ParkConfig, simulate_park
 
-    return simulate_park(load_yaml_model(ParkConfig, ROOT / "benchmarks/configs/small_park.yaml"), seed).log
+        log = simulate_park(load_yaml_model(ParkConfig, ROOT / "benchmarks/configs/small_park.yaml"), seed).log
+    if path is not None:
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        with tmp.open("wb") as fh:
+            pickle.dump(log, fh, protocol=5)
+        tmp.replace(path)
+    return log
 
 
 def calibrated(kind: str, log, out: Path, name: str, every: int = 1) -> Path:
@@ -103,8 +118,17 @@ def calibrated(kind: str, log, out: Path, name: str, every: int = 1) -> Path:
     return out
 
 
+#: settings a variant adds with ``+name`` (``calibrated+ext``: the calibrated profile with bounded map planes)
+MODIFIERS = {
+    "ext": {"detection.plane_extents": True},
+    "dup": {"filter.survival_duplicate": 0.9},
+    "nobuf": {"detection.buffer_zone": False},
+}
+
+
 def variant_profile(variant: str, cal, truth):
-    """(profile, pd_mode) of a variant (module docstring)."""
+    """(profile, pd_mode) of a variant (module docstring); ``+modifier`` suffixes are settings (:data:`MODIFIERS`)."""
+    variant = variant.split("+")[0]
     if variant == "calibrated":
         return cal, "profile"
     if variant == "constant":
@@ -152,15 +176,36 @@ def _cached_detector():
 
 
 def _feature_origin(log, est: np.ndarray, length: float) -> dict:
-    """Map features (K, 4) near some steep true plane of any visibility (``real``) or near none (``spurious``)."""
+    """Where a plane map's features (K, 4) come from: each feature goes to its nearest steep true plane (of any
+    visibility) within 0.3 of the plane metric, one feature per true plane (the nearest; ``duplicate`` the others);
+    ``in_truth`` those whose plane is in the OSPA truth (seen with >= 200 returns; coplanar truth merged), ``other_real``
+    true planes outside it, ``spurious`` features near no true plane."""
     from slam_runtime.plane_features import embed, plane_distance
+    from slam_runtime.plane_metrics import landmark_truth
 
     pl = log.planes
-    steep = np.abs(pl.normal[:, 2]) <= np.sin(np.radians(45.0))
+    steep = np.flatnonzero(np.abs(pl.normal[:, 2]) <= np.sin(np.radians(45.0)))
+    out = {"features_in_truth": 0, "features_other_real": 0, "features_duplicate": 0, "features_spurious": 0}
     if est.shape[0] == 0:
-        return {"features_real": 0, "features_spurious": 0}
-    d = plane_distance(est, embed(pl.normal[steep], pl.offset[steep], length)).min(axis=1)
-    return {"features_real": int((d < 0.3).sum()), "features_spurious": int((d >= 0.3).sum())}
+        return out
+    tr = embed(pl.normal[steep], pl.offset[steep], length)
+    d = plane_distance(est, tr)
+    near = d.argmin(axis=1)
+    ok = d[np.arange(est.shape[0]), near] < 0.3
+    truth, _ = landmark_truth(log, length=length)
+    in_truth = plane_distance(tr, truth).min(axis=1) < 0.05 if truth.shape[0] else np.zeros(tr.shape[0], bool)
+    # coplanar true planes are one map landmark: a feature's plane is the class of true planes within 0.05 of its nearest
+    cls = np.array([int(np.flatnonzero(plane_distance(tr[i : i + 1], tr)[0] < 0.05)[0]) for i in range(tr.shape[0])])
+    taken: set = set()
+    for k in np.argsort(d[np.arange(est.shape[0]), near]):
+        if not ok[k]:
+            out["features_spurious"] += 1
+        elif cls[near[k]] in taken:
+            out["features_duplicate"] += 1
+        else:
+            taken.add(cls[near[k]])
+            out["features_in_truth" if in_truth[near[k]] else "features_other_real"] += 1
+    return out
 
 
 def run_task(task: dict) -> list[dict]:
@@ -169,7 +214,10 @@ def run_task(task: dict) -> list[dict]:
     kind = task["kind"]
     if kind == "street":
         _cached_detector()
-    log = simulated(kind, task["street"], task["frames"])
+    log = simulated(kind, task["street"], task["frames"], Path(task["cache"]))
+    det_path = Path(task["cache"]) / f"det2-{kind}{task['street']}_f{task['frames']}.pkl"
+    if kind == "street":
+        _load_detections(log, det_path)
     tname = f"truth-{kind}{task['street']}" + (f"-f{task['frames']}" if kind == "street" else "")
     truth = load_profile_file(calibrated(kind, log, Path(task["cache"]) / f"{tname}.yaml", tname))
     cal = load_profile_file(task["calibrated"])
@@ -185,6 +233,7 @@ def run_task(task: dict) -> list[dict]:
                 "poses": "ground_truth" if given else "estimated",
                 "detection.pd_mode": mode,
                 **task["sets"],
+                **{k: v for m in variant.split("+")[1:] for k, v in MODIFIERS[m].items()},
             },
         )
         c0 = time.process_time()
@@ -194,6 +243,7 @@ def run_task(task: dict) -> list[dict]:
         row |= {k: (float(v) if isinstance(v, (int, float, np.floating, np.integer)) else v) for k, v in m.items() if np.isscalar(v)}
         if kind == "street":
             row |= _feature_origin(log, np.asarray(res.map_xy).reshape(-1, 4), cfg.metric.plane_length)
+            row["map"] = np.round(np.asarray(res.map_xy, dtype=np.float64).reshape(-1, 4), 4).tolist()
         row["cpu_s"] = time.process_time() - c0
         rows.append(row)
         if task["out"]:  # one line per run, appended as it ends (O_APPEND: the workers' lines do not interleave)
@@ -204,7 +254,31 @@ def run_task(task: dict) -> list[dict]:
             f"RMSE {m['trajectory_rmse_vs_ground_truth_m']:.3f} m, features {m.get('map_features', float('nan'))}, {row['cpu_s']:.0f} s CPU",
             flush=True,
         )
+    if kind == "street":
+        _save_detections(log, det_path)
     return rows
+
+
+def _load_detections(log, path: Path) -> None:
+    """Restore a log's cached plane measurements (charts and covariances per frame; the cloud re-attached)."""
+    import pickle
+
+    from detectors.kinds import Measurements
+
+    if path.is_file() and log.name not in _DET:
+        with path.open("rb") as fh:
+            stored = pickle.load(fh)
+        _DET[log.name] = {r: Measurements(z, c, cloud=log.clouds.frame(r), outlines=o) for r, (z, c, o) in stored.items()}
+
+
+def _save_detections(log, path: Path) -> None:
+    import pickle
+
+    d = _DET.get(log.name, {})
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with tmp.open("wb") as fh:
+        pickle.dump({r: (m.z, m.cov, m.outlines) for r, m in d.items()}, fh, protocol=5)
+    tmp.replace(path)
 
 
 # ------------------------------------------------------------------ the tables
@@ -216,8 +290,8 @@ def summarise(rows: list[dict], variants: list[str] | None = None) -> None:
         have = [v for v in (variants or list(dict.fromkeys(g["variant"]))) if v in set(g["variant"])]
         print(f"\n## {kind}, poses {poses}, {filt}: {g['street'].nunique()} logs x {g['seed'].nunique()} seeds")
         cols = [("map OSPA", "map_ospa"), ("pose RMSE [m]", "trajectory_rmse_vs_ground_truth_m"), ("map features", "map_features"), ("mapped", "landmarks_mapped")]
-        if "features_spurious" in g:
-            cols += [("real", "features_real"), ("spurious", "features_spurious")]
+        if "features_duplicate" in g:
+            cols += [("in truth", "features_in_truth"), ("other real", "features_other_real"), ("duplicate", "features_duplicate"), ("spurious", "features_spurious")]
         cols += [("CPU s", "cpu_s")]
         print("| variant | " + " | ".join(c for c, _ in cols) + " |")
         print("|---" * (len(cols) + 1) + "|")
@@ -270,7 +344,7 @@ def main() -> None:
     if args.kind == "street":
         cal = cache / "street100-every2.yaml"
         if not cal.is_file():
-            calibrated("street", simulated("street", 100, None), cal, "street100-every2", 2)
+            calibrated("street", simulated("street", 100, None), cal, "street100-every2", 2)  # not kept: used once
     else:
         cal = calibrated("park", None, cache / "sim-park-laser.yaml", "sim-park-laser")
     done: list[dict] = []

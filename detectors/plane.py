@@ -511,7 +511,8 @@ class CloudPlanes:
         cloud = self.log.clouds.frame(frame.rows)
         det = detect_planes(cloud, self.params, where=f"{self.log.name}: cloud {frame.rows}")
         use = landmark_detections(det, self.detection.in_view, self.min_points, self.min_width)
-        return Measurements(det.chart[use], det.cov[use], cloud=cloud)
+        kept = det.take(np.flatnonzero(use))
+        return Measurements(kept.chart, kept.cov, cloud=cloud, outlines=(kept.outline, kept.outline_offsets))
 
 
 class PlaneDetector(Detector):
