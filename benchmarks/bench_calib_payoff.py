@@ -14,7 +14,9 @@ For planar landmarks on simulated streets (``--kind street``) and circle landmar
   ratio), ``truth_clutter`` (with the truth's clutter), ``calibrated_poisson`` / ``truth_poisson`` (the profile's
   clutter count model forced to Poisson, to isolate the negative-binomial clutter term); a ``+ext`` suffix bounds
   the map planes by their detections' outlines (``detection.plane_extents``), ``+dup`` lowers the survival of a
-  track an older one lies near (``filter.survival_duplicate: 0.9``), ``+nobuf`` turns the buffer zone off.
+  track an older one lies near (``filter.survival_duplicate: 0.9``; ``+dupwide``: 0.5 within a squared Mahalanobis
+  distance of 1000), ``+nobuf`` turns the buffer zone off, ``+ba`` makes births from measurements a track could
+  explain rare (``filter.birth_associated: 1e-4``).
 
 with the poses given (``--poses given``: the map filter alone, every particle on the true path, 1 particle) and in
 full SLAM (``--poses slam``: ``--particles``, 20 by default), over ``--streets`` logs x ``--seeds`` filter seeds.
@@ -123,6 +125,8 @@ MODIFIERS = {
     "ext": {"detection.plane_extents": True},
     "dup": {"filter.survival_duplicate": 0.9},
     "nobuf": {"detection.buffer_zone": False},
+    "ba": {"filter.birth_associated": 1e-4},
+    "dupwide": {"filter.survival_duplicate": 0.5, "filter.duplicate_gate": 1000.0},
 }
 
 
@@ -150,6 +154,7 @@ def variant_profile(variant: str, cal, truth):
 
 # ------------------------------------------------------------------ one task: one log x poses x filter, every variant and seed
 _DET: dict = {}
+_NEED_OUTLINES = False
 
 
 def _cached_detector():
@@ -217,6 +222,8 @@ def run_task(task: dict) -> list[dict]:
     log = simulated(kind, task["street"], task["frames"], Path(task["cache"]))
     det_path = Path(task["cache"]) / f"det2-{kind}{task['street']}_f{task['frames']}.pkl"
     if kind == "street":
+        global _NEED_OUTLINES
+        _NEED_OUTLINES = any("+ext" in r[2] for r in task["runs"])
         _load_detections(log, det_path)
     tname = f"truth-{kind}{task['street']}" + (f"-f{task['frames']}" if kind == "street" else "")
     truth = load_profile_file(calibrated(kind, log, Path(task["cache"]) / f"{tname}.yaml", tname))
@@ -265,16 +272,20 @@ def _load_detections(log, path: Path) -> None:
 
     from detectors.kinds import Measurements
 
-    if path.is_file() and log.name not in _DET:
-        with path.open("rb") as fh:
+    old = path.with_name(path.name.replace("det2-", "det-"))  # an earlier cache without outlines (enough without +ext)
+    src = path if path.is_file() else old if old.is_file() and not _NEED_OUTLINES else None
+    if src is not None and log.name not in _DET:
+        with src.open("rb") as fh:
             stored = pickle.load(fh)
-        _DET[log.name] = {r: Measurements(z, c, cloud=log.clouds.frame(r), outlines=o) for r, (z, c, o) in stored.items()}
+        _DET[log.name] = {r: Measurements(v[0], v[1], cloud=log.clouds.frame(r), outlines=v[2] if len(v) > 2 else None) for r, v in stored.items()}
 
 
 def _save_detections(log, path: Path) -> None:
     import pickle
 
     d = _DET.get(log.name, {})
+    if not d or any(m.outlines is None for m in d.values()):
+        return
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     with tmp.open("wb") as fh:
         pickle.dump({r: (m.z, m.cov, m.outlines) for r, m in d.items()}, fh, protocol=5)

@@ -59,7 +59,7 @@ class DetectionOptions(_Strict):
     buffer_zone: bool = Field(default=True, description="keep a feature's weight when it is missed near the edges of the view (eq. 3.21)")
     buffer_sigmas: float = Field(default=2.0, gt=0.0, description="buffer-zone half-width in standard deviations")
     plane_extents: bool = Field(
-        default=False, description="planes: bound each map plane by the outlines of its detections and ray-trace its n_p as the calibration does (false: count the returns in the infinite plane's slab)"
+        default=False, description="planes: n_p of a map plane bounded by its detections' outlines, ray-traced as in calibration"
     )
     landmark_radius: float | None = Field(
         default=None, gt=0.0, description="radius the n_p ray tracer gives map features [m]; default: the profile's typical true radius"
