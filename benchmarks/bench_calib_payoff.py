@@ -311,7 +311,9 @@ def summarise(rows: list[dict], variants: list[str] | None = None) -> None:
             print(f"| {v} | " + " | ".join(f"{s[k].mean():.3f}" if k in s else "-" for _, k in cols) + " |")
         print("\n| paired difference | map OSPA (SE; pairs first lower) | pose RMSE [m] (SE; pairs first lower) |")
         print("|---|---|---|")
-        pairs = list(PAIRS) + [(v, "calibrated") for v in have if v not in BASE]
+        pairs = list(PAIRS) + [(v, "calibrated") for v in have if v not in BASE and "+" not in v]
+        for mod in dict.fromkeys(v.split("+", 1)[1] for v in have if "+" in v):  # the same pairs with a modifier on both sides
+            pairs += [(f"{a}+{mod}", f"{b}+{mod}") for a, b in PAIRS] + [(f"calibrated+{mod}", "constant")]
         for a, b in pairs:
             if a not in have or b not in have:
                 continue
