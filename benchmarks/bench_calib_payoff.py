@@ -153,31 +153,17 @@ def variant_profile(variant: str, cal, truth):
 
 
 # ------------------------------------------------------------------ one task: one log x poses x filter, every variant and seed
-_DET: dict = {}
 _NEED_OUTLINES = False
 
 
-def _cached_detector():
-    """Plane detections of every frame computed once per log in this process and shared by its runs."""
+def _cached_detector() -> dict:
+    """Plane detections of every frame computed once per log in this process and shared by its runs (the street
+    benchmark's cached source); returns its store, {id(log): {frame rows: Measurements}}."""
+    from benchmarks.bench_street_slam import Cached, CachedPlanes
     from detectors.kinds import DETECTORS
-    from detectors.plane import CloudPlanes, PlaneDetector
-
-    class Cached:
-        def __init__(self, log, profile, detection):
-            self.inner = CloudPlanes(log, profile, detection)
-            self.key = log.name
-
-        def __call__(self, frame):
-            d = _DET.setdefault(self.key, {})
-            if frame.rows not in d:
-                d[frame.rows] = self.inner(frame)
-            return d[frame.rows]
-
-    class CachedPlanes(PlaneDetector):
-        def source(self, log, profile, detection, options):
-            return Cached(log, profile, detection)
 
     DETECTORS.add("plane3d", CachedPlanes(), replace=True)
+    return Cached.store
 
 
 def _feature_origin(log, est: np.ndarray, length: float) -> dict:
@@ -217,14 +203,13 @@ def run_task(task: dict) -> list[dict]:
     """Every (poses, filter, variant, seed) run of one log: the log simulated once, its truth profile calibrated
     in-sample (cached)."""
     kind = task["kind"]
-    if kind == "street":
-        _cached_detector()
+    store = _cached_detector() if kind == "street" else {}
     log = simulated(kind, task["street"], task["frames"], Path(task["cache"]))
     det_path = Path(task["cache"]) / f"det2-{kind}{task['street']}_f{task['frames']}.pkl"
     if kind == "street":
         global _NEED_OUTLINES
         _NEED_OUTLINES = any("+ext" in r[2] for r in task["runs"])
-        _load_detections(log, det_path)
+        _load_detections(log, det_path, store)
     tname = f"truth-{kind}{task['street']}" + (f"-f{task['frames']}" if kind == "street" else "")
     truth = load_profile_file(calibrated(kind, log, Path(task["cache"]) / f"{tname}.yaml", tname))
     cal = load_profile_file(task["calibrated"])
@@ -262,11 +247,11 @@ def run_task(task: dict) -> list[dict]:
             flush=True,
         )
     if kind == "street":
-        _save_detections(log, det_path)
+        _save_detections(log, det_path, store)
     return rows
 
 
-def _load_detections(log, path: Path) -> None:
+def _load_detections(log, path: Path, store: dict) -> None:
     """Restore a log's cached plane measurements (charts and covariances per frame; the cloud re-attached)."""
     import pickle
 
@@ -274,16 +259,16 @@ def _load_detections(log, path: Path) -> None:
 
     old = path.with_name(path.name.replace("det2-", "det-"))  # an earlier cache without outlines (enough without +ext)
     src = path if path.is_file() else old if old.is_file() and not _NEED_OUTLINES else None
-    if src is not None and log.name not in _DET:
+    if src is not None and id(log) not in store:
         with src.open("rb") as fh:
             stored = pickle.load(fh)
-        _DET[log.name] = {r: Measurements(v[0], v[1], cloud=log.clouds.frame(r), outlines=v[2] if len(v) > 2 else None) for r, v in stored.items()}
+        store[id(log)] = {r: Measurements(v[0], v[1], cloud=log.clouds.frame(r), outlines=v[2] if len(v) > 2 else None) for r, v in stored.items()}
 
 
-def _save_detections(log, path: Path) -> None:
+def _save_detections(log, path: Path, store: dict) -> None:
     import pickle
 
-    d = _DET.get(log.name, {})
+    d = store.get(id(log), {})
     if not d or any(m.outlines is None for m in d.values()):
         return
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
