@@ -46,7 +46,7 @@ from calib.fits import ClutterFit, PdFitConfig, clutter_params, fit_clutter, wil
 from detectors.geometry import compose, interpolate_poses
 from detectors.geometry3d import chart_from_normal, normal_angle, orient_away, plane_basis, wrap
 from detectors.sensor_log import SensorLog
-from detectors.plane import PlaneDetections, detect_planes
+from detectors.plane import PlaneDetections, detect_planes, landmark_detections
 from detectors.plane_model import PlaneDetectionModel
 from detectors.raytrace3d import BeamGrid, polygon_scene, range_image, visible_planes
 from profiles.errors import DataError, UsageError
@@ -197,8 +197,7 @@ def label_planes(log: SensorLog, cfg: PlaneCalibConfig, *, keep_detections: bool
         away = np.where(pl.offset - pl.normal @ np.array([sp[0], sp[1], height]) < 0, -1.0, 1.0)  # as a map plane born here
         wc = chart_from_normal(pl.normal * away[:, None], pl.offset * away)
         slab, _ = slab_model.visible_points(sp[None], wc[None], np.zeros((1, len(pl), 3, 3)), cloud)
-        steep_det = np.abs(det.normal[:, 2]) <= steep_max
-        landmark_det = steep_det & (det.inliers >= cfg.min_points) & (det.offset <= offset_max) & (det.width >= cfg.min_width)
+        landmark_det = landmark_detections(det, slab_model.in_view, cfg.min_points, cfg.min_width)  # the runtime's rule
         det_rows.append(
             pd.DataFrame(
                 {

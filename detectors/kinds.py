@@ -31,7 +31,9 @@ class Measurements:
     fit's), added to the filter's noise floor, or None; ratio (M,) the
     descriptor likelihood ratio g_x(d) / g_FA(d) of eq. 5.6, or None; scan (B,)
     and angles (B,) the laser scan the measurements came from (ray-traced P_D),
-    or None; cloud (N, 4) the point cloud they came from (3D features), or None.
+    or None; cloud (N, 4) the point cloud they came from (3D features), or None;
+    outlines: (vertices (V, 3), offsets (M + 1,)) each measured plane's convex outline in the sensor frame
+    (measurement m's are ``vertices[offsets[m]:offsets[m + 1]]``; planar features' extents), or None.
     """
 
     z: np.ndarray
@@ -40,6 +42,7 @@ class Measurements:
     scan: np.ndarray | None = None
     angles: np.ndarray | None = None
     cloud: np.ndarray | None = None
+    outlines: tuple[np.ndarray, np.ndarray] | None = None
 
     def __len__(self) -> int:
         return int(self.z.shape[0])

@@ -487,8 +487,17 @@ def _outlines(p, plab, normal, d, cen, m):
 # ---------------------------------------------------------------------------- the kind at run time
 
 
+def landmark_detections(det: PlaneDetections, in_view, min_points: int, min_width: float) -> np.ndarray:
+    """(M,) bool: the detections that are landmark measurements -- in view (``in_view``: sensor-frame charts (M, 3) ->
+    (M,) bool, the detection model's: steep enough, in range), with at least ``min_points`` inliers and at least
+    ``min_width`` [m] wide (poles and trunks are not landmarks). The one rule: the runtime's measurement source
+    (:class:`CloudPlanes`) and the calibration's clutter and detection counts (:mod:`calib.planes`) both call it, so
+    what the profile counts is what the filter is given."""
+    return np.asarray(in_view(det.chart), dtype=bool) & (det.inliers >= min_points) & (det.width >= min_width)
+
+
 class CloudPlanes:
-    """The profile's plane detector on every cloud; the landmark planes (steep enough, enough inliers) as
+    """The profile's plane detector on every cloud; the landmark planes (:func:`landmark_detections`) as
     sensor-frame charts (azimuth, elevation, offset) with their fit covariances, and the cloud for P_D."""
 
     def __init__(self, log, profile, detection) -> None:
@@ -501,8 +510,9 @@ class CloudPlanes:
     def __call__(self, frame) -> Measurements:
         cloud = self.log.clouds.frame(frame.rows)
         det = detect_planes(cloud, self.params, where=f"{self.log.name}: cloud {frame.rows}")
-        use = self.detection.in_view(det.chart) & (det.inliers >= self.min_points) & (det.width >= self.min_width)
-        return Measurements(det.chart[use], det.cov[use], cloud=cloud)
+        use = landmark_detections(det, self.detection.in_view, self.min_points, self.min_width)
+        kept = det.take(np.flatnonzero(use))
+        return Measurements(kept.chart, kept.cov, cloud=cloud, outlines=(kept.outline, kept.outline_offsets))
 
 
 class PlaneDetector(Detector):

@@ -58,6 +58,9 @@ class DetectionOptions(_Strict):
     constant_pd: float = Field(default=0.9, gt=0.0, le=1.0, description="P_D inside the field of view in constant mode")
     buffer_zone: bool = Field(default=True, description="keep a feature's weight when it is missed near the edges of the view (eq. 3.21)")
     buffer_sigmas: float = Field(default=2.0, gt=0.0, description="buffer-zone half-width in standard deviations")
+    plane_extents: bool = Field(
+        default=False, description="planes: n_p of a map plane bounded by its detections' outlines, ray-traced as in calibration"
+    )
     landmark_radius: float | None = Field(
         default=None, gt=0.0, description="radius the n_p ray tracer gives map features [m]; default: the profile's typical true radius"
     )
@@ -123,15 +126,6 @@ class SlamConfig(_Strict):
     map_refine: bool = Field(default=False, description="after the run, re-estimate the map's positions along the estimated trajectory (point features)")
 
     poses: Literal["estimated", "ground_truth"] = Field(default="estimated", description="estimated (full SLAM) or ground_truth (mapping only: the particles on the log's true path)")
-
-    @field_validator("poses")
-    @classmethod
-    def _planar_poses_only(cls, value: str, info: ValidationInfo) -> str:
-        if value == "ground_truth" and info.data.get("features") == "planes":
-            raise PydanticCustomError(
-                "poses", "poses: ground_truth puts planar poses (x, y, heading); the planes' vehicle model has six states", {}
-            )
-        return value
 
     @field_validator("map_refine", "island_match", "proposal")
     @classmethod

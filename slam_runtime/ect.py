@@ -134,6 +134,12 @@ class ECT(VehicleModel):
     def pose(self, x: np.ndarray) -> np.ndarray:
         return x[..., POSE]
 
+    def placed(self, x: np.ndarray, pose: np.ndarray) -> np.ndarray:
+        """States (P, 6) at the planar pose (X, Y, phi) given, their velocity states kept."""
+        out = np.array(x, dtype=np.float64)
+        out[:, list(POSE)] = np.asarray(pose, dtype=np.float64)[:3]
+        return out
+
     def control_sigmas(self, u: np.ndarray, dt: float) -> np.ndarray:
         """(2,) noise of a (speed, yaw-rate) reading."""
         return self.sig_u

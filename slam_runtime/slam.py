@@ -149,10 +149,8 @@ class RBSlam:
     def place(self, pose: np.ndarray) -> None:
         """Every particle at ``pose`` (x, y, heading) for this step, in place of the motion's or the proposal's draw:
         mapping with the path given, to measure a map filter alone (called between :meth:`predict` and :meth:`update`)."""
-        if self.vehicle.dim != 3:
-            raise UsageError(f"poses can be given to a planar-pose vehicle only, not to one of state dimension {self.vehicle.dim}")
         self._prior = None
-        self.x = np.repeat(np.asarray(pose, dtype=np.float64)[None, :3], self.n, axis=0)
+        self.x = self.vehicle.placed(self.x, pose)
 
     def update(self, meas: Measurements) -> StepInfo:
         """Record the states of this step, update the maps and weights with ``meas``, resample if needed.

@@ -82,6 +82,13 @@ class VehicleModel(ABC):
         """(P, 3) planar poses (x, y, theta) of states (P, dim)."""
         return x[:, :3]
 
+    def placed(self, x: np.ndarray, pose: np.ndarray) -> np.ndarray:
+        """States (P, dim) with their planar pose set to ``pose`` (3,) and the other states (velocities) kept:
+        mapping with the path given (``poses: ground_truth``)."""
+        out = np.array(x, dtype=np.float64)
+        out[:, :3] = np.asarray(pose, dtype=np.float64)[:3]
+        return out
+
     @abstractmethod
     def step(self, x: np.ndarray, u: np.ndarray, dt: float, rng: np.random.Generator | None) -> np.ndarray:
         """States (P, dim) after control u (control_dim,) held for dt [s]; ``rng=None``: no noise (the mean motion)."""

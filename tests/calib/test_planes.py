@@ -71,3 +71,40 @@ def test_profile_schema_refuses_mixed_kinds(street_profile):
     circle = {**data, "detector": {"kind": "circle2d"}}
     with pytest.raises(ValueError, match="planes and a P_D table over points belong to plane3d detectors"):
         DetectorProfile.model_validate(circle)
+
+
+def test_calibration_counts_the_detections_the_filter_is_given(small_street, street_profile, monkeypatch):
+    """The calibration's landmark detections (its clutter and detection counts) are, frame by frame, exactly the
+    measurements the runtime source hands the filter: both go through ``detectors.plane.landmark_detections`` with
+    the runtime detection model's view, so the profile cannot describe other units than the filter consumes."""
+    from types import SimpleNamespace
+
+    import calib.planes as cp
+    import detectors.plane as dp
+    from calib.planes import label_planes
+    from detectors.plane_model import PlaneDetectionModel
+    from slam_runtime.config import DetectionOptions
+
+    calls = []
+    real = dp.landmark_detections
+
+    def spy(det, in_view, min_points, min_width):
+        calls.append(getattr(in_view, "__self__", None))
+        return real(det, in_view, min_points, min_width)
+
+    monkeypatch.setattr(dp, "landmark_detections", spy)
+    monkeypatch.setattr(cp, "landmark_detections", spy)
+    log = small_street.log
+    st = street_profile.planes
+    cfg = PlaneCalibConfig(detector=street_profile.detector.plane, min_points=st.min_points, min_width=st.min_width, offset_max=st.offset_max, every=5)
+    lab = label_planes(log, cfg)
+    model = PlaneDetectionModel.from_options(street_profile, log.sensor, DetectionOptions())
+    source = dp.CloudPlanes(log, street_profile, model)
+    per_frame = lab.detections.groupby("frame")["landmark"].sum()
+    assert len(calls) == lab.frames and all(isinstance(c, PlaneDetectionModel) for c in calls)
+    checked = 0
+    for f in range(0, len(log.clouds), 5):
+        m = source(SimpleNamespace(rows=f))  # the source reads a frame's cloud by its row
+        assert m.z.shape[0] == int(per_frame.get(f, 0)), f"frame {f}"
+        checked += m.z.shape[0]
+    assert checked > 0 and len(calls) == 2 * lab.frames

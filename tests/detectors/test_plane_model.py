@@ -74,3 +74,56 @@ def test_particles_share_one_pd_of_a_plane():
     assert own[1, 0] < 0.8 * own[0, 0]  # 1 deg tilts the slab 9 cm off the wall 5 m along it
     pd, _ = model().pd_features(poses, mu, cov, meas)
     assert pd[0, 0] == pd[1, 0] > 0.5
+
+
+def test_bounded_planes_see_through_a_plane_that_is_not_there(small_street, street_profile, monkeypatch):
+    """With extents, a map plane is bounded by its detections' outlines and its n_p ray-traced by the calibration's
+    own code: on a seeded street, frame 20's facade detected in frame 19 gets an n_p within 35 % of the ray-traced
+    n_p of the true facade (the outline covers the part seen, not the whole polygon: the 35 % is a facade's
+    unseen ends and the two frames' 0.7 m apart), and a plane 0.15 m in front of it -- a duplicate track, nothing
+    there -- gets nearly as many (the beams pass through it to the facade: >= 80 % of the facade's), so its P_D is
+    high and its misses count; the infinite plane's slab (3 sigma = 6 cm) holds none of the facade's returns, only
+    those of other surfaces it cuts, and gives it a P_D at least 0.2 lower. Both paths call
+    ``detectors.raytrace3d.visible_planes``, the calibration's function."""
+    import calib.planes as cp
+    import detectors.plane_model as pm
+    from calib.planes import sensor_poses_at
+    from detectors.geometry3d import orient_away
+    from detectors.plane import CloudPlanes
+    from detectors.raytrace3d import BeamGrid, polygon_scene, range_image, visible_planes
+
+    calls = []
+
+    def spy(*a, **k):
+        calls.append(1)
+        return visible_planes(*a, **k)
+
+    monkeypatch.setattr(pm, "visible_planes", spy)
+    assert cp.visible_planes is visible_planes  # the calibration's n_p: the function the runtime spies on here
+    log = small_street.log
+    m = PlaneDetectionModel.from_profile(street_profile, extents=True)
+    slab = PlaneDetectionModel.from_profile(street_profile, extents=False)
+    src = CloudPlanes(log, street_profile, m)
+    from types import SimpleNamespace
+
+    sps = sensor_poses_at(log, log.clouds.stamp[[19, 20]])
+    meas19, meas20 = src(SimpleNamespace(rows=19)), src(SimpleNamespace(rows=20))
+    height = log.sensor.lidar.height
+    # the true landmark plane with the most unoccluded returns in frame 20
+    grid = BeamGrid.of(log.sensor.lidar)
+    steep = np.flatnonzero(np.abs(log.planes.normal[:, 2]) < 0.5)
+    n_true, _, _ = visible_planes(polygon_scene(log.planes.take(steep)), grid, sps[1], height, range_image(log.clouds.frame(20), grid),
+                                  range_sigma=0.02, range_max=120.0)
+    best = steep[int(np.argmax(n_true))]
+    n_w, d_w = orient_away(log.planes.normal[best][None], np.array([log.planes.offset[best] - log.planes.normal[best] @ np.array([*sps[1][:2], height])]))
+    d_w = d_w + n_w[:, :] @ np.array([*sps[1][:2], height])  # back to the world offset, normal away from the sensor
+    mu = chart_from_normal(np.vstack([n_w, n_w]), np.array([d_w[0], d_w[0] - 0.15]))[None]  # the facade, and 0.15 m in front
+    cov = np.zeros((1, 2, 3, 3))
+    m.pd_features(sps[0][None], mu, cov, meas19)  # frame 19 files its outlines
+    pd, _ = m.pd_features(sps[1][None], mu, cov, meas20)
+    n_b, _, bounded = m.bounded_points(sps[1], mu, log.clouds.frame(20))
+    assert bounded.all() and calls
+    assert abs(n_b[0, 0] - n_true.max()) <= 0.35 * n_true.max()
+    assert n_b[0, 1] >= 0.8 * n_b[0, 0] and pd[0, 1] >= 0.85
+    pd_slab, _ = slab.pd_features(sps[1][None], mu, cov, meas20)
+    assert pd_slab[0, 0] >= 0.85 and pd_slab[0, 1] <= pd[0, 1] - 0.2

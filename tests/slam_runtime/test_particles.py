@@ -266,10 +266,10 @@ class _ProposingMaps(_ScoredMaps):
 
 
 @pytest.mark.parametrize("proposal", ["prior", "optimal"])
-def test_placed_poses_replace_the_motions_draw_and_a_non_planar_vehicle_is_refused(proposal):
+def test_placed_poses_replace_the_motions_draw_and_the_ect_keeps_its_velocities(proposal):
     """Mapping with the path given: after ``place`` every particle holds the given pose whatever the motion or the
-    optimal proposal would draw, and the trajectory records it; a state that is not a planar pose (the ECT model's
-    six) cannot be given one."""
+    optimal proposal would draw, and the trajectory records it; the ECT model's six states take the pose in X, Y
+    and phi and keep the velocity states the odometry set."""
     slam = RBSlam(OdometryIncrement(), _ProposingMaps(np.zeros(4)), 4, np.zeros(3), np.random.default_rng(0), proposal=proposal)
     assert slam.proposal == proposal
     given = [np.array([1.0, 0.5, 0.2]), np.array([2.0, 1.0, -3.0])]
@@ -281,5 +281,9 @@ def test_placed_poses_replace_the_motions_draw_and_a_non_planar_vehicle_is_refus
     np.testing.assert_array_equal(slam.trajectory()[1:], np.stack(given))
     from slam_runtime.ect import ECT
 
-    with pytest.raises(UsageError, match="planar-pose vehicle only, not to one of state dimension 6"):
-        RBSlam(ECT(), _ScoredMaps(np.zeros(4)), 4, np.zeros(3), np.random.default_rng(0)).place(given[0])
+    ect = RBSlam(ECT(), _ScoredMaps(np.zeros(4)), 4, np.zeros(3), np.random.default_rng(0))
+    ect.predict(np.array([[2.0, 0.1]]), np.array([0.1]))
+    vel = ect.x[:, [1, 3, 5]].copy()
+    ect.place(given[0])
+    np.testing.assert_array_equal(ect.vehicle.pose(ect.x), np.repeat(given[0][None], 4, axis=0))
+    np.testing.assert_array_equal(ect.x[:, [1, 3, 5]], vel)

@@ -171,9 +171,8 @@ def test_a_turned_sensor_is_corrected_by_mount_yaw_and_the_log_evidence_finds_it
 def test_ground_truth_poses_are_the_truth_at_each_frame_and_refuse_what_they_cannot_give():
     """``poses: ground_truth`` takes each frame's pose from the log's ground truth, interpolated to the frame's time
     (a heading across the wrap included), moved back to the vehicle's reference point when the truth is given at
-    another; a frame before the truth starts is named, and so is a log with no ground truth; planes (a six-state
-    vehicle) cannot be put on planar poses."""
-    from pydantic import ValidationError
+    another; a frame before the truth starts is named, and so is a log with no ground truth; planes (the six-state
+    ECT) take them too."""
 
     from detectors.sensor_log import ReferencePoses
     from profiles.errors import DataError
@@ -198,8 +197,7 @@ def test_ground_truth_poses_are_the_truth_at_each_frame_and_refuse_what_they_can
     gps = SensorLog("g", reference={"gps": ReferencePoses("gps", st, truth * [1, 1, np.nan])})
     with pytest.raises(DataError, match=r"log 'g': poses: ground_truth needs ground-truth poses, and the log has none \(its references: gps\)"):
         ground_truth_poses(gps, st)
-    with pytest.raises(ValidationError, match="the planes' vehicle model has six states"):
-        SlamConfig(features="planes", poses="ground_truth")
+    assert SlamConfig(features="planes", poses="ground_truth").poses == "ground_truth"  # the ECT takes a planar pose too
 
 
 def test_a_run_whose_first_frame_precedes_the_ground_truth_starts_at_the_first_true_pose():
