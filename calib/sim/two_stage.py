@@ -105,8 +105,8 @@ class TwoStageConfig(BaseModel):
 
 @dataclass
 class TwoStageRun:
-    """One simulated run: the log (detections, odometry, true poses, the features' initial positions as landmarks)
-    and what the log cannot hold.
+    """One simulated run: the log (detections, odometry, true poses, the features' positions at the last step as
+    landmarks) and what the log cannot hold.
 
     features (T, F, 4): each feature's true state (x, y, vx, vy) at each step, world frame; initial (N, 2) the
     stage-1 path and planned (N', 2) the path after obstacle avoidance, densely sampled; control (C, 2) the
@@ -343,7 +343,8 @@ def simulate_two_stage(cfg: TwoStageConfig, seed: int) -> TwoStageRun:
         sensor=sensor_model(cfg),
         odometry=Odometry("increment", stamps, odo),
         reference={"ground_truth": ReferencePoses("ground_truth", stamps, poses)},
-        landmarks=Landmarks(np.arange(1, f + 1, dtype=np.int64), truth[0, :, :2]),
+        # the features where they are at the last step: the map a run ends with (static: where they always are)
+        landmarks=Landmarks(np.arange(1, f + 1, dtype=np.int64), truth[-1, :, :2]),
         detections=det,
         source={"reader": "simulate two-stage", "seed": int(seed), "config": cfg.model_dump(mode="json")},
     )
@@ -397,6 +398,30 @@ def truth_profile(cfg: TwoStageConfig, *, name: str | None = None, version: str 
             created="1970-01-01T00:00:00Z",  # a statement of the settings, not of a time: same config, same bytes
         ),
     )
+
+
+def write_two_stage_simulation(cfg: TwoStageConfig, seed: int, out, *, overwrite: bool = False) -> dict:
+    """The two-stage run folder, written to a temporary name and renamed: log.dlog, features.csv (every feature's
+    true state at every step: step, id, x, y, vx, vy [m, m/s], world frame), profile.yaml (the simulator's true
+    statistics), config.yaml, summary.yaml, overview.png."""
+    from calib.config import dump_yaml
+    from calib.io.atomic import atomic_output
+    from calib.io.native import write_native
+    from profiles.store import dump_profile
+
+    run = simulate_two_stage(cfg, seed)
+    info = {"seed": seed, **summary(run, cfg)}
+    t, f = run.features.shape[:2]
+    rows = np.column_stack([np.repeat(np.arange(t), f), np.tile(np.arange(1, f + 1), t), run.features.reshape(-1, 4)])
+    with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
+        tmp.mkdir()
+        write_native(run.log, tmp / "log.dlog")
+        np.savetxt(tmp / "features.csv", rows, fmt=["%d", "%d", "%.6f", "%.6f", "%.6f", "%.6f"], delimiter=",", header="step,id,x,y,vx,vy", comments="")
+        (tmp / "profile.yaml").write_text(dump_profile(truth_profile(cfg)))
+        (tmp / "config.yaml").write_text(dump_yaml({"seed": seed, "two_stage": cfg.model_dump(mode="json")}))
+        (tmp / "summary.yaml").write_text(dump_yaml(info))
+        plot_overview(run, tmp / "overview.png")
+    return info
 
 
 def summary(run: TwoStageRun, cfg: TwoStageConfig) -> dict:
