@@ -231,3 +231,22 @@ def test_recovers_a_simulated_map(monkeypatch):
     assert seen.sum() >= 10
     assert np.all(d[:, seen].min(axis=0) < 0.05)
     assert np.all(d.min(axis=1) < 0.05)
+
+
+def test_planes(monkeypatch, street_profile):
+    """The same filter on planar features (the plane feature and detection models through the seam), 40 frames of
+    the small street with noisy odometry: the tolerances of the labelled filters' plane test (one filter seed, 40
+    frames: the pose bound 0.6 of dead reckoning; normal angle 0.3 deg and offset 5 cm median; OSPA c = 1 m < 0.6)."""
+    import slam_runtime.run as run
+    from calib.sim.street import simulate_street
+    from slam_runtime.config import SlamConfig, override
+    from tests.conftest import small_street_config
+
+    monkeypatch.setattr(run, "map_filter", lambda cfg, feat, det: MHFastSLAM(feat, det, MHFastSLAMConfig()))
+    sim = simulate_street(small_street_config(40, odometry={"sigma_v": 0.3, "sigma_omega": 0.08}), 31)
+    cfg = override(SlamConfig(), features="planes", particles=20, **{"motion.ect.sigma_v": 0.3, "motion.ect.sigma_omega": 0.08})
+    res = run.run_slam(sim.log, street_profile, cfg, 0)
+    m = run.evaluate(sim.log, res, 1.0, 1.0, cfg)
+    assert m["trajectory_rmse_vs_ground_truth_m"] <= 0.6 * m["odometry_rmse_vs_ground_truth_m"], m
+    assert m["map_normal_angle_median_deg"] < 0.3 and m["map_offset_error_median_m"] < 0.05
+    assert m["map_ospa"] < 0.6
