@@ -41,26 +41,37 @@ C, P = 100.0, 1.0
 
 
 class TraversedOSPA:
-    """Hook: OSPA (and its parts) of the map estimate against the features seen so far, at their positions now."""
+    """Hook: OSPA (and its cardinality part) of the map estimate against the features seen so far, at their positions
+    now (the map); and of the estimates within the detection radius against the features within it (the view)."""
 
     name = "ospa"
 
     def __init__(self, features: np.ndarray, poses: np.ndarray, radius: float) -> None:
-        self.features = features  # (T, F, 4)
+        self.features, self.poses, self.radius = features, poses, radius  # (T, F, 4), (T, 3)
         d = np.hypot(features[..., 0] - poses[:, None, 0], features[..., 1] - poses[:, None, 1])
-        self.seen = np.logical_or.accumulate(d <= radius, axis=0)  # (T, F)
-        self.card = np.zeros(features.shape[0])
-        self.n = np.zeros(features.shape[0], np.int64)
+        self.inside = d <= radius  # (T, F)
+        self.seen = np.logical_or.accumulate(self.inside, axis=0)
+        t = features.shape[0]
+        self.card, self.view, self.view_card = np.zeros(t), np.zeros(t), np.zeros(t)
+        self.n = np.zeros(t, np.int64)
 
     def __call__(self, k: int, slam) -> float:
         from slam_runtime.metrics import ospa
 
         x = slam.mf.feature.position(slam.map_estimate()[0])
-        truth = self.features[k, self.seen[k], :2]
-        m, n = sorted((len(x), len(truth)))
-        self.card[k] = C * (n - m) / n if n else 0.0
         self.n[k] = len(x)
+        truth = self.features[k, self.seen[k], :2]
+        self.card[k] = _card(len(x), len(truth))
+        xin = x[np.hypot(x[:, 0] - self.poses[k, 0], x[:, 1] - self.poses[k, 1]) <= self.radius] if len(x) else x
+        tin = self.features[k, self.inside[k], :2]
+        self.view[k], self.view_card[k] = ospa(xin, tin, C, P), _card(len(xin), len(tin))
         return ospa(x, truth, C, P)
+
+
+def _card(a: int, b: int) -> float:
+    """OSPA's cardinality part for p = 1: c (n - m) / n of two sets of sizes a and b."""
+    m, n = sorted((a, b))
+    return C * (n - m) / n if n else 0.0
 
 
 def one(job: tuple) -> dict:
@@ -86,7 +97,7 @@ def one(job: tuple) -> dict:
     return {
         "path": path, "case": case, "filter": kind, "run": run, "cpu_s": cpu, "cpu_ms_step": float(res.step_cpu_ms.mean()),
         "features_end": int(hook.n[-1]), "seen_end": int(hook.seen[-1].sum()),
-        "ospa": o, "card": hook.card, "loc": o - hook.card,
+        "ospa": o, "card": hook.card, "loc": o - hook.card, "view": hook.view, "view_card": hook.view_card, "view_loc": hook.view - hook.view_card,
     }
 
 
@@ -121,12 +132,15 @@ def main() -> None:
     with Pool(a.workers) as pool:
         out = pool.map(one, jobs, chunksize=4)
     if a.csv is not None:
-        keys = [k for k in out[0] if k not in ("ospa", "card", "loc")]
+        keys = [k for k in out[0] if not isinstance(out[0][k], np.ndarray)]
         with a.csv.open("w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=[*keys, "ospa_mean", "loc_mean", "card_mean", "ospa_end"])
+            w = csv.DictWriter(fh, fieldnames=[*keys, "ospa_mean", "loc_mean", "card_mean", "ospa_end", "view_mean", "view_end"])
             w.writeheader()
             for o in out:
-                w.writerow({**{k: o[k] for k in keys}, "ospa_mean": o["ospa"].mean(), "loc_mean": o["loc"].mean(), "card_mean": o["card"].mean(), "ospa_end": o["ospa"][-1]})
+                w.writerow({
+                    **{k: o[k] for k in keys}, "ospa_mean": o["ospa"].mean(), "loc_mean": o["loc"].mean(), "card_mean": o["card"].mean(),
+                    "ospa_end": o["ospa"][-1], "view_mean": o["view"].mean(), "view_end": o["view"][-1],
+                })  # fmt: skip
     groups = sorted({(o["path"], o["case"], o["filter"]) for o in out}, key=lambda g: (g[0], g[1] != "static", g[2]))
     for g in groups:
         r = [o for o in out if (o["path"], o["case"], o["filter"]) == g]
@@ -134,7 +148,8 @@ def main() -> None:
             f"{g[0]:<10} {g[1]:<7} {g[2]:<5} ({len(r)} runs): OSPA over the steps {_ms([o['ospa'].mean() for o in r])} m"
             f" (loc {_ms([o['loc'].mean() for o in r])}, card {_ms([o['card'].mean() for o in r])});"
             f" at the last step {_ms([o['ospa'][-1] for o in r])} m; features mapped {np.mean([o['features_end'] for o in r]):.2f}"
-            f" of {np.mean([o['seen_end'] for o in r]):.2f} seen; CPU {_ms([o['cpu_s'] for o in r])} s per run,"
+            f" of {np.mean([o['seen_end'] for o in r]):.2f} seen; in view: OSPA {_ms([o['view'].mean() for o in r])} m"
+            f" (loc {_ms([o['view_loc'].mean() for o in r])}, card {_ms([o['view_card'].mean() for o in r])}); CPU {_ms([o['cpu_s'] for o in r])} s per run,"
             f" {_ms([o['cpu_ms_step'] for o in r])} ms per step",
             flush=True,
         )
@@ -149,14 +164,17 @@ def _figure(out: list, groups: list, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     cases = sorted({g[:2] for g in groups}, key=lambda c: (c[0], c[1] != "static"))
-    fig, axes = plt.subplots(len(cases), 3, figsize=(12, 3.2 * len(cases)), squeeze=False)
-    for row, case in zip(axes, cases, strict=True):
+    panels = [(case, what) for case in cases for what in ("map", "view")]
+    fig, axes = plt.subplots(len(panels), 3, figsize=(12, 3.0 * len(panels)), squeeze=False)
+    for row, (case, what) in zip(axes, panels, strict=True):
+        keys = ("ospa", "loc", "card") if what == "map" else ("view", "view_loc", "view_card")
         for g in [g for g in groups if g[:2] == case]:
             r = [o for o in out if (o["path"], o["case"], o["filter"]) == g]
-            for ax, key in zip(row, ("ospa", "loc", "card"), strict=True):
+            for ax, key in zip(row, keys, strict=True):
                 ax.plot(np.mean([o[key] for o in r], axis=0), label=f"{'delta-GLMB' if g[2] == 'glmb' else g[2].upper()} ({len(r)} runs)")
         for ax, key in zip(row, ("OSPA", "OSPA loc", "OSPA card"), strict=True):
-            ax.set_title(f"{case[0]}, {case[1]} features: {key}", fontsize=9)
+            where = "the features seen so far" if what == "map" else "in the detection radius"
+            ax.set_title(f"{case[0]}, {case[1]}: {key}, {where}", fontsize=8)
             ax.set_xlabel("step")
             ax.set_ylabel("[m] (p = 1, c = 100 m)")
             ax.set_ylim(0, C)

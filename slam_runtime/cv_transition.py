@@ -126,3 +126,30 @@ class MovingPoint(RangeBearing):
 
     def position(self, x: np.ndarray) -> np.ndarray:
         return np.asarray(x)[..., :POS]
+
+
+class ConstantVelocity:
+    """The transition a map filter predicts its moving points with: acceleration noise ``sigma`` [m/s^2]."""
+
+    def __init__(self, sigma: float) -> None:
+        if not sigma >= 0:
+            raise ValueError(f"sigma must be 0 or more, not {sigma}")
+        self.sigma = float(sigma)
+
+    def predict(self, mu: np.ndarray, cov: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """States mu (..., 4), cov (..., 4, 4) moved over dt [s] (:func:`predict`)."""
+        return predict(mu, cov, max(float(dt), 0.0), self.sigma)
+
+
+class PositionView:
+    """A detection model as a filter of moving points sees it: P_D and the buffer zone from the position part of
+    each state (x, y) and its covariance block; everything else is the model's own."""
+
+    def __init__(self, detection) -> None:
+        self.model = detection
+
+    def pd_features(self, sensor_poses, mu, cov, meas, weights=None):
+        return self.model.pd_features(sensor_poses, np.asarray(mu)[..., :POS], np.asarray(cov)[..., :POS, :POS], meas, weights)
+
+    def __getattr__(self, name: str):
+        return getattr(self.model, name)

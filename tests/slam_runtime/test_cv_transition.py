@@ -78,3 +78,25 @@ def test_moving_point_measures_its_position():
 def test_moving_point_refuses_a_bad_birth_speed():
     with pytest.raises(ValueError, match="birth_speed must be above 0"):
         MovingPoint(np.eye(2), birth_speed=0.0)
+
+
+def test_position_view_hands_the_detection_model_positions():
+    """A filter of moving points asks the detection model through PositionView: the model sees (x, y) and the
+    position block of the covariance, and answers as for static points; other attributes are the model's."""
+    from detectors.model import DetectionModel
+    from profiles.schema import ClutterParams, PdTable, SensorModel
+    from slam_runtime.cv_transition import ConstantVelocity, PositionView
+
+    sensor = SensorModel(kind="camera", fov=np.pi, range_max=20.0)
+    det = DetectionModel(PdTable(covariate="range", edges=[0.0, 20.0], pd=[0.8]), ClutterParams(rate=2.0, volume=np.pi * 20.0), sensor)
+    view = PositionView(det)
+    mu = np.array([[[5.0, 1.0, 3.0, -2.0], [25.0, 0.0, 0.0, 0.0]]])
+    cov = np.broadcast_to(np.diag([0.1, 0.1, 4.0, 4.0]), (1, 2, 4, 4))
+    pd, buf = view.pd_features(np.zeros((1, 3)), mu, cov, None)
+    pd2, buf2 = det.pd_features(np.zeros((1, 3)), mu[..., :2], cov[..., :2, :2], None)
+    np.testing.assert_array_equal(pd, pd2)
+    np.testing.assert_array_equal(buf, buf2)
+    assert view.clutter_intensity(np.array([[5.0, 0.1]]))[0] == det.clutter_intensity(np.array([[5.0, 0.1]]))[0]
+    m1, c1 = ConstantVelocity(0.5).predict(mu[0], cov[0], 2.0)
+    np.testing.assert_allclose(m1[0], [11.0, -3.0, 3.0, -2.0])
+    np.testing.assert_allclose(c1, predict(mu[0], cov[0], 2.0, 0.5)[1])
