@@ -227,7 +227,10 @@ def main() -> None:
         jobs += [(part, f, w, s, c, tuple(a.sets)) for f in filters for c in rates for w in worlds for s in sd]
     print(f"CPUs {os.cpu_count()}, load average {'/'.join(f'{x:.1f}' for x in os.getloadavg())}; {len(jobs)} runs on {a.workers} workers", flush=True)
     with Pool(a.workers) as pool:
-        runs = pool.map(one, jobs, chunksize=1)
+        runs = []
+        for o in pool.imap(one, jobs, chunksize=1):  # each run printed as it ends (in the order of the jobs)
+            runs.append(o)
+            print(f"  run {len(runs)}/{len(jobs)}: " + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in o.items()), flush=True)
     if a.csv is not None:
         with a.csv.open("w", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=list(runs[0]))
