@@ -41,13 +41,12 @@ def test_the_loop_recovers_pd_and_clutter_from_a_wrong_start(log):
     clutter rate moves from 0.5 to within [0.9, 1.6] x the truth (above it: detections of the few landmarks
     the run merged with a neighbour a few cm away count as clutter, about one per scan here); the noise
     measured against the run is the sensor's plus the run's own error, so between 1x and 2.5x the truth."""
-    from pathlib import Path
-
     from calib.config import load_yaml_model
-    from slam_runtime.config import SlamConfig, override
     from detcal.pipelines.self_calibration import self_calibration
+    from slam_runtime.config import SlamConfig, override
+    from tests.conftest import ROOT
 
-    cfg = override(load_yaml_model(SlamConfig, Path(__file__).resolve().parents[2] / "benchmarks/configs/rfs_sim.yaml"), particles=20)
+    cfg = override(load_yaml_model(SlamConfig, ROOT / "benchmarks/configs/rfs_sim.yaml"), particles=20)
 
     def measure(lg, traj, xy, w, prior, k):
         c = self_calibrate(lg, traj, xy, w, prior, SelfCalConfig(gate=0.3), name="x", version="1.0.0", iteration=k)
