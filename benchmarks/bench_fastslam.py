@@ -53,20 +53,9 @@ VP_PROFILE = {"glmb": "victoria-park-selfcal-glmb@1.1.0.yaml", "lmb": "victoria-
 
 def configured(cfg, kind: str):
     """``cfg`` with the map filter ``kind`` (the settings the filters share carry over)."""
-    import slam_runtime.run as run
-    from slam_runtime import config as settings
+    from slam_runtime.config import with_filter
 
-    run.map_filter = settings.map_filter  # (a worker process runs several jobs)
-    if kind == "mhfastslam" and kind not in settings.FILTER_KINDS:
-        # until the settings know MH-FastSLAM: the run's factory builds it, with the settings the filters share and
-        # no occlusion tolerance (as the labelled filters: it keeps every object the detector fires on as a landmark)
-        from slam_runtime.fastslam import MHFastSLAM, MHFastSLAMConfig
-
-        shared = {k: v for k, v in cfg.filter.model_dump().items() if k in ("gate", "noise_inflation", "landmark_noise", "map_threshold")}
-        fs = MHFastSLAMConfig(**{**shared, "map_threshold": min(shared.get("map_threshold", 0.5), 0.99)})
-        run.map_filter = lambda c, feat, det: MHFastSLAM(feat, det, fs)
-        return settings.override(cfg, **{"detection.occlusion_sigmas": float("inf")})
-    return settings.with_filter(cfg, kind)
+    return with_filter(cfg, kind)
 
 
 @functools.lru_cache(maxsize=4)

@@ -74,7 +74,7 @@ from slam_runtime.features import FeatureModel
 from slam_runtime.gibbs import detection_costs
 from slam_runtime.gm import det, inv, matmul, matvec, quad, transpose
 from slam_runtime.kbest import kbest_batch
-from slam_runtime.mapfilter import MapFilter, Measurements
+from slam_runtime.mapfilter import MAP_FILTERS, MapFilter, Measurements
 
 
 class MHFastSLAMConfig(BaseModel):
@@ -94,11 +94,7 @@ class MHFastSLAMConfig(BaseModel):
     lock_logodds: float = Field(default=10.0, gt=0.0, description="a landmark whose existence log-odds exceed this no longer loses any when missed")
     map_threshold: float = Field(default=0.5, gt=0.0, lt=1.0, description="a landmark of existence probability above this is in the map estimate")
     merge: float = Field(
-        default=4.0,
-        ge=0.0,
-        description="hypotheses of a particle whose landmarks all lie within this squared Mahalanobis distance of each other's "
-        "are one map and merge, weights summed (0: never; hypotheses that differ only in an association long out of view "
-        "would otherwise hold their slots for good)",
+        default=4.0, ge=0.0, description="hypotheses of a particle whose landmarks lie within this squared Mahalanobis distance merge (0: never)"
     )
     noise_inflation: float = Field(default=1.0, ge=1.0, description="factor on the measurement noise covariance")
     landmark_noise: float = Field(default=0.0, ge=0.0, description="landmark position variance added per second [m^2/s]")
@@ -235,6 +231,10 @@ class MHFastSLAM(MapFilter):
     """MH-FastSLAM map per particle (module docstring)."""
 
     name = "MH-FastSLAM"
+    Config = MHFastSLAMConfig
+    proposes_poses = True
+    # as the labelled filters: every object the detector fires on is kept as a landmark, so no return occludes one
+    occlusion_default = float("inf")
 
     def __init__(self, feature: FeatureModel, detection, cfg: MHFastSLAMConfig) -> None:
         super().__init__(feature, detection)
@@ -443,3 +443,6 @@ class MHFastSLAM(MapFilter):
             if cfg.merge > 0 and h_new > 1:
                 out_mu, out_cov, out_lo, logw = _merge_hypotheses(out_mu, out_cov, out_lo, logw, cfg.merge)
         return FastSLAMMaps(out_mu, out_cov, out_lo, logw), loglik
+
+
+MAP_FILTERS.add("mhfastslam", MHFastSLAM)

@@ -204,7 +204,7 @@ def test_resampling_takes_whole_particles():
     assert mf.size(two).tolist() == [mf.size(maps)[0]] * 2
 
 
-def test_recovers_a_simulated_map(monkeypatch):
+def test_recovers_a_simulated_map():
     """rfs-sim (the C++ library's scenario) for 400 steps, 20 particles, full SLAM: every landmark the sensor saw
     at least 10 times is mapped within 5 cm, and no mapped feature is more than 5 cm from a landmark.
 
@@ -215,12 +215,10 @@ def test_recovers_a_simulated_map(monkeypatch):
     import slam_runtime.run as run
     from calib.config import load_yaml_model
     from calib.sim.rfs import RfsSimConfig, simulate_rfs, truth_profile
-    from slam_runtime.config import SlamConfig, override
-
-    monkeypatch.setattr(run, "map_filter", lambda cfg, feat, det: MHFastSLAM(feat, det, MHFastSLAMConfig()))
+    from slam_runtime.config import SlamConfig, override, with_filter
     from tests.conftest import ROOT
 
-    cfg = override(load_yaml_model(SlamConfig, ROOT / "benchmarks/configs/rfs_sim.yaml"), particles=20)
+    cfg = with_filter(override(load_yaml_model(SlamConfig, ROOT / "benchmarks/configs/rfs_sim.yaml"), particles=20), "mhfastslam")
     sim = RfsSimConfig(steps=400)
     log = simulate_rfs(sim, 1)
     res = run.run_slam(log, truth_profile(sim), cfg, 0)
@@ -233,7 +231,7 @@ def test_recovers_a_simulated_map(monkeypatch):
     assert np.all(d.min(axis=1) < 0.05)
 
 
-def test_planes(monkeypatch, street_profile):
+def test_planes(street_profile):
     """The same filter on planar features (the plane feature and detection models through the seam), 40 frames of
     the small street with noisy odometry: the tolerances of the labelled filters' plane test (one filter seed, 40
     frames: the pose bound 0.6 of dead reckoning; normal angle 0.3 deg and offset 5 cm median; OSPA c = 1 m < 0.6)."""
@@ -242,9 +240,8 @@ def test_planes(monkeypatch, street_profile):
     from slam_runtime.config import SlamConfig, override
     from tests.conftest import small_street_config
 
-    monkeypatch.setattr(run, "map_filter", lambda cfg, feat, det: MHFastSLAM(feat, det, MHFastSLAMConfig()))
     sim = simulate_street(small_street_config(40, odometry={"sigma_v": 0.3, "sigma_omega": 0.08}), 31)
-    cfg = override(SlamConfig(), features="planes", particles=20, **{"motion.ect.sigma_v": 0.3, "motion.ect.sigma_omega": 0.08})
+    cfg = override(SlamConfig(), features="planes", particles=20, **{"filter.kind": "mhfastslam", "motion.ect.sigma_v": 0.3, "motion.ect.sigma_omega": 0.08})
     res = run.run_slam(sim.log, street_profile, cfg, 0)
     m = run.evaluate(sim.log, res, 1.0, 1.0, cfg)
     assert m["trajectory_rmse_vs_ground_truth_m"] <= 0.6 * m["odometry_rmse_vs_ground_truth_m"], m
