@@ -47,60 +47,17 @@ gives no feature layout (Fig. 3 is drawn, not listed); the seed draws it. Same c
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
-
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy.interpolate import BSpline
 
-from calib.config import check_order
-from detectors.logs import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, wrap_angle
+from calib.sim import SIMULATORS, Option, Simulated, Simulator
+from detectors.sensor_log import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, wrap_angle
+from profiles.parameters import TwoStageConfig
 
 #: spacing of the densely sampled paths [m]
 DENSE = 1.0
 #: the B-spline's degree (order k = 4 in the paper's eq.: cubic)
 DEGREE = 3
-
-
-class TwoStageConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    path: Literal["serpentine", "spiral"] = Field(default="serpentine", description="the initial path (Fig. 4a / 4b)")
-    start: tuple[float, float] = Field(default=(-800.0, -800.0), description="the path's start [m] (sec. 4)")
-    end: tuple[float, float] = Field(default=(800.0, 800.0), description="the scene's far corner [m] (sec. 4); the serpentine ends there")
-    lanes: int = Field(
-        default=7, ge=2, le=100, description="straight lanes of the serpentine (odd: it ends at end); the spiral's rings lie the scene / lanes apart"
-    )
-    detection_radius: float = Field(default=150.0, gt=0.0, description="[m] (Table 1: 50, 100, 150; 150 with ten features in Figs. 6a, 7a)")
-    safety_distance: float = Field(default=50.0, gt=0.0, description="sigma_min [m]: the event trigger and the avoidance radius (eqs. 28-30)")
-    spline_spacing: float = Field(default=25.0, gt=0.0, description="[m] between the B-spline's control points")
-    steps: int = Field(default=100, ge=2, le=100_000, description="time steps (sec. 4: 100)")
-    dt: float = Field(default=1.0, gt=0.0, description="T [s] (sec. 4)")
-    speed: float | None = Field(default=None, gt=0.0, description="[m/s] on straight parts (Table 1: 2); null: the whole path in the steps")
-    arc_speed_ratio: float = Field(default=0.5, gt=0.0, le=1.0, description="speed on arcs / speed on straight parts (Table 1: 1 / 2)")
-    features: int = Field(default=10, ge=1, le=10_000, description="feature points (sec. 4)")
-    on_path: int = Field(default=3, ge=0, description="of them placed on the initial path (obstacles)")
-    moving: bool = Field(default=False, description="the feature points move (constant velocity with process noise)")
-    feature_speed: float = Field(default=1.0, ge=0.0, description="[m/s] each moving feature's initial speed, random direction")
-    process_noise: float = Field(default=0.5, ge=0.0, description="[m/s^2] sigma of Q = sigma^2 B B^T (sec. 4: 0.5)")
-    pd: float = Field(default=0.98, gt=0.0, le=1.0, description="P_D inside the detection radius (sec. 4)")
-    clutter: float = Field(default=20.0, ge=0.0, le=10_000.0, description="false alarms per scan (sec. 4: 20)")
-    clutter_area: Literal["square", "disc"] = Field(default="square", description="clutter uniform over S (the reports inside the disc), or over the disc")
-    clutter_half_width: float = Field(default=1000.0, gt=0.0, description="[m] S = [-w, w]^2 (sec. 4: 1000)")
-    sigma_range: float = Field(default=10.0, gt=0.0, description="[m]")
-    sigma_bearing: float = Field(default=float(np.radians(2.0)), gt=0.0, description="[rad]")
-    odometry_sigma: float = Field(default=1.0, ge=0.0, description="[m] noise of each step's odometry along each axis")
-    odometry_heading_sigma: float = Field(default=float(np.radians(0.5)), ge=0.0, description="[rad] noise of each step's heading change")
-
-    @model_validator(mode="after")
-    def _check(self) -> TwoStageConfig:
-        check_order(self, "on_path", "features")
-        lo, hi = np.asarray(self.start), np.asarray(self.end)
-        if not np.all(hi - lo > 0):
-            raise ValueError(f"end {self.end} must lie above and to the right of start {self.start}")
-        spacing = (hi[1] - lo[1]) / (self.lanes - 1)
-        if self.path == "serpentine" and self.safety_distance >= spacing / 2:
-            raise ValueError(f"safety_distance ({self.safety_distance}) must be below half the lane spacing ({spacing / 2:g} m)")
-        return self
 
 
 @dataclass
@@ -400,30 +357,6 @@ def truth_profile(cfg: TwoStageConfig, *, name: str | None = None, version: str 
     )
 
 
-def write_two_stage_simulation(cfg: TwoStageConfig, seed: int, out, *, overwrite: bool = False) -> dict:
-    """The two-stage run folder, written to a temporary name and renamed: log.dlog, features.csv (every feature's
-    true state at every step: step, id, x, y, vx, vy [m, m/s], world frame), profile.yaml (the simulator's true
-    statistics), config.yaml, summary.yaml, overview.png."""
-    from calib.config import dump_yaml
-    from calib.io.atomic import atomic_output
-    from calib.io.native import write_native
-    from profiles.store import dump_profile
-
-    run = simulate_two_stage(cfg, seed)
-    info = {"seed": seed, **summary(run, cfg)}
-    t, f = run.features.shape[:2]
-    rows = np.column_stack([np.repeat(np.arange(t), f), np.tile(np.arange(1, f + 1), t), run.features.reshape(-1, 4)])
-    with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
-        tmp.mkdir()
-        write_native(run.log, tmp / "log.dlog")
-        np.savetxt(tmp / "features.csv", rows, fmt=["%d", "%d", "%.6f", "%.6f", "%.6f", "%.6f"], delimiter=",", header="step,id,x,y,vx,vy", comments="")
-        (tmp / "profile.yaml").write_text(dump_profile(truth_profile(cfg)))
-        (tmp / "config.yaml").write_text(dump_yaml({"seed": seed, "two_stage": cfg.model_dump(mode="json")}))
-        (tmp / "summary.yaml").write_text(dump_yaml(info))
-        plot_overview(run, tmp / "overview.png")
-    return info
-
-
 def summary(run: TwoStageRun, cfg: TwoStageConfig) -> dict:
     d = run.log.detections
     lab = np.asarray(d.descriptors["landmark"])
@@ -443,29 +376,30 @@ def summary(run: TwoStageRun, cfg: TwoStageConfig) -> dict:
     }
 
 
-def plot_overview(run: TwoStageRun, path) -> None:
-    import matplotlib
+def features_csv(run: TwoStageRun) -> str:
+    """Every feature's true state at every step as CSV text: step, id, x, y, vx, vy [m, m/s], world frame."""
+    t, f = run.features.shape[:2]
+    rows = np.column_stack([np.repeat(np.arange(t), f), np.tile(np.arange(1, f + 1), t), run.features.reshape(-1, 4)])
+    lines = ["step,id,x,y,vx,vy"] + [f"{int(r[0])},{int(r[1])},{r[2]:.6f},{r[3]:.6f},{r[4]:.6f},{r[5]:.6f}" for r in rows]
+    return "\n".join(lines) + "\n"
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    poses = run.log.reference["ground_truth"].poses
-    fig, ax = plt.subplots(figsize=(7.5, 7))
-    ax.plot(run.initial[:, 0], run.initial[:, 1], ":", color="0.6", lw=1, label="initial path (stage 1)")
-    ax.plot(run.control[:, 0], run.control[:, 1], ".", color="tab:orange", ms=2, label="control polygon")
-    ax.plot(run.path[:, 0], run.path[:, 1], "b-", lw=1, label="smoothed path (stage 2)")
-    ax.plot(poses[:, 0], poses[:, 1], "b.", ms=4, label="sensor at each step")
-    tr = run.features
-    for j in range(tr.shape[1]):
-        ax.plot(tr[:, j, 0], tr[:, j, 1], "r-", lw=1)
-    ax.plot(tr[0, :, 0], tr[0, :, 1], "r+", ms=10, mew=2, label="feature points")
-    ob = tr[0, run.obstacles, :2]
-    ax.plot(ob[:, 0], ob[:, 1], "ko", mfc="none", ms=10, label="obstacles avoided")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_title(f"{run.log.name}: {len(run.log.detections)} detections over {run.log.detections.n_frames} steps", fontsize=9)
-    ax.legend(fontsize=7, loc="upper left")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110, metadata={"Software": None})
-    plt.close(fig)
+def _run(cfg: TwoStageConfig, seed: int, progress=None) -> Simulated:
+    """The run folder's contents: log.dlog (the features' last positions as landmarks), features.csv (every feature's
+    state at every step) and profile.yaml (the simulator's true statistics)."""
+    from profiles.store import dump_profile
+
+    run = simulate_two_stage(cfg, seed)
+    return Simulated(run.log, {"seed": seed, **summary(run, cfg)}, {"features.csv": features_csv(run), "profile.yaml": dump_profile(truth_profile(cfg))}, run)
+
+
+SIMULATORS.add("two-stage", Simulator(
+    TwoStageConfig, "two_stage",
+    "The two-stage scenario of Li & Yang (Sensors 2022): a sensor on a planned path (serpentine or spiral, obstacle avoidance "
+    "smoothed by a B-spline), ten feature points, static or moving, P_D 0.98, clutter; writes the log, every feature's state "
+    "(features.csv) and the profile of its true statistics.",
+    "two-stage scenario", _run, (
+        Option("path", str, "Initial path: serpentine or spiral (Fig. 4a / 4b; default: the config's, serpentine)."),
+        Option("moving", bool, "Feature points in constant-velocity motion (--moving) or static (--static; default: the config's, static).", "--moving/--static"),
+    ),
+))  # fmt: skip

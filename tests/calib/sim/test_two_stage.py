@@ -180,24 +180,3 @@ def test_same_seed_same_log_and_profile():
 def test_bad_settings_are_refused(settings, match):
     with pytest.raises(ValidationError, match=match):
         TwoStageConfig(**settings)
-
-
-def test_run_folder_holds_the_truth(tmp_path):
-    """The run folder: the log reads back with the features' last positions as landmarks, features.csv holds every
-    feature's state at every step, and an existing folder is not replaced without overwrite."""
-    from calib.io.native import read_native
-    from calib.sim.two_stage import write_two_stage_simulation
-    from profiles.errors import UsageError
-
-    cfg = TwoStageConfig(moving=True, steps=30)
-    info = write_two_stage_simulation(cfg, 5, tmp_path / "run")
-    run = simulate_two_stage(cfg, 5)
-    assert sorted(p.name for p in (tmp_path / "run").iterdir() if not p.name.startswith(".")) == ["config.yaml", "features.csv", "log.dlog", "overview.png", "profile.yaml", "summary.yaml"]
-    log = read_native(tmp_path / "run/log.dlog")
-    np.testing.assert_allclose(log.landmarks.xy, run.features[-1, :, :2])
-    rows = np.loadtxt(tmp_path / "run/features.csv", delimiter=",", skiprows=1)
-    assert rows.shape == (30 * 10, 6)
-    np.testing.assert_allclose(rows[:, 2:].reshape(30, 10, 4), run.features, atol=1e-6)
-    assert info["seed"] == 5 and info["steps"] == 30
-    with pytest.raises(UsageError, match="exists"):
-        write_two_stage_simulation(cfg, 5, tmp_path / "run")
