@@ -136,7 +136,7 @@ def warm(filters: tuple[str, ...]) -> None:
     from slam_runtime.config import SlamConfig, override
     from slam_runtime.run import run_slam
 
-    sim = RfsSimConfig(steps=20)
+    sim = RfsSimConfig(steps=60)
     for kind in filters:
         run_slam(simulate_rfs(sim, 0), truth_profile(sim), configured(override(SlamConfig(), particles=4), kind), 0)
 
