@@ -33,7 +33,6 @@ for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA
     os.environ.setdefault(var, "1")
 
 import argparse  # noqa: E402
-import csv  # noqa: E402
 import functools  # noqa: E402
 import sys  # noqa: E402
 from multiprocessing import Pool  # noqa: E402
@@ -44,7 +43,7 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.common import ints, parse_set  # noqa: E402
+from benchmarks.common import ints, parse_set, write_rows  # noqa: E402
 
 DATA = ROOT.parent / "shared/data"
 RATES = (1.0, 5.0, 10.0, 15.0)
@@ -233,10 +232,7 @@ def main() -> None:
             runs.append(o)
             print(f"  run {len(runs)}/{len(jobs)}: " + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in o.items()), flush=True)
     if a.csv is not None:
-        with a.csv.open("w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=list(runs[0]))
-            w.writeheader()
-            w.writerows(runs)
+        write_rows(a.csv, runs)
     for part in parts:
         report(runs, part, filters)
 

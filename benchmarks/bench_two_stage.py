@@ -86,9 +86,7 @@ def one(job: tuple) -> dict:
     sim_cfg = TwoStageConfig.model_validate({**dict(parse_set(x) for x in sim_sets), "path": path, "moving": case == "moving"})
     sim = simulate_two_stage(sim_cfg, run)
     cfg = with_filter(load_yaml_model(SlamConfig, config), kind)
-    changes = dict(parse_set(x) for x in sets)
-    if case == "moving":
-        changes.update(MOVING)
+    changes = {**(MOVING if case == "moving" else {}), **dict(parse_set(x) for x in sets)}  # (--set wins)
     if changes:
         cfg = override(cfg, **changes)
     hook = TraversedOSPA(sim.features, sim.log.reference["ground_truth"].poses, sim_cfg.detection_radius)

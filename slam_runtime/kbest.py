@@ -159,6 +159,21 @@ def _clusters(adm):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
+def _members(lab, nc):  # pragma: no cover - compiled
+    """The members of each of nc clusters, in order: (nc, len(lab)) indices padded with -1, and their counts (nc,);
+    lab (n,) each index's cluster (-1: none)."""
+    n = lab.shape[0]
+    out = np.full((nc, n), -1, np.int64)
+    cnt = np.zeros(nc, np.int64)
+    for i in range(n):
+        c = lab[i]
+        if c >= 0:
+            out[c, cnt[c]] = i
+            cnt[c] += 1
+    return out, cnt
+
+
+@numba.njit(cache=True, nogil=True)
 def kbest_one(score, k, max_diff):  # pragma: no cover - compiled
     """The k best associations of one problem score (A, M) (module docstring): (assign (n, A) int64, total (n,))."""
     a, m = score.shape
@@ -172,20 +187,8 @@ def kbest_one(score, k, max_diff):  # pragma: no cover - compiled
     # each cluster's k best, as (score, its rows' assignments) in flat arrays
     ncl = np.zeros(nc, np.int64)
     sc = np.full((nc, k), -np.inf)
-    rows_of = np.full((nc, a), -1, np.int64)
-    nrows = np.zeros(nc, np.int64)
-    for i in range(a):
-        c = rlab[i]
-        if c >= 0:
-            rows_of[c, nrows[c]] = i
-            nrows[c] += 1
-    cols_of = np.full((nc, m), -1, np.int64)
-    ncols = np.zeros(nc, np.int64)
-    for j in range(m):
-        c = clab[j]
-        if c >= 0:
-            cols_of[c, ncols[c]] = j
-            ncols[c] += 1
+    rows_of, nrows = _members(rlab, nc)
+    cols_of, ncols = _members(clab, nc)
     asg = np.full((nc, k, a), -1, np.int64)  # per cluster, per solution: the global column of each global row
     for c in range(nc):
         ra, ma = nrows[c], ncols[c]

@@ -36,6 +36,15 @@ def with_truth(log: SensorLog, summary: dict, profile) -> Simulated:
     return Simulated(log, summary, {"profile.yaml": dump_profile(profile)}, log)
 
 
+def truth_provenance(cfg, command: str):
+    """The provenance of a scenario's truth profile: the scenario's settings, recorded by ``command``; its date is a
+    statement of the settings, not of a time (same config, same bytes)."""
+    from calib import __version__
+    from profiles.profile import Provenance
+
+    return Provenance(detcal_version=__version__, command=command, parameters=cfg.model_dump(mode="json"), created="1970-01-01T00:00:00Z")
+
+
 @dataclass(frozen=True)
 class Option:
     """The scenario setting a simulate command offers as an option (``--<name>``): its config field, type and help;

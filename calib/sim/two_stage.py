@@ -50,7 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import BSpline
 
-from calib.sim import SIMULATORS, Option, Simulated, Simulator
+from calib.sim import SIMULATORS, Option, Simulated, Simulator, truth_provenance
 from detectors.sensor_log import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, wrap_angle
 from profiles.parameters import TwoStageConfig
 
@@ -330,8 +330,7 @@ def truth_profile(cfg: TwoStageConfig, *, name: str | None = None, version: str 
     """The profile of the simulated detector's true statistics: P_D out to the detection radius (0 beyond, over a
     field of view that reaches as far as a noisy report can), clutter uniform per unit area (``space: xy``) at the
     scenario's density, the noise."""
-    from calib import __version__
-    from profiles.profile import DetectorProfile, DetectorSpec, Provenance
+    from profiles.profile import DetectorProfile, DetectorSpec
     from profiles.schema import ClutterParams, MeasurementNoise, PdTable
 
     far = reach(cfg)
@@ -348,12 +347,7 @@ def truth_profile(cfg: TwoStageConfig, *, name: str | None = None, version: str 
         pd=PdTable(covariate="range", edges=[0.0, rad, far], pd=[cfg.pd, 0.0], clamping="none (simulator truth)"),
         clutter=ClutterParams(rate=max(dens * area, 1e-12), space="xy", volume=area),
         noise=MeasurementNoise(range_sigma=cfg.sigma_range, bearing_sigma=cfg.sigma_bearing),
-        provenance=Provenance(
-            detcal_version=__version__,
-            command="detcal simulate two-stage",
-            parameters=cfg.model_dump(mode="json"),
-            created="1970-01-01T00:00:00Z",  # a statement of the settings, not of a time: same config, same bytes
-        ),
+        provenance=truth_provenance(cfg, "detcal simulate two-stage"),
     )
 
 

@@ -156,6 +156,20 @@ def plot_rfs_overview(log: SensorLog, path) -> None:
     plt.close(fig)
 
 
+def _finish(fig, ax, path, title: str, legend: str) -> None:
+    """A detection-level scenario's overview: equal axes in metres, its title and legend, saved without a date."""
+    import matplotlib.pyplot as plt
+
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7, loc=legend)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, metadata={"Software": None})
+    plt.close(fig)
+
+
 def plot_glmb_paper_overview(log: SensorLog, path) -> None:
     import matplotlib
 
@@ -175,14 +189,7 @@ def plot_glmb_paper_overview(log: SensorLog, path) -> None:
     ax.plot(xy[~clutter, 0], xy[~clutter, 1], ".", color="tab:purple", ms=1.5, alpha=0.5, label="landmark detections")
     ax.plot(poses[:, 0], poses[:, 1], "b--", lw=1, label="true path")
     ax.plot(log.landmarks.xy[:, 0], log.landmarks.xy[:, 1], "k+", ms=10, mew=2, label="landmarks")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_title(f"{log.name}: {len(d)} detections over {d.n_frames} scans", fontsize=9)
-    ax.legend(fontsize=7, loc="upper right")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110, metadata={"Software": None})
-    plt.close(fig)
+    _finish(fig, ax, path, f"{log.name}: {len(d)} detections over {d.n_frames} scans", "upper right")
 
 
 def plot_two_stage_overview(run: TwoStageRun, path) -> None:
@@ -204,14 +211,7 @@ def plot_two_stage_overview(run: TwoStageRun, path) -> None:
     ax.plot(tr[0, :, 0], tr[0, :, 1], "r+", ms=10, mew=2, label="feature points")
     ob = tr[0, run.obstacles, :2]
     ax.plot(ob[:, 0], ob[:, 1], "ko", mfc="none", ms=10, label="obstacles avoided")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_title(f"{run.log.name}: {len(run.log.detections)} detections over {run.log.detections.n_frames} steps", fontsize=9)
-    ax.legend(fontsize=7, loc="upper left")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110, metadata={"Software": None})
-    plt.close(fig)
+    _finish(fig, ax, path, f"{run.log.name}: {len(run.log.detections)} detections over {run.log.detections.n_frames} steps", "upper left")
 
 
 #: The overview figure of each simulator's run folder (a simulator without one writes none).
