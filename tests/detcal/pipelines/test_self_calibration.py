@@ -119,7 +119,7 @@ def test_selfcal_measures_against_the_map_of_the_filter_it_is_given(tmp_path, ca
     assert yaml.safe_load((tmp_path / "sc/profile.yaml").read_text())["name"] == "sim-lmb"
     code, _, err = run(capsys, *base, "--filter", "ekf", "--out", str(tmp_path / "sc2"), "--name", "sim-x")
     assert code == 2
-    assert_one_line_error(err, "--filter: expected one of rbphd, lmb, glmb")
+    assert_one_line_error(err, "--filter: expected one of rbphd, lmb, glmb, mhfastslam")
     assert not (tmp_path / "sc2").exists()
 
 
