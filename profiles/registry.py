@@ -17,6 +17,7 @@ atomic writes every package uses.
 from __future__ import annotations
 
 import importlib
+import sys
 from collections.abc import Callable, Iterator
 from typing import Generic, TypeVar
 
@@ -38,6 +39,7 @@ class Registry(Generic[T]):
         self._builtins = builtins
         self._loaded = not builtins
         self._items: dict[str, T] = {}
+        self._origin: dict[str, str | None] = {}  # the module that added each (an instance's __module__ is its class's)
         self._listeners: list[Callable[[], None]] = []
 
     def _load(self) -> None:
@@ -47,14 +49,15 @@ class Registry(Generic[T]):
                 importlib.import_module(module)
             # the built-ins in the order of their modules (one may import another first), then the others as added
             rank = {m: i for i, m in enumerate(self._builtins)}
-            order = sorted(self._items, key=lambda n: rank.get(getattr(self._items[n], "__module__", None), len(rank)))
+            order = sorted(self._items, key=lambda n: rank.get(self._origin.get(n), len(rank)))
             self._items = {n: self._items[n] for n in order}
 
-    def add(self, name: str, obj: T, *, replace: bool = False) -> T:
+    def add(self, name: str, obj: T, *, replace: bool = False, _depth: int = 1) -> T:
         """Add ``obj`` under ``name``; a name already taken is refused unless ``replace``."""
         if name in self._items and not replace and self._items[name] is not obj:
             raise ValueError(f"{self.what} {name!r} is registered already")
         self._items[name] = obj
+        self._origin[name] = sys._getframe(_depth).f_globals.get("__name__")
         for listener in self._listeners:
             listener()
         return obj
@@ -63,7 +66,7 @@ class Registry(Generic[T]):
         """Decorator form of :meth:`add`; without ``name`` the object's own ``name`` attribute names it."""
 
         def deco(obj: T) -> T:
-            self.add(name if name is not None else obj.name, obj)  # type: ignore[attr-defined]
+            self.add(name if name is not None else obj.name, obj, _depth=2)  # type: ignore[attr-defined]
             return obj
 
         return deco
@@ -71,6 +74,7 @@ class Registry(Generic[T]):
     def remove(self, name: str) -> None:
         """Take ``name`` out of the table (an implementation a test registered)."""
         self._items.pop(name, None)
+        self._origin.pop(name, None)
         for listener in self._listeners:
             listener()
 
