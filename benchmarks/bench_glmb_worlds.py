@@ -28,7 +28,6 @@ for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA
     os.environ.setdefault(var, "1")
 
 import argparse  # noqa: E402
-import csv  # noqa: E402
 import sys  # noqa: E402
 from multiprocessing import Pool  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -38,7 +37,7 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.common import ints, parse_set  # noqa: E402
+from benchmarks.common import ints, parse_set, write_rows  # noqa: E402
 from calib.config import load_yaml_model  # noqa: E402
 from calib.sim.glmb_paper import GlmbPaperConfig, simulate_glmb_paper, truth_profile  # noqa: E402
 from slam_runtime.config import SlamConfig, override, with_filter  # noqa: E402
@@ -125,10 +124,7 @@ def main() -> None:
     with Pool(a.workers) as pool:
         runs = pool.map(one, jobs, chunksize=1)
     if a.csv is not None:
-        with a.csv.open("w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=list(runs[0]))
-            w.writeheader()
-            w.writerows(runs)
+        write_rows(a.csv, runs)
     for f in filters:
         _report([o for o in runs if o["filter"] == f], f, a, rates, draws)
     if len(filters) == 2:

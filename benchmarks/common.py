@@ -1,6 +1,9 @@
-"""What the benchmark scripts share: their integer-list and ``--set key=value`` arguments."""
+"""What the benchmark scripts share: their integer-list and ``--set key=value`` arguments, their per-run CSV."""
 
 from __future__ import annotations
+
+import csv
+from pathlib import Path
 
 import yaml
 
@@ -20,3 +23,11 @@ def parse_set(item: str) -> tuple[str, object]:
     if not sep or not key:
         raise SystemExit(f"--set {item!r}: expected key=value")
     return key, yaml.safe_load(value)
+
+
+def write_rows(path: Path, rows: list[dict]) -> None:
+    """One CSV row per run, the columns of the first run's keys."""
+    with path.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)

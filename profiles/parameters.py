@@ -256,3 +256,46 @@ class GlmbPaperConfig(BaseModel):
                 f"waypoints: the only waypoint is within arrive ({self.arrive} m) of the start (0, 0): the path would have no step"
             )
         return self
+
+
+class TwoStageConfig(BaseModel):
+    """The two-stage scenario of Li & Yang (Sensors 2022): its settings (``calib.sim.two_stage`` says what each does)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    path: Literal["serpentine", "spiral"] = Field(default="serpentine", description="the initial path (Fig. 4a / 4b)")
+    start: tuple[float, float] = Field(default=(-800.0, -800.0), description="the path's start [m] (sec. 4)")
+    end: tuple[float, float] = Field(default=(800.0, 800.0), description="the scene's far corner [m] (sec. 4); the serpentine ends there")
+    lanes: int = Field(
+        default=7, ge=2, le=100, description="straight lanes of the serpentine (odd: it ends at end); the spiral's rings lie the scene / lanes apart"
+    )
+    detection_radius: float = Field(default=150.0, gt=0.0, description="[m] (Table 1: 50, 100, 150; 150 with ten features in Figs. 6a, 7a)")
+    safety_distance: float = Field(default=50.0, gt=0.0, description="sigma_min [m]: the event trigger and the avoidance radius (eqs. 28-30)")
+    spline_spacing: float = Field(default=25.0, gt=0.0, description="[m] between the B-spline's control points")
+    steps: int = Field(default=100, ge=2, le=100_000, description="time steps (sec. 4: 100)")
+    dt: float = Field(default=1.0, gt=0.0, description="T [s] (sec. 4)")
+    speed: float | None = Field(default=None, gt=0.0, description="[m/s] on straight parts (Table 1: 2); null: the whole path in the steps")
+    arc_speed_ratio: float = Field(default=0.5, gt=0.0, le=1.0, description="speed on arcs / speed on straight parts (Table 1: 1 / 2)")
+    features: int = Field(default=10, ge=1, le=10_000, description="feature points (sec. 4)")
+    on_path: int = Field(default=3, ge=0, description="of them placed on the initial path (obstacles)")
+    moving: bool = Field(default=False, description="the feature points move (constant velocity with process noise)")
+    feature_speed: float = Field(default=1.0, ge=0.0, description="[m/s] each moving feature's initial speed, random direction")
+    process_noise: float = Field(default=0.5, ge=0.0, description="[m/s^2] sigma of Q = sigma^2 B B^T (sec. 4: 0.5)")
+    pd: float = Field(default=0.98, gt=0.0, le=1.0, description="P_D inside the detection radius (sec. 4)")
+    clutter: float = Field(default=20.0, ge=0.0, le=10_000.0, description="false alarms per scan (sec. 4: 20)")
+    clutter_area: Literal["square", "disc"] = Field(default="square", description="clutter uniform over S (the reports inside the disc), or over the disc")
+    clutter_half_width: float = Field(default=1000.0, gt=0.0, description="[m] S = [-w, w]^2 (sec. 4: 1000)")
+    sigma_range: float = Field(default=10.0, gt=0.0, description="[m]")
+    sigma_bearing: float = Field(default=float(np.radians(2.0)), gt=0.0, description="[rad]")
+    odometry_sigma: float = Field(default=1.0, ge=0.0, description="[m] noise of each step's odometry along each axis")
+    odometry_heading_sigma: float = Field(default=float(np.radians(0.5)), ge=0.0, description="[rad] noise of each step's heading change")
+
+    @model_validator(mode="after")
+    def _check(self) -> TwoStageConfig:
+        check_order(self, "on_path", "features")
+        lo, hi = np.asarray(self.start), np.asarray(self.end)
+        if not np.all(hi - lo > 0):
+            raise ValueError(f"end {self.end} must lie above and to the right of start {self.start}")
+        spacing = (hi[1] - lo[1]) / (self.lanes - 1)
+        if self.path == "serpentine" and self.safety_distance >= spacing / 2:
+            raise ValueError(f"safety_distance ({self.safety_distance}) must be below half the lane spacing ({spacing / 2:g} m)")
+        return self

@@ -5,8 +5,8 @@ A profile records the config it was made with and the choices the data made
 period and identity audit; the SLAM run of a self-calibration). These models
 say exactly which keys may appear -- one model per way detcal makes profiles
 of a detector kind: laser calibration; detection-level calibration,
-self-calibration and a simulator's truth profile (the rfs-sim and glmb-paper
-scenarios) -- so a misspelt or foreign key in a profile is refused with its
+self-calibration and a simulator's truth profile (the rfs-sim, glmb-paper and
+two-stage scenarios) -- so a misspelt or foreign key in a profile is refused with its
 field path like everywhere else. They are known to :mod:`profiles.store`
 whatever else a program imports; parameters recorded by another detcal
 version are kept as recorded. A new way of making profiles registers its model
@@ -19,7 +19,7 @@ from typing import Literal
 
 from pydantic import BaseModel, Field, model_validator
 
-from profiles.parameters import CalibrateConfig, DetectionCalibConfig, GlmbPaperConfig, RfsSimConfig, SelfCalConfig
+from profiles.parameters import CalibrateConfig, DetectionCalibConfig, GlmbPaperConfig, RfsSimConfig, SelfCalConfig, TwoStageConfig
 from profiles.registry import Registry
 from profiles.version import __version__
 
@@ -74,4 +74,4 @@ def parameter_models(kind: str, detcal_version: str) -> list[type[BaseModel]]:
 
 register_parameters("circle2d", LaserCalibrationParameters)
 # the truth profile of a simulated scenario records the scenario's config
-register_parameters("external", DetectionCalibrationParameters, SelfCalibrationParameters, RfsSimConfig, GlmbPaperConfig)
+register_parameters("external", DetectionCalibrationParameters, SelfCalibrationParameters, RfsSimConfig, GlmbPaperConfig, TwoStageConfig)

@@ -39,7 +39,7 @@ class Registry(Generic[T]):
         self._builtins = builtins
         self._loaded = not builtins
         self._items: dict[str, T] = {}
-        self._origin: dict[str, str | None] = {}  # name -> the module that added it
+        self._origin: dict[str, str | None] = {}  # the module that added each (an instance's __module__ is its class's)
         self._listeners: list[Callable[[], None]] = []
 
     def _load(self) -> None:
@@ -52,15 +52,12 @@ class Registry(Generic[T]):
             order = sorted(self._items, key=lambda n: rank.get(self._origin.get(n), len(rank)))
             self._items = {n: self._items[n] for n in order}
 
-    def add(self, name: str, obj: T, *, replace: bool = False) -> T:
+    def add(self, name: str, obj: T, *, replace: bool = False, _depth: int = 1) -> T:
         """Add ``obj`` under ``name``; a name already taken is refused unless ``replace``."""
         if name in self._items and not replace and self._items[name] is not obj:
             raise ValueError(f"{self.what} {name!r} is registered already")
         self._items[name] = obj
-        frame = sys._getframe(1)  # the module that adds it (past the decorator form), whatever imported it first
-        while frame is not None and frame.f_globals.get("__name__") == __name__:
-            frame = frame.f_back
-        self._origin[name] = frame.f_globals.get("__name__") if frame is not None else None
+        self._origin[name] = sys._getframe(_depth).f_globals.get("__name__")
         for listener in self._listeners:
             listener()
         return obj
@@ -69,7 +66,7 @@ class Registry(Generic[T]):
         """Decorator form of :meth:`add`; without ``name`` the object's own ``name`` attribute names it."""
 
         def deco(obj: T) -> T:
-            self.add(name if name is not None else obj.name, obj)  # type: ignore[attr-defined]
+            self.add(name if name is not None else obj.name, obj, _depth=2)  # type: ignore[attr-defined]
             return obj
 
         return deco

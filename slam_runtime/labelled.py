@@ -1,6 +1,14 @@
 """What the labelled map filters (LMB, delta-GLMB) share: labels, tracks and births held for all particles,
 the costs of the joint prediction/update, the compiled sampler's call, the EKF updates of the pairs it drew,
-adaptive birth, survival of duplicates, the map estimate's placement.
+adaptive birth, survival of duplicates, the map estimate's placement, and the motion of the features.
+
+Features are static by default (a track moves only by ``landmark_noise``). With ``feature_motion:
+constant_velocity`` (point features) each track is a moving point (x, y, vx, vy) predicted through the
+constant-velocity transition of Li & Yang (Sensors 2022, sec. 4; :mod:`slam_runtime.cv_transition`):
+mu' = F mu, P' = F P F^T + sigma^2 B B^T at every step, for the tracks and the births alike; it is measured
+through its position (:class:`slam_runtime.cv_transition.MovingPoint`, whose P_D and buffer zone the detection
+model reads from the position part, :class:`slam_runtime.cv_transition.PositionView`), and a birth's velocity
+starts at 0 with standard deviation ``birth_speed`` per axis.
 
 A label is the (step, measurement) a track's birth came from (:func:`label_parts`), so particles that gave birth
 to a landmark from the same measurement share its label. Tracks (P, T) and births (P, B) are padded over the P
@@ -18,7 +26,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from profiles.errors import UsageError
-from slam_runtime.features import FeatureModel, lookup, mean_by_label
+from slam_runtime.cv_transition import ConstantVelocity, MovingPoint, PositionView
+from slam_runtime.features import FeatureModel, RangeBearing, lookup, mean_by_label
 from slam_runtime.gibbs import detection_costs, joint_update
 from slam_runtime.gm import det, inv, matmul, matvec, moment_match, quad, transpose
 from slam_runtime.mapfilter import MapFilter, Measurements
@@ -62,6 +71,13 @@ class LabelledSettings(BaseModel):
     )
     draws: Literal["filter", "particle"] = Field(default="filter", description="Gibbs sampler random numbers: one seed per step and filter (filter) or per particle (particle)")
     sum_idle_births: bool = Field(default=True, description="sum births that gate no measurement out of the Gibbs sampler (exact for the weights)")
+    feature_motion: Literal["static", "constant_velocity"] = Field(
+        default="static", description="static features, or point features in constant-velocity motion (x, y, vx, vy; Li & Yang sec. 4)"
+    )
+    feature_acceleration: float = Field(
+        default=0.5, ge=0.0, description="constant_velocity: sigma of the acceleration noise, Q = sigma^2 B B^T [m/s^2] (Li & Yang: 0.5)"
+    )
+    birth_speed: float = Field(default=1.0, gt=0.0, description="constant_velocity: standard deviation of a new feature's velocity per axis [m/s]")
 
 
 @dataclass
@@ -194,6 +210,14 @@ class LabelledFilter(MapFilter):
     occlusion_default = float("inf")
 
     def __init__(self, feature: FeatureModel, detection, cfg: LabelledSettings, rng: np.random.Generator | None = None) -> None:
+        #: the features' transition (None: static)
+        self.transition: ConstantVelocity | None = None
+        if cfg.feature_motion == "constant_velocity":
+            if type(feature) is not RangeBearing:
+                raise UsageError(f"filter.feature_motion: constant_velocity moves point features (features: points), not {type(feature).__name__}")
+            feature = MovingPoint(feature.r, feature.mount, cfg.birth_speed)
+            detection = PositionView(detection)
+            self.transition = ConstantVelocity(cfg.feature_acceleration)
         super().__init__(feature, detection)
         self.cfg = cfg
         self.r = feature.r * cfg.noise_inflation
@@ -407,6 +431,8 @@ class LabelledFilter(MapFilter):
             return Births.empty(p, d)
         pos, g = self.feature.inverse_sensor(sp[:, None, :], z[None, :, :])  # (P, M, dx), (P, M, dx, dz)
         cov = matmul(matmul(g, np.broadcast_to(rz, (p,) + rz.shape)), transpose(g)) + np.eye(d) * 1e-6
+        if self.transition is not None:  # the velocity's prior, which G R G^T of the position cannot give
+            cov = cov + self.feature.birth_cov
         r = np.where(explained, self.cfg.birth_associated, self.cfg.birth_unassociated)
         label = (np.int64(self.step) << LABEL_BITS) + np.arange(m, dtype=np.int64)
         return Births(pos, cov, r, label)
@@ -432,6 +458,16 @@ class LabelledFilter(MapFilter):
         return out
 
     def predict(self, maps, dt: float):
+        if self.transition is not None and dt > 0:
+            # every Gaussian the maps hold moves: the tracks, GLMB's free tracks, and the births of the next step
+            # (born from this step's measurements, at this step's time)
+            moved = {}
+            for name in ("tracks", "free", "births"):
+                part = getattr(maps, name, None)
+                if part is not None and part.mu.shape[1]:
+                    mu, cov = self.transition.predict(part.mu, part.cov, dt)
+                    moved[name] = replace(part, mu=mu, cov=cov)
+            maps = replace(maps, **moved)
         q = self.cfg.landmark_noise * max(dt, 0.0)
         if q > 0 and maps.tracks.label.shape[1]:
             t = maps.tracks

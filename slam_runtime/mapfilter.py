@@ -156,4 +156,4 @@ class MapFilter(ABC):
 
 
 #: The map filters by their settings' ``filter.kind``, in the order the settings' union lists them.
-MAP_FILTERS: Registry[type[MapFilter]] = Registry("map filter", builtins=("slam_runtime.rbphd", "slam_runtime.lmb", "slam_runtime.glmb"))
+MAP_FILTERS: Registry[type[MapFilter]] = Registry("map filter", builtins=("slam_runtime.rbphd", "slam_runtime.lmb", "slam_runtime.glmb", "slam_runtime.fastslam"))

@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.sim import SIMULATORS, Option, Simulated, Simulator, with_truth
+from calib.sim import SIMULATORS, Option, Simulated, Simulator, truth_provenance, with_truth
 from detectors.sensor_log import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, Vehicle, wrap_angle
 from profiles.errors import UsageError
 from profiles.parameters import GlmbPaperConfig
@@ -149,8 +149,7 @@ def oracle_noise(cfg: GlmbPaperConfig) -> dict:
 
 def truth_profile(cfg: GlmbPaperConfig, *, name: str | None = None, version: str = "1.0.0"):
     """The profile of the simulated detector's true statistics (P_D, clutter, noise)."""
-    from calib import __version__
-    from profiles.profile import DetectorProfile, DetectorSpec, Provenance
+    from profiles.profile import DetectorProfile, DetectorSpec
     from profiles.schema import ClutterParams, MeasurementNoise, PdTable
 
     # P_D 0.7 out to the detection range (by the landmark's true range), 0 beyond, over a field of view that
@@ -170,12 +169,7 @@ def truth_profile(cfg: GlmbPaperConfig, *, name: str | None = None, version: str
         pd=PdTable(covariate="range", edges=edges, pd=pds, clamping="none (simulator truth)"),
         clutter=ClutterParams(rate=rate, volume=vol),
         noise=MeasurementNoise(range_sigma=cfg.sigma_range, bearing_sigma=cfg.sigma_bearing),
-        provenance=Provenance(
-            detcal_version=__version__,
-            command="detcal simulate glmb-paper",
-            parameters=cfg.model_dump(mode="json"),
-            created="1970-01-01T00:00:00Z",  # a statement of the settings, not of a time: same config, same bytes
-        ),
+        provenance=truth_provenance(cfg, "detcal simulate glmb-paper"),
     )
 
 

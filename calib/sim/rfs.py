@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.sim import SIMULATORS, Option, Simulated, Simulator, with_truth
+from calib.sim import SIMULATORS, Option, Simulated, Simulator, truth_provenance, with_truth
 from detectors.geometry import compose
 from detectors.sensor_log import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, wrap_angle
 from profiles.parameters import RfsSimConfig
@@ -111,8 +111,7 @@ def oracle_noise(cfg: RfsSimConfig) -> dict:
 
 def truth_profile(cfg: RfsSimConfig, *, name: str = "rfs-sim", version: str = "1.0.0"):
     """The profile of the simulated detector's true statistics (P_D, clutter, noise)."""
-    from calib import __version__
-    from profiles.profile import DetectorProfile, DetectorSpec, Provenance
+    from profiles.profile import DetectorProfile, DetectorSpec
     from profiles.schema import ClutterParams, MeasurementNoise, PdTable
 
     vol = (cfg.range_max - cfg.range_min) * 2 * np.pi
@@ -125,12 +124,7 @@ def truth_profile(cfg: RfsSimConfig, *, name: str = "rfs-sim", version: str = "1
         pd=PdTable(covariate="range", edges=[cfg.range_min, cfg.range_max], pd=[cfg.pd], clamping="none (simulator truth)"),
         clutter=ClutterParams(rate=cfg.clutter_intensity * vol, volume=vol),
         noise=MeasurementNoise(range_sigma=float(np.sqrt(cfg.var_range)), bearing_sigma=float(np.sqrt(cfg.var_bearing))),
-        provenance=Provenance(
-            detcal_version=__version__,
-            command="detcal simulate rfs-sim",
-            parameters=cfg.model_dump(mode="json"),
-            created="1970-01-01T00:00:00Z",  # a statement of the settings, not of a time: same config, same bytes
-        ),
+        provenance=truth_provenance(cfg, "detcal simulate rfs-sim"),
     )
 
 

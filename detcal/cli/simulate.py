@@ -21,7 +21,7 @@ def check_seed(seed: int) -> None:
 
 
 def simulate_command(name: str, sim: Simulator):
-    """The command of simulator ``name``: --out, --seed, its own option, --config, --force; writes the run folder
+    """The command of simulator ``name``: --out, --seed, its own options, --config, --force; writes the run folder
     (:func:`detcal.reports.simulation.write_simulation_run`) and prints its summary."""
 
     def command(out_dir: Path, seed: int, config: Path | None, force: bool, **option) -> None:
@@ -38,9 +38,9 @@ def simulate_command(name: str, sim: Simulator):
         inspect.Parameter("out_dir", inspect.Parameter.KEYWORD_ONLY, annotation=Annotated[Path, typer.Option("--out", help="Run folder to create.")]),
         inspect.Parameter("seed", inspect.Parameter.KEYWORD_ONLY, default=0, annotation=Annotated[int, typer.Option(help="Random seed; same seed and config, same bytes.")]),
     ]
-    if sim.option is not None:
-        o = sim.option
-        params.append(inspect.Parameter(o.name, inspect.Parameter.KEYWORD_ONLY, default=None, annotation=Annotated[o.type | None, typer.Option(help=o.help)]))
+    for o in sim.options:
+        decl = (o.flag,) if o.flag else ()
+        params.append(inspect.Parameter(o.name, inspect.Parameter.KEYWORD_ONLY, default=None, annotation=Annotated[o.type | None, typer.Option(*decl, help=o.help)]))
     params += [
         inspect.Parameter(
             "config", inspect.Parameter.KEYWORD_ONLY, default=None,

@@ -23,7 +23,7 @@ from calib.config import load_yaml_model
 from detcal.reports.slam_run import write_slam_run
 from detectors.sensor_log import SensorLog
 from profiles.errors import UsageError
-from slam_runtime.config import SlamConfig, with_filter
+from slam_runtime.config import SlamConfig, with_filter, with_settings
 from slam_runtime.labels import labelled_hooks
 from slam_runtime.mapfilter import MAP_FILTERS
 from slam_runtime.run import MapOSPA, SlamResult, evaluate, run_slam
@@ -128,8 +128,11 @@ class SettingsRequest:
                 base = motion = profile_file.parent / "motion.yaml"
         given = {OPTIONS[f]: v for f, v in self.options().items() if v is not None and f != "--filter"}
         flags = {OPTIONS[f]: f for f in OPTIONS} | {k: f"--set {k}" for k in self.sets}
-        cfg = load_yaml_model(SlamConfig, base, {**given, **self.sets}, flags)
-        return with_filter(cfg, self.filter), motion
+        # --filter's own settings (--set filter.x=...) apply to the filter it names, after the change of kind
+        own = {k: v for k, v in self.sets.items() if k.startswith("filter.")} if self.filter is not None else {}
+        cfg = load_yaml_model(SlamConfig, base, {**given, **{k: v for k, v in self.sets.items() if k not in own}}, flags)
+        cfg = with_filter(cfg, self.filter)
+        return (with_settings(cfg, own) if own else cfg), motion
 
 
 def evaluation_hooks(log: SensorLog, cfg: SlamConfig) -> tuple:

@@ -23,6 +23,7 @@ from calib.progress import progress
 from calib.sim import SIMULATORS
 from calib.sim.park import Simulation, World, sensor_poses
 from calib.sim.street import StreetSimulation
+from calib.sim.two_stage import TwoStageRun
 from detectors.geometry import compose
 from detectors.sensor_log import SensorLog
 from profiles import strict_yaml
@@ -158,6 +159,20 @@ def plot_rfs_overview(log: SensorLog, path) -> None:
     plt.close(fig)
 
 
+def _finish(fig, ax, path, title: str, legend: str) -> None:
+    """A detection-level scenario's overview: equal axes in metres, its title and legend, saved without a date."""
+    import matplotlib.pyplot as plt
+
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    wrapped_title(ax, title, fontsize=9)
+    ax.legend(fontsize=7, loc=legend)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, metadata={"Software": None})
+    plt.close(fig)
+
+
 def plot_glmb_paper_overview(log: SensorLog, path) -> None:
     import matplotlib
 
@@ -177,15 +192,33 @@ def plot_glmb_paper_overview(log: SensorLog, path) -> None:
     ax.plot(xy[~clutter, 0], xy[~clutter, 1], ".", color="tab:purple", ms=1.5, alpha=0.5, label="landmark detections")
     ax.plot(poses[:, 0], poses[:, 1], "b--", lw=1, label="true path")
     ax.plot(log.landmarks.xy[:, 0], log.landmarks.xy[:, 1], "k+", ms=10, mew=2, label="landmarks")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    wrapped_title(ax, f"{log.name}: {len(d)} detections over {d.n_frames} scans", fontsize=9)
-    ax.legend(fontsize=7, loc="upper right")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110, metadata={"Software": None})
-    plt.close(fig)
+    _finish(fig, ax, path, f"{log.name}: {len(d)} detections over {d.n_frames} scans", "upper right")
+
+
+def plot_two_stage_overview(run: TwoStageRun, path) -> None:
+    """The initial path, the control polygon, the smoothed path, the sensor at each step and the features' tracks."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    poses = run.log.reference["ground_truth"].poses
+    fig, ax = plt.subplots(figsize=(7.5, 7))
+    ax.plot(run.initial[:, 0], run.initial[:, 1], ":", color="0.6", lw=1, label="initial path (stage 1)")
+    ax.plot(run.control[:, 0], run.control[:, 1], ".", color="tab:orange", ms=2, label="control polygon")
+    ax.plot(run.path[:, 0], run.path[:, 1], "b-", lw=1, label="smoothed path (stage 2)")
+    ax.plot(poses[:, 0], poses[:, 1], "b.", ms=4, label="sensor at each step")
+    tr = run.features
+    for j in range(tr.shape[1]):
+        ax.plot(tr[:, j, 0], tr[:, j, 1], "r-", lw=1)
+    ax.plot(tr[0, :, 0], tr[0, :, 1], "r+", ms=10, mew=2, label="feature points")
+    ob = tr[0, run.obstacles, :2]
+    ax.plot(ob[:, 0], ob[:, 1], "ko", mfc="none", ms=10, label="obstacles avoided")
+    _finish(fig, ax, path, f"{run.log.name}: {len(run.log.detections)} detections over {run.log.detections.n_frames} steps", "upper left")
 
 
 #: The overview figure of each simulator's run folder (a simulator without one writes none).
-FIGURES = {"park": plot_park_overview, "rfs-sim": plot_rfs_overview, "street": plot_street_overview, "glmb-paper": plot_glmb_paper_overview}
+FIGURES = {
+    "park": plot_park_overview, "rfs-sim": plot_rfs_overview, "street": plot_street_overview, "glmb-paper": plot_glmb_paper_overview,
+    "two-stage": plot_two_stage_overview,
+}

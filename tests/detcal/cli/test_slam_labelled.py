@@ -72,7 +72,7 @@ def test_sweep_over_filters(tmp_path, capsys, paper):
     assert yaml.safe_load((out / "config.yaml").read_text())["settings"]["particles"] == 20
     code, _, err = run(capsys, "slam", "sweep", str(paper / "log.dlog"), "--profile", str(paper / "profile.yaml"), "--filter", "ekf", "--out", str(tmp_path / "x"))
     assert code == 2
-    assert_one_line_error(err, "--filter: expected one of rbphd, lmb, glmb, got 'ekf'")
+    assert_one_line_error(err, "--filter: expected one of rbphd, lmb, glmb, mhfastslam, got 'ekf'")
     assert not (tmp_path / "x").exists()
 
 
