@@ -15,10 +15,10 @@ app = typer.Typer(help="Run SLAM filters with a detector profile.", no_args_is_h
 
 FILTER, MEASUREMENT, MOTION, OUTPUT, ADVANCED = "Filter", "Measurement", "Motion", "Output", "Advanced"
 
-ProfileOpt = Annotated[str, typer.Option("--profile", help="Detector profile: name, name@version or a file.", rich_help_panel=FILTER)]
-FilterOpt = Annotated[str | None, typer.Option("--filter", help=f"Map filter: {MAP_FILTERS.choices()}.", rich_help_panel=FILTER)]
+ProfileOpt = Annotated[str, typer.Option("--profile", help="name[@version] or a file.", rich_help_panel=FILTER)]
+FilterOpt = Annotated[str | None, typer.Option("--filter", help="Map filter.", rich_help_panel=FILTER)]
 ParticlesOpt = Annotated[int | None, typer.Option(help="Particles.", rich_help_panel=FILTER)]
-SeedOpt = Annotated[int, typer.Option(help="Random seed: same seed, same run.", rich_help_panel=FILTER)]
+SeedOpt = Annotated[int, typer.Option(help="Seed: same seed, same run.", rich_help_panel=FILTER)]
 FeaturesOpt = Annotated[str | None, typer.Option(help="Landmarks: points (2D) or planes (3D clouds).", rich_help_panel=MEASUREMENT)]
 PdModeOpt = Annotated[str | None, typer.Option(help="P_D from the profile, or constant (for comparison).", rich_help_panel=MEASUREMENT)]
 PosesOpt = Annotated[str | None, typer.Option("--poses", help="estimated (full SLAM) or ground_truth (mapping only).", rich_help_panel=MOTION)]
