@@ -30,7 +30,7 @@ from profiles.errors import DataError
 from profiles.units import SIGNIFICANT, rounded, unit
 
 #: the P_D table's per-bin columns, in the order a bin row lists them
-BIN_COLUMNS = ("pd", "counts", "detections", "wilson_low", "wilson_high", "between_sensor_sd")
+BIN_COLUMNS = ("pd", "counts", "detections", "wilson_low", "wilson_high", "between_sensor_sd", "effective_counts")
 #: models whose floats are written exactly: given by a person or a log header, not fitted
 EXACT_MODELS = ("SensorModel", "Mount", "LidarGeometry", "BeamGeometry", "DetectorSpec", "CircleDetectorParams", "PlaneDetectorParams", "Provenance")
 
