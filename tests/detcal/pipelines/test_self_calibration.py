@@ -47,7 +47,7 @@ def test_the_loop_recovers_pd_and_clutter_from_a_wrong_start(log):
     from slam_runtime.config import SlamConfig, override
     from detcal.pipelines.self_calibration import self_calibration
 
-    cfg = override(load_yaml_model(SlamConfig, Path(__file__).resolve().parents[2] / "benchmarks/configs/rfs_sim.yaml"), particles=20)
+    cfg = override(load_yaml_model(SlamConfig, Path(__file__).resolve().parents[3] / "benchmarks/configs/rfs_sim.yaml"), particles=20)
 
     def measure(lg, traj, xy, w, prior, k):
         c = self_calibrate(lg, traj, xy, w, prior, SelfCalConfig(gate=0.3), name="x", version="1.0.0", iteration=k)
