@@ -40,16 +40,17 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from calib import __version__
 from calib.calibrate import created_now
-from calib.clutter import ClutterModelConfig, density_summary, fit_density, time_folds
+from calib.clutter import ClutterModelConfig, density_summary, fit_density, rate_standard_error, time_folds
 from calib.fits import ClutterFit, clutter_params, fit_clutter
 from calib.io.common import index_of
 from calib.pdmodels import PdModelConfig, between_sensor_sd, choose_pd_model, pool_sensors, predict, shrink_rates
+from calib.drift import DriftConfig, DriftReport, landmark_clusters, with_effective_counts
 from calib.validate import BLOCK_S, Held, Validation, score
 from detectors.geometry import compose, interpolate_poses
 from detectors.logs import SensorLog
 from profiles.errors import DataError, UsageError
 from profiles.profile import DetectorProfile, DetectorSpec, InputRef, Provenance, SensorSpread
-from profiles.schema import MeasurementNoise, SensorModel
+from profiles.schema import MeasurementNoise, PdTable, SensorModel
 
 
 class IdentityAudit(BaseModel):
@@ -317,6 +318,7 @@ def calibrate_detections(
         re_ = np.linspace(0.0, rmax, cfg.clutter.range_bins + 1)
         be = np.linspace(-fov / 2, fov / 2, cfg.clutter.bearing_bins + 1)
         density = fit_density(fas["range"].to_numpy(), fas["bearing"].to_numpy(), fa_fold, re_, be, cfg.clutter, label)
+    table = with_effective_counts(table, pairs, pairs["detected"].to_numpy(bool), landmark_clusters(pairs))
     sensor = SensorModel(kind="camera", fov=fov, range_max=rmax, mount=logs[0].sensor.mount if logs[0].sensor else SensorModel().mount)
     clutter = clutter_params(clut, "range_bearing", fov * rmax, density)
     spread = pooling = None
@@ -326,7 +328,7 @@ def calibrate_detections(
         cluster = pairs.groupby(["log", "landmark", "block"], sort=False).ngroup().to_numpy()
         pooling = pool_sensors(table, pairs, pairs["log"].to_numpy(), names, cluster)
         _, tau, weights, member_rates = shrink_rates([p.counts for p in parts])
-        table = table.model_copy(update={"between_sensor_sd": between_sensor_sd(table, pooling)})
+        table = PdTable.model_validate({**table.model_dump(), "between_sensor_sd": between_sensor_sd(table, pooling)})
         spread = dict(
             names=names,
             pairs=pooling.pairs,
@@ -355,9 +357,15 @@ def calibrate_detections(
     if per_sensor and pooling is not None:
         for k, lg in enumerate(logs):
             own = fit_clutter(parts[k].counts, cfg.clutter.dispersion_level)
-            mc = clutter.model_copy(
-                update={
+            # the member's rate is w own + (1 - w) pooled: its standard error from both (taken as independent)
+            se_own, se_pool = rate_standard_error(parts[k].counts), clutter.rate_se
+            mine = pairs["log"].to_numpy() == k
+            mc = type(clutter).model_validate(
+                {
+                    **clutter.model_dump(),
                     "rate": member_rates[k],
+                    "frames": int(parts[k].counts.size),
+                    "rate_se": None if se_own is None or se_pool is None else float(np.hypot(weights[k] * se_own, (1 - weights[k]) * se_pool)),
                     "kappa": None,
                     "chi2": own.chi2 if np.isfinite(own.chi2) else None,
                     "dof": own.dof if np.isfinite(own.chi2) else None,
@@ -370,7 +378,8 @@ def calibrate_detections(
             sp = SensorSpread(**{**spread, "member": names[k], "clutter_weight": weights[k]})
             members.append(
                 DetectorProfile(
-                    name=f"{name}-{names[k]}", pd=pooling.tables[k], clutter=type(clutter).model_validate(mc.model_dump()), sensors=sp,
+                    name=f"{name}-{names[k]}", clutter=mc, sensors=sp,
+                    pd=with_effective_counts(pooling.tables[k], pairs[mine], pairs["detected"].to_numpy(bool)[mine], landmark_clusters(pairs[mine])),
                     **{**base, "noise": fit_noise(parts[k].detections)},
                 )
             )
@@ -439,13 +448,34 @@ def held_out_detections(profile: DetectorProfile, log: SensorLog, *, remap: dict
     pairs["predicted"] = predict(profile.pd, pairs)
     pairs["observed"] = pairs["detected"]
     fa = lab.false_alarms
+    t = lab.detections[lab.detections["true"]]
+    truth = pd.DataFrame(
+        {
+            "cluster": log.name + "/" + t["landmark_index"].astype(str).to_numpy(),
+            "range_residual": t["range_residual"].to_numpy(np.float64),
+            "bearing_residual": t["bearing_residual"].to_numpy(np.float64),
+        }
+    )
     return Held(
         log.name, pairs, lab.counts, fa["range"].to_numpy(np.float64), fa["bearing"].to_numpy(np.float64), period,
-        extra={"true_detections_outside_fov": lab.outside},
+        extra={"true_detections_outside_fov": lab.outside}, truth=truth,
     )
 
 
-def validate_detections(profile: DetectorProfile, logs: list[SensorLog], *, audit: IdentityAudit | None = None) -> Validation:
+def _own_period(profile: DetectorProfile, log: SensorLog) -> float:
+    """A held-out log's own frame period, or the profile's when the log has too few frames to tell."""
+    try:
+        return frame_period([log])
+    except DataError:
+        period = float(profile.provenance.parameters.get("frame_period") or np.nan)
+        if not np.isfinite(period):
+            raise
+        return period
+
+
+def validate_detections(
+    profile: DetectorProfile, logs: list[SensorLog], *, audit: IdentityAudit | None = None, drift: DriftConfig | None = None
+) -> Validation:
     """Score a detection-level profile on held-out logs, each at its own frame period.
 
     The identity audit runs on the held-out logs themselves (it corrects the
@@ -458,16 +488,30 @@ def validate_detections(profile: DetectorProfile, logs: list[SensorLog], *, audi
     for lg in logs:
         _need(lg)
     remap, evidence = audit_identities(logs, profile.detector.association_gate, audit or IdentityAudit())
-    held = []
-    for lg in logs:
-        try:
-            period = frame_period([lg])
-        except DataError:  # too few frames to tell: the training period is the best guess
-            period = float(profile.provenance.parameters.get("frame_period") or np.nan)
-            if not np.isfinite(period):
-                raise
-        held.append(held_out_detections(profile, lg, remap=remap, period=period))
-    return score(profile, held, {"identity_remap": evidence or "none"})
+    held = [held_out_detections(profile, lg, remap=remap, period=_own_period(profile, lg)) for lg in logs]
+    return score(profile, held, {"identity_remap": evidence or "none"}, drift=drift)
+
+
+def exchangeability(logs: list[SensorLog], cfg: DetectionCalibConfig, drift: DriftConfig | None = None) -> DriftReport:
+    """Is each sensor exchangeable with the others? Each one's log against the pooled profile of all the others
+    (leave one out: the profile knows nothing of the sensor it is tested on), every part of every sensor one
+    test of one Holm family (:mod:`calib.drift`). A row's verdict ``drifted`` names a sensor the pooled model
+    does not describe: it needs its own profile. Rows are named by :func:`sensor_names`.
+    """
+    from calib.drift import decide
+    from calib.validate import drift_row
+
+    if len(logs) < 2:
+        raise UsageError("exchangeability needs logs of at least two sensors")
+    drift = drift or DriftConfig()
+    names = sensor_names(logs)
+    remap, _ = audit_identities(logs, cfg.gate, cfg.audit)
+    rows = []
+    for k, lg in enumerate(logs):  # one calibration of the others per sensor: a handful
+        others = calibrate_detections([x for j, x in enumerate(logs) if j != k], cfg, name="loo", version="0.0.0")
+        held = held_out_detections(others.profile, lg, remap=remap, period=_own_period(others.profile, lg))
+        rows.append(drift_row(others.profile, [held], names[k], k + 1, drift))
+    return decide(rows, drift)
 
 
 def input_refs_for(log: SensorLog) -> list[InputRef]:

@@ -124,6 +124,12 @@ class LaserConfig(_Strict):
     p_miss: float = Field(default=0.01, ge=0.0, le=1.0, description="probability that a beam hitting something returns nothing")
     p_spurious: float = Field(default=0.002, ge=0.0, le=1.0, description="per-beam probability of a dust return")
     spurious_min: float = Field(default=0.5, gt=0.0, description="closest dust return [m]")
+    landmark_dropout: float = Field(
+        default=0.0, ge=0.0, le=1.0,
+        description="probability that a tree farther than dropout_beyond returns nothing in a scan: a weaker sensor whose P_D there is "
+        "(1 - landmark_dropout) times what it would be (validation's drift tests use it)",
+    )
+    dropout_beyond: float = Field(default=10.0, ge=0.0, description="range beyond which trees drop out [m], sensor to trunk centre")
     rate_hz: float = Field(default=5.0, gt=0.0)
     mount: Mount = Mount(x=0.5, y=0.0, theta=0.0)
 
@@ -169,6 +175,29 @@ class ParkConfig(_Strict):
                 f"{self.width} x {self.height} m park"
             )
         return self
+
+
+#: sensor changes a validation should catch (calib.drift; the docs' drift study): name -> what changes
+CHANGES = {
+    "pd_lower": "a tree beyond 10 m returns nothing in a scan with probability 0.1 (P_D x 0.9 there)",
+    "clutter_double": "twice the clutter sources (bushes, posts, walls)",
+    "noise_double": "twice the range noise",
+}
+
+
+def changed(cfg: ParkConfig, change: str) -> ParkConfig:
+    """``cfg`` with one of :data:`CHANGES` applied (validated anew); ``same`` leaves it as it is."""
+    d = cfg.model_dump()
+    if change == "pd_lower":
+        d["laser"].update(landmark_dropout=0.1, dropout_beyond=10.0)
+    elif change == "clutter_double":
+        for k in ("bushes", "posts", "walls"):
+            d[k]["count"] *= 2
+    elif change == "noise_double":
+        d["laser"]["range_sigma"] *= 2
+    elif change != "same":
+        raise ValueError(f"unknown change {change!r}; choose from same, {', '.join(CHANGES)}")
+    return ParkConfig.model_validate(d)
 
 
 @dataclass(frozen=True, eq=False)
@@ -446,8 +475,9 @@ def simulate_park(cfg: ParkConfig, seed: int, progress=None) -> Simulation:
         )
     ranges = np.empty((scan_idx.size, las.n_beams), dtype=np.float32)
     scans = range(scan_idx.size) if progress is None else progress(range(scan_idx.size), scan_idx.size, "simulating scans")
+    n_trees = world.tree_r.size
     for k in scans:  # one vectorised cast (beams x shapes) per scan
-        truth, _ = cast_world(world, spose[k], sensor)
+        truth, hit = cast_world(world, spose[k], sensor)
         noisy = truth + las.range_sigma * rng.standard_normal(las.n_beams)
         miss = rng.uniform(size=las.n_beams) < las.p_miss
         dust = rng.uniform(size=las.n_beams) < las.p_spurious
@@ -455,6 +485,10 @@ def simulate_park(cfg: ParkConfig, seed: int, progress=None) -> Simulation:
         r = np.where(np.isfinite(truth) & ~miss, noisy, np.nan)
         r = np.where(dust & (dust_r > las.spurious_min), dust_r, r)
         r = np.where(r > las.range_max, np.nan, r)
+        if las.landmark_dropout > 0 and n_trees:  # drawn only when asked for: the default run keeps its random stream
+            lost = (rng.uniform(size=n_trees) < las.landmark_dropout) & (np.hypot(*(world.tree_xy - spose[k, :2]).T) > las.dropout_beyond)
+            on_tree = (hit >= 0) & (hit < n_trees)
+            r = np.where(on_tree & lost[np.where(on_tree, hit, 0)], np.nan, r)
         ranges[k] = np.maximum(r, 0.0)
 
     stamp = seconds_to_stamp(t)
