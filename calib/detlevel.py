@@ -44,7 +44,7 @@ from calib.clutter import ClutterModelConfig, density_summary, fit_density, rate
 from calib.fits import ClutterFit, clutter_params, fit_clutter
 from calib.io.common import index_of
 from calib.pdmodels import PdModelConfig, between_sensor_sd, choose_pd_model, pool_sensors, predict, shrink_rates
-from calib.drift import DriftConfig, DriftReport, landmark_clusters, with_effective_counts
+from calib.drift import DriftConfig, RowDrift, landmark_clusters, with_effective_counts
 from calib.validate import BLOCK_S, Held, Validation, score
 from detectors.geometry import compose, interpolate_poses
 from detectors.logs import SensorLog
@@ -492,11 +492,34 @@ def validate_detections(
     return score(profile, held, {"identity_remap": evidence or "none"}, drift=drift)
 
 
-def exchangeability(logs: list[SensorLog], cfg: DetectionCalibConfig, drift: DriftConfig | None = None) -> DriftReport:
+@dataclass
+class Exchangeability:
+    """Which sensors the pooled model describes (:func:`exchangeability`).
+
+    rows: one per sensor, the drift tests that decided it (for a sensor set
+    apart, those of the step that set it apart); odd: the sensors set apart, in
+    the order they were; steps: rounds of leave-one-out tests.
+    """
+
+    rows: list
+    odd: list[str]
+    steps: int
+
+    def summary(self) -> dict:
+        return {
+            "not_exchangeable": self.odd or "none",
+            "rounds": self.steps,
+            "per_sensor": {r.name: r.headline for r in self.rows},
+        }
+
+
+def exchangeability(logs: list[SensorLog], cfg: DetectionCalibConfig, drift: DriftConfig | None = None) -> Exchangeability:
     """Is each sensor exchangeable with the others? Each one's log against the pooled profile of all the others
     (leave one out: the profile knows nothing of the sensor it is tested on), every part of every sensor one
-    test of one Holm family (:mod:`calib.drift`). A row's verdict ``drifted`` names a sensor the pooled model
-    does not describe: it needs its own profile. Rows are named by :func:`sensor_names`.
+    Holm family (:mod:`calib.drift`). One odd sensor pulls every pooled profile it joins, so the others can
+    look drifted too: the sensor with the strongest evidence (smallest adjusted p-value, then largest statistic) is set apart and the
+    rest tested again without it, until no sensor left is drifted (or one is left). When the fleet is
+    exchangeable, the first round names none with probability at least 1 - alpha.
     """
     from calib.drift import decide
     from calib.validate import drift_row
@@ -506,12 +529,33 @@ def exchangeability(logs: list[SensorLog], cfg: DetectionCalibConfig, drift: Dri
     drift = drift or DriftConfig()
     names = sensor_names(logs)
     remap, _ = audit_identities(logs, cfg.gate, cfg.audit)
-    rows = []
-    for k, lg in enumerate(logs):  # one calibration of the others per sensor: a handful
-        others = calibrate_detections([x for j, x in enumerate(logs) if j != k], cfg, name="loo", version="0.0.0")
-        held = held_out_detections(others.profile, lg, remap=remap, period=_own_period(others.profile, lg))
-        rows.append(drift_row(others.profile, [held], names[k], k + 1, drift))
-    return decide(rows, drift)
+    left = list(range(len(logs)))
+    decided: dict[int, RowDrift] = {}
+    odd: list[str] = []
+    steps = 0
+    while len(left) >= 2:
+        steps += 1
+        rows = []
+        for k in left:  # one calibration of the others per sensor left: a handful
+            others = calibrate_detections([logs[j] for j in left if j != k], cfg, name="loo", version="0.0.0")
+            held = held_out_detections(others.profile, logs[k], remap=remap, period=_own_period(others.profile, logs[k]))
+            rows.append(drift_row(others.profile, [held], names[k], k + 1, drift))
+        decide(rows, drift)
+        # strongest evidence first: the smallest adjusted p-value, ties (at the bootstrap's floor) broken by the
+        # largest standardised statistic
+        bad = [
+            (min(p.p_adjusted for p in r.parts.values()), -max(abs(p.statistic) for p in r.parts.values()), i)
+            for i, r in enumerate(rows) if r.verdict == "drifted"
+        ]
+        if not bad:
+            decided.update(dict(zip(left, rows, strict=True)))
+            break
+        i = min(bad)[2]
+        decided[left[i]] = rows[i]
+        odd.append(names[left[i]])
+        del left[i]
+    # a sensor left alone at the end has nothing to be compared with: it has no row
+    return Exchangeability([decided[k] for k in sorted(decided)], odd, steps)
 
 
 def input_refs_for(log: SensorLog) -> list[InputRef]:

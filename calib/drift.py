@@ -104,6 +104,9 @@ class DriftConfig(BaseModel):
     range_bins: int = Field(default=8, ge=1, le=50, description="P_D bins over range (equal counts of the log's pairs)")
     bearing_bins: int = Field(default=8, ge=1, le=50, description="P_D bins over bearing (equal widths)")
     batches: int = Field(default=20, ge=4, le=200, description="contiguous batches for the standard error of a mean per frame")
+    min_pairs: int = Field(
+        default=30, ge=1, description="fewest pairs a P_D bin needs to be tested (a few pairs of one landmark's pass are one observation)"
+    )
 
 
 # ------------------------------------------------------------------------------------------ results
@@ -457,7 +460,7 @@ def pd_drift(pairs: pd.DataFrame, table: PdTable, rng: np.random.Generator, cfg:
             u = np.where(share[:, clusters], u_cl[:, clusters], u)
         sims[s : s + m] = (u < q).astype(np.float32) @ member
     sd = sims.std(axis=0, ddof=1).astype(np.float64)
-    tested = bins["tested"].to_numpy() & (sd > 0)
+    tested = bins["tested"].to_numpy() & (sd > 0) & (n_b >= cfg.min_pairs)
     # max-T (Westfall & Young's single step): each cell's deviation in its own null standard deviations, the
     # largest over the cells against the largest of every replicate; unlike ranks it resolves p-values down to
     # 1 / (replicates + 1) whatever the number of cells
