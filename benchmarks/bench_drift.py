@@ -84,12 +84,12 @@ def one_seed(seed: int, scale: str, figures: str | None, cases: tuple[str, ...] 
     return rows, time.process_time() - t0
 
 
-def _row(label: str, r, n_tests: int) -> dict:
+def _row(label: str, r, family: str) -> dict:
     out = {"case": label, "verdict": r.verdict}
     for k in PARTS:
         p = r.parts.get(k)
         out[k] = f"{p.verdict}, p {p.p_value:.2g} (adj. {p.p_adjusted:.2g}): {p.text}" if p else "not tested"
-    out["tests"] = n_tests
+    out["holm_family"] = family
     return out
 
 
@@ -97,7 +97,7 @@ def utias(root: Path, csv: Path | None, figures: Path | None) -> None:
     """UTIAS dataset 1: each robot's own profile (first half of its run) on its second half; each robot against
     the pooled profile of the other four (leave one out, one Holm family); robots 1-3's pooled profile on 4 and 5."""
     from calib.crossval import halves
-    from calib.detlevel import DetectionCalibConfig, calibrate_detections, exchangeability, sensor_id, validate_detections
+    from calib.detlevel import DetectionCalibConfig, calibrate_detections, exchangeability, leave_one_out, sensor_id, validate_detections
     from calib.io.utias import read_utias
     from calib.validate import plot_reliability
 
@@ -110,18 +110,24 @@ def utias(root: Path, csv: Path | None, figures: Path | None) -> None:
         own = calibrate_detections([first], cfg, name="own", version="1.0.0").profile
         v = validate_detections(own, [second])
         r = v.drift.rows[0]
-        rows.append(_row(f"{sensor_id(lg)}: own profile (1st half) on its 2nd half", r, v.drift.tests))
+        rows.append(_row(f"{sensor_id(lg)}: own profile (1st half) on its 2nd half", r, f"its {v.drift.tests} tests"))
         print(f"{sensor_id(lg)} own 1st -> 2nd: {r.headline}", flush=True)
         if figures and sensor_id(lg) == "robot1":
             plot_reliability(v, figures / "drift-utias-robot1-halves.png", title="UTIAS robot 1: its own profile (first half) on its second half")
+    loo = leave_one_out(logs, cfg)
+    for r in loo.rows:
+        rows.append(_row(f"{r.name}: the other four robots' pooled profile", r, f"these {loo.tests} tests"))
+        print(f"{r.name} against the other four: {r.headline}", flush=True)
     ex = exchangeability(logs, cfg)
     for r in ex.rows:
-        rows.append(_row(f"{r.name}: the other four robots' pooled profile", r, ex.tests))
-        print(f"{r.name} against the others: {r.headline}", flush=True)
+        k = ex.round_of[r.name]
+        rows.append(_row(f"{r.name}: stepwise, the pooled profile of the robots left", r, f"round {k} of {ex.steps}"))
+        print(f"{r.name} against the others (round {k}): {r.headline}", flush=True)
+    print(f"not exchangeable, in the order set apart: {ex.summary()['not_exchangeable']} ({', '.join(ex.odd)})")
     cal = calibrate_detections(logs[:3], cfg, name="utias-r123", version="1.0.0")
     v = validate_detections(cal.profile, logs[3:])
     for r in v.drift.rows:
-        rows.append(_row(f"robots 1-3 pooled on {r.name}", r, v.drift.tests))
+        rows.append(_row(f"robots 1-3 pooled on {r.name}", r, f"these {v.drift.tests} tests"))
     print(f"robots 1-3 pooled on robots 4 and 5: overall {v.drift.verdict}; " + "; ".join(f"{r.name}: {r.headline}" for r in v.drift.rows))
     if figures:
         plot_reliability(v, figures / "drift-utias-r123-on-4-5.png", title="UTIAS: robots 1-3's pooled profile on robots 4 and 5 together")

@@ -492,24 +492,50 @@ def validate_detections(
     return score(profile, held, {"identity_remap": evidence or "none"}, drift=drift)
 
 
+def _loo_rows(logs, left: list[int], cfg: DetectionCalibConfig, drift: DriftConfig, names: list[str], remap) -> list[RowDrift]:
+    """The raw drift tests of each sensor in ``left`` against the pooled profile of the others in ``left``."""
+    from calib.validate import drift_row
+
+    rows = []
+    for k in left:  # one calibration of the others per sensor: a handful
+        others = calibrate_detections([logs[j] for j in left if j != k], cfg, name="loo", version="0.0.0")
+        held = held_out_detections(others.profile, logs[k], remap=remap, period=_own_period(others.profile, logs[k]))
+        rows.append(drift_row(others.profile, [held], names[k], k + 1, drift))
+    return rows
+
+
+def leave_one_out(logs: list[SensorLog], cfg: DetectionCalibConfig, drift: DriftConfig | None = None):
+    """Each sensor's log against the pooled profile of all the others, one Holm family (a :class:`DriftReport`)."""
+    from calib.drift import decide
+
+    if len(logs) < 2:
+        raise UsageError("leave one out needs logs of at least two sensors")
+    drift = drift or DriftConfig()
+    remap, _ = audit_identities(logs, cfg.gate, cfg.audit)
+    return decide(_loo_rows(logs, list(range(len(logs))), cfg, drift, sensor_names(logs), remap), drift)
+
+
 @dataclass
 class Exchangeability:
     """Which sensors the pooled model describes (:func:`exchangeability`).
 
     rows: one per sensor, the drift tests that decided it (for a sensor set
-    apart, those of the step that set it apart); odd: the sensors set apart, in
-    the order they were; steps: rounds of leave-one-out tests.
+    apart, those of the round that set it apart; a sensor left alone at the end
+    has none); odd: the sensors set apart, in the order they were, and when no
+    two sensors agree the last one too; steps: rounds of leave-one-out tests.
     """
 
     rows: list
     odd: list[str]
     steps: int
+    round_of: dict[str, int] = field(default_factory=dict)  # the round whose tests decided each row (its Holm family)
+    none_agree: bool = False  # set apart down to the last one
 
     def summary(self) -> dict:
         return {
-            "not_exchangeable": self.odd or "none",
+            "not_exchangeable": ("all: no two sensors agree" if self.none_agree else self.odd) if self.odd else "none",
             "rounds": self.steps,
-            "per_sensor": {r.name: r.headline for r in self.rows},
+            "per_sensor": {r.name: f"{r.headline} (round {self.round_of.get(r.name)})" for r in self.rows},
         }
 
 
@@ -522,7 +548,6 @@ def exchangeability(logs: list[SensorLog], cfg: DetectionCalibConfig, drift: Dri
     exchangeable, the first round names none with probability at least 1 - alpha.
     """
     from calib.drift import decide
-    from calib.validate import drift_row
 
     if len(logs) < 2:
         raise UsageError("exchangeability needs logs of at least two sensors")
@@ -532,14 +557,11 @@ def exchangeability(logs: list[SensorLog], cfg: DetectionCalibConfig, drift: Dri
     left = list(range(len(logs)))
     decided: dict[int, RowDrift] = {}
     odd: list[str] = []
+    round_of: dict[str, int] = {}
     steps = 0
     while len(left) >= 2:
         steps += 1
-        rows = []
-        for k in left:  # one calibration of the others per sensor left: a handful
-            others = calibrate_detections([logs[j] for j in left if j != k], cfg, name="loo", version="0.0.0")
-            held = held_out_detections(others.profile, logs[k], remap=remap, period=_own_period(others.profile, logs[k]))
-            rows.append(drift_row(others.profile, [held], names[k], k + 1, drift))
+        rows = _loo_rows(logs, left, cfg, drift, names, remap)
         decide(rows, drift)
         # strongest evidence first: the smallest adjusted p-value, ties (at the bootstrap's floor) broken by the
         # largest standardised statistic
@@ -549,13 +571,17 @@ def exchangeability(logs: list[SensorLog], cfg: DetectionCalibConfig, drift: Dri
         ]
         if not bad:
             decided.update(dict(zip(left, rows, strict=True)))
+            round_of.update({names[k]: steps for k in left})
             break
         i = min(bad)[2]
         decided[left[i]] = rows[i]
+        round_of[names[left[i]]] = steps
         odd.append(names[left[i]])
         del left[i]
-    # a sensor left alone at the end has nothing to be compared with: it has no row
-    return Exchangeability([decided[k] for k in sorted(decided)], odd, steps)
+    none_agree = len(left) == 1 and bool(odd)
+    if none_agree:  # no two sensors agree: the last one left is no reference, it needs its own profile too
+        odd.append(names[left[0]])
+    return Exchangeability([decided[k] for k in sorted(decided)], odd, steps, round_of, none_agree)
 
 
 def input_refs_for(log: SensorLog) -> list[InputRef]:

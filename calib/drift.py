@@ -405,6 +405,33 @@ def _bins(sub: pd.DataFrame, table: PdTable, cell: np.ndarray, cfg: DriftConfig)
     return np.column_stack(cols), pd.DataFrame(rows, columns=["family", "label", "low", "high", "tested"])
 
 
+def _root_deviance(o: np.ndarray, e: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """sign(o - e) sqrt(2 [o ln(o / e) + (n - o) ln((n - o) / (n - e))]): the binomial signed-root deviance of
+    o detections where e were expected among n pairs (any shape broadcasting o, e and n; 0 ln 0 = 0)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = np.where(o > 0, o * np.log(o / e), 0.0)
+        b = np.where(n - o > 0, (n - o) * np.log((n - o) / (n - e)), 0.0)
+    return np.sign(o - e) * np.sqrt(np.maximum(2 * (a + b), 0.0))
+
+
+def _band_all(exp: np.ndarray, n: np.ndarray, tested: np.ndarray, c: float, sd_r: np.ndarray, side: int) -> np.ndarray:
+    """The detection rate at which a tested bin's root deviance reaches side * c * sd_r (NaN for untested bins):
+    the edge of the band of all tested bins at once, found by bisection on the rate (monotone in it)."""
+    out = np.full(exp.size, np.nan)
+    idx = np.flatnonzero(tested)
+    if idx.size == 0:
+        return out
+    e, nn, target = exp[idx], n[idx], side * c * sd_r[idx]
+    lo, hi = (np.zeros(idx.size), e.copy()) if side < 0 else (e.copy(), nn.copy())
+    for _ in range(50):  # bisection, vectorised over the bins
+        mid = (lo + hi) / 2
+        r = _root_deviance(mid, e, nn)
+        beyond = r < target if side < 0 else r > target
+        lo, hi = (np.where(beyond, mid, lo), np.where(beyond, hi, mid)) if side < 0 else (np.where(beyond, lo, mid), np.where(beyond, mid, hi))
+    out[idx] = (lo + hi) / 2 / nn
+    return out
+
+
 def pd_drift(pairs: pd.DataFrame, table: PdTable, rng: np.random.Generator, cfg: DriftConfig) -> tuple[Part | None, pd.DataFrame | None, str]:
     """(part, bin table with the bootstrap band, why not tested) of P_D over the pairs with predicted P_D > 0.
 
@@ -461,13 +488,21 @@ def pd_drift(pairs: pd.DataFrame, table: PdTable, rng: np.random.Generator, cfg:
         sims[s : s + m] = (u < q).astype(np.float32) @ member
     sd = sims.std(axis=0, ddof=1).astype(np.float64)
     tested = bins["tested"].to_numpy() & (sd > 0) & (n_b >= cfg.min_pairs)
-    # max-T (Westfall & Young's single step): each cell's deviation in its own null standard deviations, the
-    # largest over the cells against the largest of every replicate; unlike ranks it resolves p-values down to
-    # 1 / (replicates + 1) whatever the number of cells
-    z_obs = np.abs(obs[tested] - exp[tested]) / sd[tested]
-    t_star = (np.abs(sims[:, tested] - exp[tested]) / sd[tested]).max(axis=1) if tested.any() else np.zeros(reps)
+    # max-T (Westfall & Young's single step) over the bins' signed-root deviances, each in its own null standard
+    # deviations: the largest over the bins against the largest of every replicate. The root deviance is near
+    # normal even for a bin of a few expected misses, where (O - E) / sd has one long tail that would set the
+    # family's threshold; unlike ranks, max-T resolves p-values down to 1 / (replicates + 1) whatever the bins.
+    r_obs = _root_deviance(obs[tested].astype(np.float64), exp[tested], n_b[tested])
+    r_sim = _root_deviance(sims[:, tested].astype(np.float64), exp[tested], n_b[tested])
+    sd_r = r_sim.std(axis=0, ddof=1)
+    sd_r = np.where(sd_r > 0, sd_r, np.inf)
+    z_obs = np.abs(r_obs) / sd_r
+    t_star = (np.abs(r_sim) / sd_r).max(axis=1) if tested.any() else np.zeros(reps)
     t_obs = float(z_obs.max()) if z_obs.size else 0.0
     p_part = float((1 + (t_star >= t_obs - 1e-9).sum()) / (reps + 1))
+    c95 = float(np.quantile(t_star, 0.95))
+    sd_all = np.zeros(k_bins)
+    sd_all[tested] = sd_r
     p_bin = np.full(k_bins, np.nan)
     ts = np.sort(t_star)
     p_bin[tested] = (1 + reps - np.searchsorted(ts, z_obs - 1e-9, side="left")) / (reps + 1)
@@ -480,6 +515,9 @@ def pd_drift(pairs: pd.DataFrame, table: PdTable, rng: np.random.Generator, cfg:
             expected=exp / n_b,
             band_low=np.quantile(sims, 0.025, axis=0) / n_b,
             band_high=np.quantile(sims, 0.975, axis=0) / n_b,
+            # the band of all tested bins at once: a bin outside it is one the max-T test names at 0.05
+            band_all_low=_band_all(exp, n_b, tested, c95, sd_all, -1),
+            band_all_high=_band_all(exp, n_b, tested, c95, sd_all, 1),
             z=(obs - exp) / sd,
             p_adjusted_in_part=p_bin,
         )

@@ -220,20 +220,28 @@ def validate(
 
 
 def _band_panel(ax, b: pd.DataFrame, x: np.ndarray, xlabel: str, title: str, ticks: list[str] | None = None) -> None:
-    """Observed detection rate per bin (points, pairs as numbers) against the profile's (line) with the bootstrap band."""
+    """Observed detection rate per bin (points, pairs as numbers) against the profile's (line) with the bootstrap
+    bands: each bin alone (shaded) and, for tested bins, all of them at once (dashed: the max-T test's)."""
     ok = (b["pairs"] > 0).to_numpy()
     b, x = b[ok], x[ok]
-    ax.fill_between(x, b["band_low"], b["band_high"], color="tab:orange", alpha=0.25, step="mid" if ticks else None,
-                    label="95 % of a right profile (bootstrap)")
+    step = "mid" if ticks else None
+    ax.fill_between(x, b["band_low"], b["band_high"], color="tab:orange", alpha=0.25, step=step, label="95 % of a right profile, each bin (bootstrap)")
     ax.plot(x, b["expected"], "-", color="tab:orange", lw=1.2, drawstyle="steps-mid" if ticks else "default", label="profile")
-    out = ((b["observed"] < b["band_low"]) | (b["observed"] > b["band_high"])).to_numpy()
+    tested = b["band_all_low"].notna().to_numpy()
+    if tested.any():
+        for col in ("band_all_low", "band_all_high"):
+            ax.plot(x[tested], b[col][tested], "--", color="tab:brown", lw=1.0, drawstyle="steps-mid" if ticks else "default",
+                    label="95 % of a right profile, all tested bins at once" if col == "band_all_low" else None)
+    lo = np.where(tested, b["band_all_low"], b["band_low"])
+    hi = np.where(tested, b["band_all_high"], b["band_high"])
+    out = ((b["observed"] < lo) | (b["observed"] > hi)).to_numpy()
     ax.plot(x[~out], b["observed"][~out], "o", color="tab:blue", ms=5, label="observed")
-    ax.plot(x[out], b["observed"][out], "o", color="tab:red", ms=6, label="observed, outside the band")
+    ax.plot(x[out], b["observed"][out], "o", color="tab:red", ms=6, label="observed, outside the band" + (" (all at once)" if tested.any() else ""))
     for xi, row in zip(x, b.itertuples(), strict=True):
         ax.annotate(f"{int(row.pairs):,}", (xi, row.observed), textcoords="offset points", xytext=(4, -10), fontsize=6, color="0.3")
     if ticks is not None:
         ax.set_xticks(x, [t for t, k in zip(ticks, ok, strict=True) if k], rotation=40, ha="right", fontsize=7)
-    ys = np.concatenate([b["observed"], b["band_low"], b["band_high"]]).astype(float)
+    ys = np.concatenate([b["observed"], b["band_low"], b["band_high"], b["band_all_low"], b["band_all_high"]]).astype(float)
     ys = ys[np.isfinite(ys)]
     if ys.size:
         pad = 0.08 * max(float(ys.max() - ys.min()), 0.02)
@@ -242,14 +250,14 @@ def _band_panel(ax, b: pd.DataFrame, x: np.ndarray, xlabel: str, title: str, tic
     ax.set_ylabel("detection rate")
     ax.set_title(textwrap.fill(title, 80), fontsize=8)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="lower right")
+    ax.legend(fontsize=7, loc="best")
 
 
 def _part_title(row: RowDrift | None, part: str) -> str:
     p = row.parts.get(part) if row is not None else None
     if p is None:
-        why = row.missing.get(part, "not tested") if row is not None else "not tested"
-        return f"{part}: not tested ({why})"
+        why = row.missing.get(part, "no drift tests") if row is not None else "no drift tests"
+        return f"not tested ({why})"
     return f"{p.verdict} (p = {p.p_value:.3g}, adjusted {p.p_adjusted:.3g}): {p.text}"
 
 
@@ -282,19 +290,21 @@ def plot_reliability(v: Validation, path: Path, title: str | None = None, row: i
         else:
             rel = bins[bins["family"] == "predicted"].reset_index(drop=True)
             ax.plot([0, 1], [0, 1], "k:", lw=0.8)
-            _band_panel(ax, rel, rel["predicted"].to_numpy(float), "predicted P_D (bins of 0.1)", f"P_D, {len(cells)} cells tested: " + _part_title(r, "pd"))
+            _band_panel(ax, rel, rel["predicted"].to_numpy(float), "predicted P_D (bins of 0.1)", f"P_D ({len(cells)} cells, shown by prediction): " + _part_title(r, "pd"))
             ax.set_xlim(0, 1)
         for fam, axx, unit in (("range", ax_r, "m"), ("bearing", ax_b, "deg")):
             f = bins[bins["family"] == fam].reset_index(drop=True)
             centre = (f["low"].to_numpy(float) + f["high"].to_numpy(float)) / 2
             if fam == "bearing":
                 centre = np.degrees(centre)
+            tested = bool(f["tested"].any())
             _band_panel(axx, f, centre, f"{fam} [{unit}] (bins: {'equal pair counts' if fam == 'range' else 'equal widths'})",
-                        f"P_D over {fam} (shown, not tested)")
+                        f"P_D over {fam} ({'tested with the cells' if tested else 'shown, not tested: an n_p table'})")
         z = v.bins.iloc[0]
-        ax.text(0.98, 0.97, f"predicted 0: {int(z['pairs']):,} pairs, {int(z['detected']):,} detected\nECE {s['ece']:.4f} "
-                f"(a calibrated model: {s['ece_if_calibrated_blocks']:.4f})", transform=ax.transAxes, ha="right", va="top", fontsize=7,
-                bbox={"fc": "white", "ec": "0.7"})
+        ax.set_title(
+            ax.get_title() + f"\npredicted 0: {int(z['pairs']):,} pairs, {int(z['detected']):,} detected; ECE {s['ece']:.4f} "
+            f"(a calibrated model: {s['ece_if_calibrated_blocks']:.4f})", fontsize=8,
+        )
     else:
         for axx in (ax, ax_r, ax_b):
             axx.text(0.5, 0.5, "P_D: " + _part_title(r, "pd"), ha="center", va="center", transform=axx.transAxes, fontsize=8)
