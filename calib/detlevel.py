@@ -268,6 +268,7 @@ class DetectionCalibration:
     names: list[str] = field(default_factory=list)
     config: DetectionCalibConfig | None = None
     motion: dict | None = None  # the odometry's noise and biases (calib.odometry), when the logs allow it
+    exchange: Exchangeability | None = None  # which sensors the pooled model does not describe (several sensors, on request)
 
 
 def calibrate_detections(
@@ -280,8 +281,13 @@ def calibrate_detections(
     input_refs=None,
     command: str = "",
     per_sensor: bool = False,
+    exchange: DriftConfig | None = None,
 ) -> DetectionCalibration:
     """A pooled profile of detection-level logs (one sensor each), and with ``per_sensor`` one profile per sensor.
+
+    ``exchange`` (several sensors): which sensors the pooled model does not describe
+    (:func:`exchangeability` with these drift settings), in the summary and in
+    :attr:`DetectionCalibration.exchange`.
 
     Folds for the held-out model choices: the sensors when there are several
     (a model must transfer to a sensor it was not fitted to), else
@@ -424,7 +430,10 @@ def calibrate_detections(
     if motion is not None:
         v = motion["velocity"]
         summary["odometry"] = {k: round(float(x), 4) for k, x in v.items()} | {"windows": motion["windows"]}
-    return DetectionCalibration(profile, pairs, clut, summary, members, parts, names, cfg, motion)
+    ex = exchangeability(logs, cfg, exchange) if exchange is not None and len(logs) > 1 else None
+    if ex is not None:
+        summary["exchangeability"] = ex.summary()
+    return DetectionCalibration(profile, pairs, clut, summary, members, parts, names, cfg, motion, ex)
 
 
 def odometry_of(logs: list[SensorLog]) -> dict | None:
