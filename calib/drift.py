@@ -203,6 +203,18 @@ class DriftReport:
             out.append(row)
         return pd.DataFrame(out)
 
+    def brief(self) -> pd.DataFrame:
+        """One row per log (and one for all) for a terminal: the verdict and, per part, its verdict with the
+        adjusted p-value and the change."""
+        out = []
+        for r in self.rows:
+            row = {"log": r.name, "verdict": r.verdict}
+            for k in PARTS:
+                p = r.parts.get(k)
+                row[LABELS[k]] = f"{p.verdict} (p {p.p_adjusted:.2g}): {p.text}" if p else "not tested"
+            out.append(row)
+        return pd.DataFrame(out)
+
     def summary(self) -> dict:
         return {
             "verdict": self.verdict,

@@ -118,9 +118,10 @@ def _row(name: str, s: dict) -> dict:
     return row
 
 
-def drift_rows(profile: DetectorProfile, held: list[Held], cfg: DriftConfig) -> list[RowDrift]:
-    """The drift tests' rows: one per held-out log (key = its place + 1) and, for several, all together (key 0)."""
-    rows = [drift_row(profile, [h], h.name, k + 1, cfg) for k, h in enumerate(held)]
+def drift_rows(profile: DetectorProfile, held: list[Held], cfg: DriftConfig, per_log: list[RowDrift] | None = None) -> list[RowDrift]:
+    """The drift tests' rows: one per held-out log (key = its place + 1; ``per_log`` when they were computed
+    already, where the logs were labelled) and, for several, all together (key 0)."""
+    rows = per_log if per_log is not None else [drift_row(profile, [h], h.name, k + 1, cfg) for k, h in enumerate(held)]
     return ([drift_row(profile, held, "all", 0, cfg)] if len(held) > 1 else []) + rows
 
 
@@ -133,12 +134,15 @@ def drift_row(profile: DetectorProfile, hs: list[Held], name: str, key: int, cfg
     )
 
 
-def score(profile: DetectorProfile, held: list[Held], extra: dict | None = None, drift: DriftConfig | None = None) -> Validation:
+def score(
+    profile: DetectorProfile, held: list[Held], extra: dict | None = None, drift: DriftConfig | None = None, rows: list[RowDrift] | None = None
+) -> Validation:
     """The validation report of ``profile`` over held-out logs (one row each and all together), with the
-    drift verdicts (:mod:`calib.drift`; ``drift`` its settings, defaults when None)."""
+    drift verdicts (:mod:`calib.drift`; ``drift`` its settings, defaults when None; ``rows`` the per-log
+    rows when computed already)."""
     per = [_scores(profile, [h]) for h in held]
     summary, bins, pairs, counts = _scores(profile, held) if len(held) > 1 else per[0]
-    report = decide(drift_rows(profile, held, drift or DriftConfig()), drift or DriftConfig())
+    report = decide(drift_rows(profile, held, drift or DriftConfig(), rows), drift or DriftConfig())
     verdicts = report.table().set_index("log")
     rows = [_row(h.name, p[0]) for h, p in zip(held, per, strict=True)] + [_row("all", summary)]
     for r in rows:
@@ -206,14 +210,37 @@ def held_out_laser(profile: DetectorProfile, log: SensorLog, *, landmarks_csv: P
     )
 
 
+def held_and_row(log: SensorLog, profile: DetectorProfile, key: int, drift: DriftConfig, landmarks_csv: Path | None, poses: str) -> tuple[Held, RowDrift]:
+    """One laser log's share of a validation, where the log is: its labelled pairs and counts, and its own drift
+    tests (row ``key``); the task :func:`validate` hands to ``per_log``."""
+    h = held_out_laser(profile, log, landmarks_csv=landmarks_csv, poses=poses)
+    return h, drift_row(profile, [h], h.name, key, drift)
+
+
 def validate(
-    profile: DetectorProfile, logs: SensorLog | list[SensorLog], *, landmarks_csv: Path | None = None, poses: str = "auto", drift: DriftConfig | None = None
+    profile: DetectorProfile,
+    logs: SensorLog | list[SensorLog],
+    *,
+    landmarks_csv: Path | None = None,
+    poses: str = "auto",
+    drift: DriftConfig | None = None,
+    per_log=None,
 ) -> Validation:
-    """Score a laser profile on held-out laser logs with truth, with the drift verdicts."""
+    """Score a laser profile on held-out laser logs with truth, with the drift verdicts.
+
+    per_log: how the per-log work (labelling, each log's drift tests) runs,
+    ``per_log(fn, [(log, *args), ...]) -> [fn(log, *args), ...]`` (as for
+    :func:`calib.calibrate.calibrate`; :mod:`calib.engine` runs them on Dask
+    workers); the pooled row and the verdicts are computed here, so the result
+    does not depend on where the logs were done.
+    """
     if profile.detector.kind != "circle2d":
         raise UsageError(f"profile {profile.ref} is for an external detector, not the circle detector of laser logs")
     logs = [logs] if isinstance(logs, SensorLog) else list(logs)
-    return score(profile, [held_out_laser(profile, lg, landmarks_csv=landmarks_csv, poses=poses) for lg in logs], drift=drift)
+    cfg = drift or DriftConfig()
+    each = per_log or (lambda fn, args: [fn(*a) for a in args])
+    done = each(held_and_row, [(lg, profile, k + 1, cfg, landmarks_csv, poses) for k, lg in enumerate(logs)])
+    return score(profile, [h for h, _ in done], drift=cfg, rows=[r for _, r in done])
 
 
 # ------------------------------------------------------------------------------------------ report
