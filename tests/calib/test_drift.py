@@ -38,6 +38,13 @@ TRIALS = 200
 MAX_REJECTED = int(binom.ppf(0.997, TRIALS, 0.05))
 
 
+def _assert_level(trial) -> None:
+    """TRIALS p-values of ``trial()`` under the null: rejections at 0.05 within Binomial(TRIALS, 0.05), and uniform."""
+    p_values = np.array([trial() for _ in range(TRIALS)])
+    assert (p_values <= 0.05).sum() <= MAX_REJECTED, (p_values <= 0.05).sum()
+    assert kstest(p_values, "uniform").pvalue > 0.001
+
+
 def test_holm_by_hand():
     # sorted 0.01, 0.02, 0.04 times 3, 2, 1 -> 0.03, 0.04, 0.04 (monotone)
     assert holm(np.array([0.04, 0.01, 0.02])) == pytest.approx([0.04, 0.03, 0.04])
@@ -86,16 +93,14 @@ def _table(train: pd.DataFrame):
 
 def test_pd_p_values_are_uniform_when_the_log_comes_from_the_calibration_process():
     rng = np.random.default_rng(1)
-    p_values = []
-    for _ in range(TRIALS):
+
+    def trial():
         table = _table(_park_like_pairs(rng, 100))
         held = _park_like_pairs(rng, 100, log="b")
         held["predicted"] = table.lookup(held["n_p"].to_numpy())
-        part, bins, _ = pd_drift(held, table, rng, FAST)
-        p_values.append(part.p_value)
-    p_values = np.array(p_values)
-    assert (p_values <= 0.05).sum() <= MAX_REJECTED
-    assert kstest(p_values, "uniform").pvalue > 0.001
+        return pd_drift(held, table, rng, FAST)[0].p_value
+
+    _assert_level(trial)
 
 
 def test_pd_drift_is_found_where_it_happened():
@@ -130,15 +135,12 @@ def _bursty_counts(rng, frames: int, rate: float) -> np.ndarray:
 
 def test_clutter_p_values_are_uniform_with_correlated_frames_and_the_profiles_own_error():
     rng = np.random.default_rng(3)
-    p_values = []
-    for _ in range(TRIALS):
-        train = _bursty_counts(rng, 1500, 3.0)
-        prof = clutter_params(fit_clutter(train), "range_bearing", 10.0)
-        part, hist, _ = clutter_drift(_bursty_counts(rng, 1500, 3.0), prof, rng, FAST)
-        p_values.append(part.p_value)
-    p_values = np.array(p_values)
-    assert (p_values <= 0.05).sum() <= MAX_REJECTED
-    assert kstest(p_values, "uniform").pvalue > 0.001
+
+    def trial():
+        prof = clutter_params(fit_clutter(_bursty_counts(rng, 1500, 3.0)), "range_bearing", 10.0)
+        return clutter_drift(_bursty_counts(rng, 1500, 3.0), prof, rng, FAST)[0].p_value
+
+    _assert_level(trial)
 
 
 def test_clutter_doubled_is_drift_and_the_band_holds_the_model():
