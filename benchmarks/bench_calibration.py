@@ -18,10 +18,10 @@ os.environ.setdefault("DETCAL_CACHE", tempfile.mkdtemp(prefix="detcal-bench-"))
 import numpy as np  # noqa: E402
 
 from calib.calibrate import CalibrateConfig, calibrate, scan_sensor_poses  # noqa: E402
-from calib.default import default_log  # noqa: E402
+from detcal.default_log import default_log  # noqa: E402
 from calib.icp import icp_ground_truth  # noqa: E402
 from calib.label import label_log  # noqa: E402
-from calib.report import write_report  # noqa: E402
+from detcal.reports.calibration import write_report  # noqa: E402
 
 
 def timed(fn):

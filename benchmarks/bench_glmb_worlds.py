@@ -44,6 +44,7 @@ from calib.sim.glmb_paper import GlmbPaperConfig, simulate_glmb_paper, truth_pro
 from slam_runtime.config import SlamConfig, override, with_filter  # noqa: E402
 from slam_runtime.metrics import gospa, ospa  # noqa: E402
 from slam_runtime.run import evaluate, run_slam  # noqa: E402
+from profiles.override import updated
 
 CONFIG = ROOT / "benchmarks/configs/glmb_paper_optimal.yaml"
 
@@ -92,7 +93,7 @@ class _Last:
     def placed(self, how: str) -> np.ndarray:
         """The run's map estimate (positions) with ``map_estimate: how``."""
         mf = self.slam.mf
-        mf.cfg = mf.cfg.model_copy(update={"map_estimate": how})
+        mf.cfg = updated(mf.cfg, {"map_estimate": how})
         return mf.feature.position(self.slam.map_estimate()[0])
 
 

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.io.kitti import read_kitti
-from calib.plane_detect import plot_planes_top
+from detcal.reports.detect import plot_planes_top
 from calib.sim.street import StreetConfig, simulate_street
 from detectors.geometry import compose
 from detectors.geometry3d import normal_angle

@@ -15,7 +15,7 @@ Run: ``python benchmarks/bench_real_filters.py [--data ../shared/data] [--filter
   ``--vp-profiles shared`` every filter takes RB-PHD's. Scored against GPS after a rigid fit
   (there is no landmark truth), at the laser's position, the point the data set's GPS locates (``calib.io.victoria``).
 
-The labelled filters take their default settings (``slam_runtime.glmb.LabelledSettings``, those of the
+The labelled filters take their default settings (``slam_runtime.labelled.LabelledSettings``, those of the
 glmb-paper scenario): only the filter kind changes (``slam_runtime.config.with_filter``), and with
 ``--survival`` their P_S in the field of view (the paper's 0.95; 1 by default); ``--set key=value``
 overrides any setting of every filter run (values parsed as YAML). Each row also prints the runs' log

@@ -70,18 +70,19 @@ def measured(label: str, out: dict):
 
 
 def sweep_bench(work: Path, seeds: int, rounds: int) -> None:
-    from calib.engine import InProcess, LogSource, open_engine
+    from detcal.engine import InProcess, LogSource, open_engine
     from calib.io.registry import ReadOptions, read_log
     from calib.config import load_yaml_model
     from calib.sim.park import ParkConfig
-    from calib.sim.run import simulate_to
+    from detcal.reports.simulation import write_simulation_run
     from profiles.store import resolve
     from slam_runtime.config import SlamConfig, override
-    from slam_runtime.sweep import SweepJob, make_plan, run_sweep
+    from detcal.pipelines.sweep import SweepJob, run_sweep
+    from detcal.reports.sweep import make_plan
 
     log_path = work / "sweep_park/log.dlog"
     if not log_path.is_file():
-        simulate_to(log_path.parent, 71, load_yaml_model(ParkConfig, ROOT / "benchmarks/configs/small_park.yaml"))
+        write_simulation_run("park", load_yaml_model(ParkConfig, ROOT / "benchmarks/configs/small_park.yaml"), 71, log_path.parent)
     log = read_log(log_path)
     prof = resolve("sim-park-laser")
     src = LogSource.of(log, log_path, None, ReadOptions())
@@ -168,7 +169,7 @@ def noop(x):
 
 
 def overhead_bench() -> None:
-    from calib.engine import open_engine
+    from detcal.engine import open_engine
 
     print("\nDask's own round trip (200 empty tasks on 1 worker, after a warm-up):")
     with open_engine(1, None, 1) as engine:
@@ -183,7 +184,7 @@ def calibration_bench(work: Path, n_logs: int) -> None:
     from calib.calibrate import CalibrateConfig  # noqa: F401  (imported here, not in the timed blocks)
     from calib.io.native import write_native
     from calib.io.registry import ReadOptions, input_refs, read_log
-    from calib.pipeline import CalibrationJob, run_calibration
+    from detcal.pipelines.calibrate import CalibrationJob, ProfileTarget, run_calibration
     from calib.sim.park import ParkConfig, simulate_park
 
     paths = []
@@ -200,8 +201,8 @@ def calibration_bench(work: Path, n_logs: int) -> None:
         out = work / f"calib_{workers}"
         shutil.rmtree(out, ignore_errors=True)
         job = CalibrationJob(
-            logs, refs, "bench-parks", "1.0.0", out / "run", out / "profiles", command="bench",
-            sources=[(p, None, ReadOptions()) for p in paths], workers=workers,
+            logs=logs, inputs=refs, target=ProfileTarget(name="bench-parks", version="1.0.0", out=out / "run", profiles_dir=out / "profiles"),
+            command="bench", sources=[(p, None, ReadOptions()) for p in paths], workers=workers,
         )  # fmt: skip
         m: dict = {}
         with measured(label, m):

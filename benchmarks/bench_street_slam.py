@@ -2,7 +2,7 @@
 
 A profile is calibrated on its own street (seed 100, every second frame); then each of ``--streets`` streets
 (seeds 1..N, about 345 frames each, HDL-64E-like) runs through every map filter asked for (``--filter``, any of
-``slam_runtime.config.FILTER_KINDS``) with the ECT model, the profile's P_D (``profile``) and a constant P_D of
+``slam_runtime.mapfilter.MAP_FILTERS``) with the ECT model, the profile's P_D (``profile``) and a constant P_D of
 0.9 inside the range (``constant``), for ``--seeds`` filter seeds. Printed per setting (mean +- standard
 deviation over runs): the trajectory RMSE against the truth beside dead reckoning's, the map OSPA (c = 1 m,
 p = 1) on the plane embedding (L n, d) with L = 10 m against the planes seen with >= 200 returns, the matched
@@ -27,12 +27,13 @@ from pathlib import Path
 
 import numpy as np
 
-import slam_runtime.run as run_mod
 from calib.planes import PlaneCalibConfig, calibrate_planes
 from calib.sim.street import StreetConfig, simulate_street
-from slam_runtime.config import FILTER_KINDS, SlamConfig, with_filter, with_settings
+from slam_runtime.config import SlamConfig, with_filter, with_settings
+from slam_runtime.mapfilter import MAP_FILTERS
 from slam_runtime.run import evaluate, run_slam
-from slam_runtime.sources import CloudPlanes
+from detectors.kinds import DETECTORS
+from detectors.plane import CloudPlanes, PlaneDetector
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.common import parse_set
@@ -67,6 +68,13 @@ class Cached:
         return d[frame.rows]
 
 
+class CachedPlanes(PlaneDetector):
+    """The plane detector kind with its measurement source cached (:class:`Cached`)."""
+
+    def source(self, log, profile, detection, options):
+        return Cached(log, profile, detection)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--streets", type=int, default=3)
@@ -79,15 +87,15 @@ def main() -> None:
     sets = dict(parse_set(x) for x in args.set)
     filters = args.filters or ["rbphd"]
     for f in filters:
-        if f not in FILTER_KINDS:
-            raise SystemExit(f"--filter: {f!r} is not one of {FILTER_KINDS}")
+        if f not in MAP_FILTERS:
+            raise SystemExit(f"--filter: {f!r} is not one of {MAP_FILTERS.names()}")
     print(f"load average: {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
     t0 = time.perf_counter()
     cal_log = simulate_street(StreetConfig(), 100).log
     prof = calibrate_planes([cal_log], PlaneCalibConfig(every=2), name="street-bench", version="1.0.0").profile
     print(f"profile calibrated on street 100 ({len(cal_log.clouds)} frames, every second) in {time.perf_counter() - t0:.0f} s: "
           f"P_D {dict(zip(prof.pd.edges[:-1], np.round(prof.pd.pd, 2), strict=True))}, clutter {prof.clutter.rate:.2f} per frame")
-    run_mod.CloudPlanes = Cached  # one detection pass per street, shared by the runs
+    DETECTORS.add("plane3d", CachedPlanes(), replace=True)  # one detection pass per street, shared by the runs
     results: dict = {}
     for s in range(1, args.streets + 1):
         log = simulate_street(StreetConfig(frames=args.frames), s).log

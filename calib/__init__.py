@@ -1,12 +1,5 @@
-"""Calibration: log readers/writers, the park simulator, ground truth, fits, reports and the CLI."""
+"""Calibration: log readers/writers, simulators, ground truth, labelling, the fits and the validation scores."""
 
-__version__ = "0.1.0"
+from profiles.version import __version__
 
-
-def _register_parameter_models() -> None:
-    from calib.provenance import register
-
-    register()
-
-
-_register_parameter_models()
+__all__ = ["__version__"]

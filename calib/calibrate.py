@@ -25,19 +25,16 @@ from dataclasses import dataclass, field, replace
 from math import gamma as gamma_fn
 from math import pi
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 import pandas as pd
-from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from calib import __version__
-from calib.clutter import ClutterModelConfig, density_summary, fit_density, time_folds
+from calib.clutter import density_summary, fit_density, time_folds
 from calib.drift import landmark_clusters, with_effective_counts
 from calib.fits import (
     ClutterFit,
     HotellingFit,
-    PdFitConfig,
     clutter_params,
     fit_clutter,
     fit_hotelling,
@@ -50,50 +47,12 @@ from calib.landmarks import CloudLandmarkConfig
 from calib.rangenoise import RangeNoise, RangeNoiseConfig, pool_range_noise, range_residuals
 from detectors.circle import descriptor_matrix
 from detectors.geometry import compose, interpolate_poses
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from detectors.model import fov_volume
 from profiles.errors import DataError, UsageError
+from profiles.parameters import CalibrateConfig
 from profiles.profile import DescriptorLikelihoods, DetectorProfile, DetectorSpec, HotellingModel, InputRef, Provenance
 from profiles.schema import CircleDetectorParams, SensorModel
-
-DescriptorName = Literal["fit_error", "radius", "convexity", "points", "mse", "log_mse", "log_radius", "rel_convexity"]
-
-
-class CalibrateConfig(BaseModel):
-    """Everything ``detcal calibrate --config`` accepts; the defaults follow the thesis."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    detector: CircleDetectorParams = CircleDetectorParams()
-    # log mean-square residual, log radius, convexity / radius: the thesis's three descriptors
-    # in coordinates where a Gaussian fits (see detectors.circle.DESCRIPTOR_NAMES); the raw
-    # ["fit_error", "radius", "convexity"] remain available
-    descriptors: list[DescriptorName] = Field(default=["log_mse", "log_radius", "rel_convexity"], min_length=1)
-    confidence: float = Field(default=0.999, gt=0.0, lt=1.0, description="Hotelling ellipsoid confidence (eq. 5.4)")
-    gamma: Literal["chi2", "empirical"] = Field(
-        default="chi2",
-        description="Hotelling threshold: the chi-square quantile (eq. 5.4; exact for Gaussian descriptors) or the empirical "
-        "quantile of the true detections' Mahalanobis distances (the stated confidence holds whatever their distribution)",
-    )
-    gate: float = Field(default=1.0, gt=0.0, description="detection-landmark association gate [m]")
-    k_sigma: float = Field(default=3.0, gt=0.0, description="occlusion tolerance of the ray tracer, in sigma_r")
-    buffer_samples: int = Field(default=5, ge=1)
-    pd: PdFitConfig = PdFitConfig()
-    clutter_space: Literal["range_bearing", "xy"] = "range_bearing"
-    clutter: ClutterModelConfig = ClutterModelConfig()
-    poses: Literal["auto", "reference", "icp"] = Field(default="auto", description="where scan poses come from")
-    cloud_landmarks: CloudLandmarkConfig = CloudLandmarkConfig()
-    range_noise: RangeNoiseConfig = Field(
-        default=RangeNoiseConfig(), description="how sigma_r is estimated when the log does not state it and --range-sigma is not given"
-    )
-
-    @field_validator("descriptors")
-    @classmethod
-    def _distinct(cls, names: list[str]) -> list[str]:
-        seen = [n for i, n in enumerate(names) if n in names[:i]]
-        if seen:
-            raise ValueError(f"{seen[0]} is named twice (a descriptor twice makes the Hotelling covariance singular)")
-        return names
-
 
 @dataclass
 class Calibration:
@@ -303,7 +262,7 @@ def calibrate(
     per_log: how the per-log steps (poses, range residuals, landmarks and
     labelling) run, ``per_log(fn, [(log, *args), ...]) -> [fn(log, *args), ...]``
     in the order of the logs; default: one after the other in this process.
-    :mod:`calib.engine` runs them on Dask workers, each reading its log where it
+    :mod:`detcal.engine` runs them on Dask workers, each reading its log where it
     lives. The fits always run here, on the gathered tables, so the result does
     not depend on where or in which order the logs were done.
     """
@@ -367,16 +326,7 @@ def calibrate(
     )
     clut = fit_clutter(counts, cfg.clutter.dispersion_level)
     volume = fov_volume(sensor, cfg.clutter_space)
-    density = None
-    if cfg.clutter.use_density(len(logs)) and cfg.clutter_space == "range_bearing":
-        lo = min(sensor.angle_min, sensor.angle_min + sensor.angle_increment * (sensor.n_beams - 1))
-        re_ = np.linspace(sensor.range_min, sensor.range_max, cfg.clutter.range_bins + 1)
-        be = np.linspace(lo, lo + sensor.field_of_view, cfg.clutter.bearing_bins + 1)
-        if len(logs) > 1:
-            fold, label = fa["log"].to_numpy(), f"sensors ({len(logs)})"
-        else:
-            fold, label = time_folds(len(logs[0].scans), cfg.clutter.folds)[fa["scan"].to_numpy(np.int64)], f"time blocks ({cfg.clutter.folds})"
-        density = fit_density(fa["range"].to_numpy(), fa["bearing"].to_numpy(), fold, re_, be, cfg.clutter, label)
+    density = _clutter_density(fa, logs, sensor, cfg)
     d = len(names)
     ell_vol = pi ** (d / 2) / gamma_fn(d / 2 + 1) * hot.gamma ** (d / 2) * float(np.sqrt(np.linalg.det(hot.cov)))
     seeds = {lg.source.get("seed") for lg in logs if lg.source.get("seed") is not None}
@@ -412,8 +362,31 @@ def calibrate(
             seed=seeds.pop() if len(seeds) == 1 else None,
         ),
     )
+    summary = _summary(logs, sources, lms, sensor, params, dets, true, gated, fa, pairs, rc, clut, density, hot, cfg)
+    if noise is not None:
+        summary["range_noise"] = noise.summary()
+    return Calibration(profile, cfg, Labelled(dets, pairs), hot, rc, clut, logs, poses, lms, gated, summary, noise)
+
+
+def _clutter_density(fa: pd.DataFrame, logs: list[SensorLog], sensor: SensorModel, cfg: CalibrateConfig):
+    """The false alarms' density over range x bearing, chosen against the uniform one by held-out likelihood (folds:
+    the sensors, or time blocks of one log); None when the config or the clutter space leaves it out."""
+    if not (cfg.clutter.use_density(len(logs)) and cfg.clutter_space == "range_bearing"):
+        return None
+    lo = min(sensor.angle_min, sensor.angle_min + sensor.angle_increment * (sensor.n_beams - 1))
+    re_ = np.linspace(sensor.range_min, sensor.range_max, cfg.clutter.range_bins + 1)
+    be = np.linspace(lo, lo + sensor.field_of_view, cfg.clutter.bearing_bins + 1)
+    if len(logs) > 1:
+        fold, label = fa["log"].to_numpy(), f"sensors ({len(logs)})"
+    else:
+        fold, label = time_folds(len(logs[0].scans), cfg.clutter.folds)[fa["scan"].to_numpy(np.int64)], f"time blocks ({cfg.clutter.folds})"
+    return fit_density(fa["range"].to_numpy(), fa["bearing"].to_numpy(), fold, re_, be, cfg.clutter, label)
+
+
+def _summary(logs, sources, lms, sensor, params, dets, true, gated, fa, pairs, rc, clut, density, hot, cfg) -> dict:
+    """What a laser calibration reports (summary.yaml)."""
     n_true = int(true.sum())
-    summary = {
+    return {
         "logs": [lg.name for lg in logs],
         "scans": int(sum(len(lg.scans) for lg in logs)),
         "pose_source": sources,
@@ -441,6 +414,3 @@ def calibrate(
         "hotelling_gamma": hot.gamma,
         "hotelling_gamma_method": cfg.gamma,
     }
-    if noise is not None:
-        summary["range_noise"] = noise.summary()
-    return Calibration(profile, cfg, Labelled(dets, pairs), hot, rc, clut, logs, poses, lms, gated, summary, noise)

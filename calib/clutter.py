@@ -33,38 +33,16 @@ the honest measure of how well a rate is known.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 from scipy.optimize import minimize_scalar
 from scipy.special import gammaln
 from scipy.stats import chi2, nbinom, poisson
 from scipy.stats import t as student_t
 
 from profiles.errors import DataError
+from profiles.parameters import ClutterModelConfig
 from profiles.schema import ClutterDensity, CountTest, Selection
-
-
-class ClutterModelConfig(BaseModel):
-    """How clutter counts and the clutter density are modelled."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    dispersion_level: float = Field(default=0.05, gt=0.0, lt=1.0, description="negative binomial when the dispersion test rejects the Poisson at this level")
-    density: Literal["auto", "always", "never"] = Field(
-        default="auto",
-        description="a density over (range, bearing): auto = chosen against the uniform one by leave-one-log-out likelihood "
-        "when there are several logs (one log: uniform); always = also over time blocks of a single log; never = uniform",
-    )
-    range_bins: int = Field(default=8, ge=1, le=200)
-    bearing_bins: int = Field(default=8, ge=1, le=200)
-    smoothing: list[float] = Field(
-        default=[0.25, 1.0, 4.0, 16.0], min_length=1, description="Dirichlet pseudo-counts per cell tried against the uniform density"
-    )
-    folds: int = Field(default=5, ge=2, le=50, description="time blocks for the held-out choice when there is one sensor")
-
-    def use_density(self, n_logs: int) -> bool:
-        return self.density == "always" or (self.density == "auto" and n_logs > 1)
 
 
 def _loglik_poisson(values: np.ndarray, weights: np.ndarray, mu: float) -> float:

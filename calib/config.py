@@ -31,32 +31,43 @@ def validation_message(exc: ValidationError, where: str) -> str:
     return f"{where}: {loc}: {msg}{more}"
 
 
-def check_order(model: BaseModel, low: str, high: str, *, strict: bool = False) -> None:
-    """A model's own check that setting ``low`` does not exceed ``high`` (``strict``: is below it), for a model
-    validator; the message names both with their values."""
-    a, b = getattr(model, low), getattr(model, high)
-    if a > b or (strict and a == b):
-        raise ValueError(f"{low} ({a}) must {'be below' if strict else 'not exceed'} {high} ({b})")
-
-
-def load_yaml_model(model: type[M], path: str | Path | None, updates: dict | None = None) -> M:
-    """Defaults when ``path`` is None; otherwise the YAML file validated against ``model``. ``updates`` (top-level keys;
-    None: not given) replace the file's values before validation, so that checks across fields see the command line's
-    values (``--particles`` beside a file's ``islands``)."""
+def load_yaml_model(model: type[M], path: str | Path | None, updates: dict | None = None, flags: dict[str, str] | None = None) -> M:
+    """Defaults when ``path`` is None; otherwise the YAML file validated against ``model``. ``updates`` ({dotted path:
+    value}; None: not given) replace the file's values before the one validation, so that checks across fields see the
+    command line's values (``--particles`` beside a file's ``islands``); an error in one of them names its option
+    (``flags``: dotted path -> option, default ``--<key>``)."""
     given = {k: v for k, v in (updates or {}).items() if v is not None}
 
     def refuse(exc: ValidationError, where: str):
-        loc = exc.errors()[0]["loc"]
-        if loc and loc[0] in given:  # the command line's value: name its option
-            return UsageError(f"--{str(loc[0]).replace('_', '-')}: {exc.errors()[0]['msg']}")
+        loc = ".".join(str(p) for p in exc.errors()[0]["loc"])
+        for key in sorted(given, key=len, reverse=True):
+            if loc == key or loc.startswith(key + "."):  # the command line's value: name its option
+                flag = (flags or {}).get(key, f"--{key.replace('_', '-')}")
+                return UsageError(f"{flag}: {exc.errors()[0]['msg']}")
         return UsageError(validation_message(exc, where))
 
-    if path is None:
-        try:
-            return model.model_validate(given)
-        except ValidationError as exc:
-            raise refuse(exc, "the command line") from None
-    path = Path(path)
+    data = {}
+    if path is not None:
+        data = read_yaml_mapping(Path(path))
+    for key, value in given.items():
+        node = data
+        *parents, last = key.split(".")
+        for part in parents:
+            if node.get(part) is None:
+                node[part] = {}
+            if not isinstance(node[part], dict):
+                break  # the file's own error is reported
+            node = node[part]
+        else:
+            node[last] = value
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        raise refuse(exc, "the command line" if path is None else str(path)) from None
+
+
+def read_yaml_mapping(path: Path) -> dict:
+    """The mapping at the top of a YAML file; a UsageError naming the file (and line) for anything else."""
     if not path.is_file():
         raise UsageError(f"{path}: no such config file")
     try:
@@ -73,11 +84,7 @@ def load_yaml_model(model: type[M], path: str | Path | None, updates: dict | Non
         raise UsageError(f"{path}: cannot read ({exc.strerror or exc})") from None
     if not isinstance(data, dict):
         raise UsageError(f"{path}: expected a mapping at the top level")
-    data = {**data, **given}
-    try:
-        return model.model_validate(data)
-    except ValidationError as exc:
-        raise refuse(exc, str(path)) from None
+    return data
 
 
 def dump_yaml(data: object) -> str:

@@ -31,7 +31,7 @@ import pandas as pd
 from calib.config import dump_yaml
 from calib.io.atomic import atomic_output
 from calib.validate import GZ, Validation, _plain, plot_reliability
-from detectors.logs import Detections, Odometry, ScanBatch, SensorLog
+from detectors.sensor_log import Detections, Odometry, ScanBatch, SensorLog
 from profiles.errors import UsageError
 
 HALF = ("1st", "2nd")

@@ -7,13 +7,12 @@ bearing (thesis eq. 6.2 with the covariates changed). The steps:
 * **camera epochs**: the log only lists frames that detected something, so the
   opportunities to detect are rebuilt as a regular grid at the camera's frame
   period (the median gap between consecutive detection frames when gaps under
-  0.5 s are considered; 0.24 s on UTIAS), each detection frame snapped to the
+  0.5 s are considered), each detection frame snapped to the
   nearest epoch;
 * **identity audit**: a landmark identity whose detections almost all fall on
   another landmark's surveyed position (and almost never on its own) marks a
   swapped entry in the truth; its detections are attributed to the landmark
-  they fall on, and the summary says so (UTIAS dataset 1: landmarks 11 and 17,
-  every one of their 3,600 detections on all five robots);
+  they fall on, and the summary says so;
 * **expected landmarks**: at every epoch the true vehicle pose (Vicon) gives
   each landmark's range and bearing; a landmark is expected when it is inside
   the field of view (|bearing| <= fov / 2, range <= range_max), both estimated
@@ -36,42 +35,22 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
-from pydantic import BaseModel, ConfigDict, Field
 
 from calib import __version__
 from calib.calibrate import created_now
-from calib.clutter import ClutterModelConfig, density_summary, fit_density, rate_standard_error, time_folds
+from calib.clutter import density_summary, fit_density, rate_standard_error, time_folds
+from calib.drift import DriftConfig, RowDrift, landmark_clusters, with_effective_counts
 from calib.fits import ClutterFit, clutter_params, fit_clutter
 from calib.io.common import index_of
-from calib.pdmodels import PdModelConfig, between_sensor_sd, choose_pd_model, pool_sensors, predict, shrink_rates
-from calib.drift import DriftConfig, RowDrift, landmark_clusters, with_effective_counts
+from calib.pdmodels import between_sensor_sd, choose_pd_model, pool_sensors, predict, shrink_rates
 from calib.validate import BLOCK_S, Held, Validation, score
 from detectors.geometry import compose, interpolate_poses
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.errors import DataError, UsageError
-from profiles.profile import DetectorProfile, DetectorSpec, InputRef, Provenance, SensorSpread
-from profiles.schema import MeasurementNoise, PdTable, SensorModel
-
-
-class IdentityAudit(BaseModel):
-    """When a landmark identity's detections are taken to belong to another landmark."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    enabled: bool = True
-    share: float = Field(default=0.9, gt=0.5, le=1.0, description="share of its detections on one other landmark (and at most 1 - share on its own)")
-    min_detections: int = Field(default=20, ge=1)
-
-
-class DetectionCalibConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    gate: float = Field(default=1.0, gt=0.0, description="true detection: within this of the landmark [m]")
-    frame_period: float | None = Field(default=None, gt=0.0, description="camera frame period [s] (default: estimated)")
-    fov: float | None = Field(default=None, gt=0.0, description="field of view [rad] (default: from the true detections)")
-    range_max: float | None = Field(default=None, gt=0.0, description="[m] (default: from the true detections)")
-    quantile: float = Field(default=0.995, gt=0.5, lt=1.0)
-    audit: IdentityAudit = IdentityAudit()
-    pd: PdModelConfig = PdModelConfig()
-    clutter: ClutterModelConfig = ClutterModelConfig()
+from profiles.override import updated
+from profiles.parameters import DetectionCalibConfig, IdentityAudit
+from profiles.profile import DetectorProfile, DetectorSpec, Provenance, SensorSpread
+from profiles.schema import PD_COVARIATES, MeasurementNoise, SensorModel
 
 
 def frame_period(logs: list[SensorLog]) -> float:
@@ -334,7 +313,7 @@ def calibrate_detections(
         cluster = pairs.groupby(["log", "landmark", "block"], sort=False).ngroup().to_numpy()
         pooling = pool_sensors(table, pairs, pairs["log"].to_numpy(), names, cluster)
         _, tau, weights, member_rates = shrink_rates([p.counts for p in parts])
-        table = PdTable.model_validate({**table.model_dump(), "between_sensor_sd": between_sensor_sd(table, pooling)})
+        table = updated(table, {"between_sensor_sd": between_sensor_sd(table, pooling)})
         spread = dict(
             names=names,
             pairs=pooling.pairs,
@@ -366,9 +345,9 @@ def calibrate_detections(
             # the member's rate is w own + (1 - w) pooled: its standard error from both (taken as independent)
             se_own, se_pool = rate_standard_error(parts[k].counts), clutter.rate_se
             mine = pairs["log"].to_numpy() == k
-            mc = type(clutter).model_validate(
+            mc = updated(
+                clutter,
                 {
-                    **clutter.model_dump(),
                     "rate": member_rates[k],
                     "frames": int(parts[k].counts.size),
                     "rate_se": None if se_own is None or se_pool is None else float(np.hypot(weights[k] * se_own, (1 - weights[k]) * se_pool)),
@@ -401,7 +380,7 @@ def calibrate_detections(
         "false_detections": int(counts.sum()),
         "landmark_epoch_pairs": len(pairs),
         "pd_overall": float(pairs["detected"].mean()),
-        "pd_model": table.model if table.covariate == "range_bearing" else "range",
+        "pd_model": table.model if table.two_d else "range",
         "pd_model_loglik": {c: round(v, 6) for c, v in zip(sel.candidates, sel.loglik, strict=True)} if sel else "no choice (one fold)",
         "clutter_rate_per_epoch": clut.rate,
         "clutter_count_model": clut.count_model,
@@ -490,8 +469,8 @@ def validate_detections(
     The identity audit runs on the held-out logs themselves (it corrects the
     truth, not the detector); its findings are in the summary.
     """
-    if profile.pd.covariate == "n_p":
-        raise UsageError(f"profile {profile.ref} has an n_p P_D table; a detection-level log needs a range or range_bearing table")
+    if PD_COVARIATES.get(profile.pd.covariate).from_measurement is None:
+        raise UsageError(f"profile {profile.ref} has an {profile.pd.covariate} P_D table; a detection-level log needs a range or range_bearing table")
     if profile.sensor.fov is None or profile.sensor.range_max is None:
         raise DataError(f"profile {profile.ref}: the sensor has no fov or range_max")
     for lg in logs:
@@ -593,55 +572,3 @@ def exchangeability(logs: list[SensorLog], cfg: DetectionCalibConfig, drift: Dri
     return Exchangeability([decided[k] for k in sorted(decided)], odd, steps, round_of, none_agree)
 
 
-def input_refs_for(log: SensorLog) -> list[InputRef]:
-    files = log.source.get("files")
-    if isinstance(files, dict):
-        return [InputRef(name=str(k), sha256=str(v)) for k, v in files.items()]
-    return []
-
-
-def write_detection_run(cal: DetectionCalibration, out, *, overwrite: bool = False) -> list[str]:
-    from calib.io.atomic import atomic_output
-
-    with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
-        return fill_detection_run(cal, tmp)
-
-
-def fill_detection_run(cal: DetectionCalibration, folder) -> list[str]:
-    """Create ``folder`` with profile.yaml (and sensors/ with the per-sensor profiles), summary.yaml,
-    config.yaml, pairs.csv.gz and the figures; returns the figure names."""
-    from calib.config import dump_yaml
-    from calib.report import plot_clutter, plot_clutter_density, plot_pd, plot_pd_grid, plot_sensors
-    from profiles.store import dump_profile
-
-    figures = []
-    tmp = folder
-    tmp.mkdir()
-    (tmp / "profile.yaml").write_text(dump_profile(cal.profile))
-    if cal.members:
-        (tmp / "sensors").mkdir()
-        for m in cal.members:
-            (tmp / "sensors" / f"{m.name}@{m.version}.yaml").write_text(dump_profile(m))
-    (tmp / "summary.yaml").write_text(dump_yaml(cal.summary))
-    if cal.config is not None:
-        (tmp / "config.yaml").write_text(dump_yaml(cal.config.model_dump(mode="json")))
-    if cal.motion is not None:  # SLAM settings for `detcal slam run --config`: the vehicle model measured on these logs
-        v = {k: float(f"{x:.4g}") for k, x in cal.motion["velocity"].items()}
-        head = f"# velocity odometry measured against ground truth over {cal.motion['windows']} windows of {cal.motion['window_s']:g} s\n"
-        (tmp / "motion.yaml").write_text(head + dump_yaml({"motion": {"velocity": v}}))
-    cal.pairs.to_csv(tmp / "pairs.csv.gz", index=False, float_format="%.9g", compression={"method": "gzip", "mtime": 0})
-    if cal.profile.pd.two_d:
-        plot_pd_grid(cal.profile.pd, cal.pairs, tmp / "pd_range_bearing.png")
-        figures.append("pd_range_bearing.png")
-    else:
-        plot_pd(cal, tmp / "pd_vs_range.png")
-        figures.append("pd_vs_range.png")
-    plot_clutter(cal, tmp / "clutter.png")
-    figures.append("clutter.png")
-    if cal.profile.clutter.density is not None:
-        plot_clutter_density(cal.profile.clutter, tmp / "clutter_density.png")
-        figures.append("clutter_density.png")
-    if len(cal.names) > 1:
-        plot_sensors(cal, tmp / "sensors.png")
-        figures.append("sensors.png")
-    return figures

@@ -76,6 +76,7 @@ from scipy.stats import t as student_t
 
 from calib.clutter import batch_se
 from calib.pdmodels import cell_index
+from profiles.override import updated
 from profiles.schema import ClutterParams, HotellingParams, MeasurementNoise, PdTable
 
 PARTS = ("pd", "clutter", "noise", "coverage")
@@ -306,7 +307,7 @@ def with_effective_counts(table: PdTable, pairs: pd.DataFrame, detected: np.ndar
     landmark of each pair, distinct across logs.
     """
     eff = effective_counts(table, cell_index(table, pairs), np.asarray(detected, dtype=bool), np.asarray(cluster))
-    return PdTable.model_validate({**table.model_dump(), "effective_counts": eff})
+    return updated(table, {"effective_counts": eff})
 
 
 def landmark_clusters(pairs: pd.DataFrame) -> np.ndarray:

@@ -17,13 +17,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 from scipy.stats import chi2, poisson, rankdata
 
 from calib.clutter import dispersion_test, fit_negative_binomial, nb_pmf_sf, pearson, rate_standard_error
 from detectors.circle import mahalanobis2 as maha2
 from profiles.errors import DataError
-from profiles.schema import ClutterDensity, ClutterParams, CountTest, PdTable
+from profiles.parameters import PdFitConfig
+from profiles.schema import PD_COVARIATES, ClutterDensity, ClutterParams, CountTest, PdTable
 
 Z95 = 1.959963984540054
 
@@ -38,25 +38,6 @@ def wilson(k: np.ndarray, n: np.ndarray, z: float = Z95) -> tuple[np.ndarray, np
         centre = (p + z * z / (2 * n)) / den
         half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
     return centre - half, centre + half
-
-
-class PdFitConfig(BaseModel):
-    """How the P_D table is binned and clamped.
-
-    ``min_count``: a bin is well populated with at least this many (landmark,
-    scan) pairs. ``tail``: above the last well-populated bin, ``last`` uses that
-    bin's own estimate (the thesis: n_p > 6 uses n_p = 6), ``pool`` pools every
-    pair at or above it into that bin (more data for the same rule; the default,
-    because the tail is where counts are thin). ``zero_below``: estimates under
-    this become 0 (thesis: 0.1), so a filter does not keep expecting features
-    that are out of view.
-    """
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    min_count: int = Field(default=200, ge=1)
-    tail: str = Field(default="pool", pattern="^(pool|last)$")
-    zero_below: float = Field(default=0.1, ge=0.0, lt=1.0)
-    range_bin: float = Field(default=0.5, gt=0.0, description="bin width for a range covariate [m]")
 
 
 def fit_pd_table(values: np.ndarray, detected: np.ndarray, covariate: str, cfg: PdFitConfig, runs: int = 1) -> PdTable:
@@ -74,7 +55,7 @@ def fit_pd_table(values: np.ndarray, detected: np.ndarray, covariate: str, cfg: 
     detected = np.asarray(detected, dtype=bool)
     if values.size == 0:
         raise DataError("no (landmark, scan) pairs to fit P_D to: are the landmarks ever in view?")
-    if covariate == "n_p":
+    if PD_COVARIATES.get(covariate).integer:  # one bin per count
         edges = np.arange(0, int(values.max()) + 2, dtype=np.float64)
     else:
         edges = np.arange(0.0, values.max() + cfg.range_bin, cfg.range_bin)
@@ -99,7 +80,7 @@ def fit_pd_table(values: np.ndarray, detected: np.ndarray, covariate: str, cfg: 
     lo, hi = wilson(k / runs, n / runs)  # one run's sample size, centred on the pooled rate
     n_run = np.where(n > 0, np.maximum(np.rint(n / runs), 1), 0).astype(np.int64)
     k_run = np.minimum(np.rint(k / runs), n_run).astype(np.int64)
-    unit = "n_p" if covariate == "n_p" else "range"
+    unit = covariate if PD_COVARIATES.get(covariate).integer else "range"
     pooled = f"{runs} runs of the same detections pooled, counts per run; " if runs > 1 else ""
     return PdTable(
         covariate=covariate,

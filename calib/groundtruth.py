@@ -13,7 +13,7 @@ from calib.icp import IcpResult, icp_ground_truth, read_relations, relation_erro
 from calib.io.atomic import atomic_output
 from calib.progress import progress
 from detectors.geometry import interpolate_poses
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 
 
 def score_against_truth(log: SensorLog, res: IcpResult) -> dict:

@@ -29,7 +29,7 @@ from scipy.sparse import lil_matrix
 from scipy.spatial import cKDTree
 
 from detectors.geometry import compose, interpolate_poses, relative, rigid_align  # noqa: F401  (re-exported)
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.errors import DataError
 
 

@@ -21,7 +21,7 @@ from scipy.spatial import cKDTree
 from calib.detect import detections_table
 from detectors.circle import detect_circles
 from detectors.geometry import compose
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from detectors.raytrace import count_unoccluded
 from profiles.errors import DataError
 from profiles.schema import CircleDetectorParams

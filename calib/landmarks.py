@@ -17,28 +17,16 @@ and P_D is biased upwards for them. A surveyed or hand-checked CSV
 from __future__ import annotations
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from detectors.circle import detect_circles
 from detectors.geometry import compose
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.errors import DataError
+from profiles.parameters import CloudLandmarkConfig
 from profiles.schema import CircleDetectorParams
-
-
-class CloudLandmarkConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    min_scans: int = Field(default=10, ge=1, description="scans a landmark must be detected in")
-    merge: float = Field(default=0.3, gt=0.0, description="detections closer than this are the same landmark [m]")
-    min_radius: float = Field(default=0.03, gt=0.0)
-    max_radius: float = Field(default=1.0, gt=0.0)
-    min_points: int = Field(default=4, ge=3, description="returns a detection needs to vote")
-    max_spread: float = Field(
-        default=0.05, gt=0.0, description="median distance of a cluster's centres from their median [m]: a circle fits the same from every side, a bush does not"
-    )
 
 
 def landmarks_from_cloud(

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from detectors.geometry import interpolate_poses, relative
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.errors import DataError
 
 

@@ -28,37 +28,19 @@ data stays near the pooled table, one with much data follows its own.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 import pandas as pd
-from pydantic import BaseModel, ConfigDict, Field
 from scipy.optimize import minimize_scalar
 from scipy.special import betaln, expit
 
-from calib.fits import PdFitConfig, fit_pd_table, wilson
+from calib.fits import fit_pd_table, wilson
 from profiles.errors import DataError
+from profiles.override import updated
+from profiles.parameters import PdModelConfig
 from profiles.schema import PdTable, Selection
 
 LOGLIK_CLIP = 1e-3  # P_D clipped to [c, 1 - c] in log-likelihoods: one impossible outcome costs log(1e-3), not -inf
-Candidate = Literal["range", "additive_logit", "cells_shrunk"]
-
-
-class PdModelConfig(BaseModel):
-    """Candidates and their resolution for a detection-level P_D model."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    candidates: list[Candidate] = Field(default=["range", "additive_logit", "cells_shrunk"], min_length=1)
-    # no zero clamp: inside the field of view a low P_D is real, not a sign of being out of view
-    # (on UTIAS robots 1-3 -> 4-5 the thesis's clamp below 0.1 raised the ECE from 0.046 to 0.053)
-    table: PdFitConfig = PdFitConfig(min_count=50, range_bin=0.25, zero_below=0.0)
-    grid_range_bin: float = Field(default=0.5, gt=0.0, description="range bin of the range x bearing grids [m]")
-    bearing_bins: int = Field(default=8, ge=1, le=90, description="bearing bins across the field of view")
-    shrinkage: float = Field(default=20.0, gt=0.0, description="cells_shrunk: pseudo-pairs toward the additive model")
-    ridge: float = Field(default=1.0, ge=0.0, description="additive_logit: ridge penalty on the bearing terms (logit units^-2)")
-    folds: int = Field(default=5, ge=2, le=50, description="contiguous time blocks for the held-out choice when there is one sensor")
-
-
 # ------------------------------------------------------------------------------------------ cells
 
 
@@ -234,7 +216,7 @@ def choose_pd_model(pairs: pd.DataFrame, fold: np.ndarray, folds_label: str, fov
     best = int(np.argmax(ll))
     table = fit_candidate(cands[best], pairs, re_, be, cfg)
     sel = Selection(folds=folds_label, candidates=cands, loglik=ll.tolist(), items=len(pairs), chosen=cands[best])
-    return table.model_copy(update={"selection": sel})
+    return updated(table, {"selection": sel})
 
 
 # ------------------------------------------------------------------------------------------ pooling

@@ -38,11 +38,6 @@ def predict(normal: np.ndarray, offset: np.ndarray, rect: np.ndarray, m: np.ndar
     return n1, d1, r1
 
 
-def rect_area(rect: np.ndarray) -> np.ndarray:
-    """(L,) areas of rectangles (L, 4, 3)."""
-    return np.linalg.norm(rect[:, 1] - rect[:, 0], axis=-1) * np.linalg.norm(rect[:, 2] - rect[:, 1], axis=-1)
-
-
 def vertex_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(4,) each vertex of rectangle a (4, 3) to the closest vertex of rectangle b (4, 3)."""
     return np.linalg.norm(a[:, None, :] - b[None, :, :], axis=-1).min(axis=1)

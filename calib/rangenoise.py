@@ -27,9 +27,8 @@ This module measures exactly that on ICP-aligned scans:
 
 The thinness test matters: without it, a return whose neighbours form a blob
 (a trunk, a table leg) is scored against their centroid, next to itself, and
-the spread comes out far too small (on a simulated park with sigma_r = 2 cm,
-1.3 cm). With the defaults, simulated parks with sigma_r = 2 cm and 5 cm give
-2.2 cm and 6.0 cm: slightly high (curved trunks pass as lines over 0.5 m),
+the spread comes out far too small. With the defaults the estimate is slightly
+high on simulated parks (curved trunks pass as lines over 0.5 m; docs/results.md),
 which errs on the side of not calling noise an occlusion.
 
 Everything is vectorised over the query returns (one k-d tree query, batched
@@ -41,30 +40,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial import cKDTree
 
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.errors import DataError
+from profiles.parameters import RangeNoiseConfig
 
 #: Consistency factor of the median absolute deviation for a Gaussian.
 MAD_TO_SIGMA = 1.4826
-
-
-class RangeNoiseConfig(BaseModel):
-    """How sigma_r is estimated from registered scans (defaults suit indoor and park lasers)."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    bands: list[float] = Field(default=[0.0, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0], min_length=1, description="lower edges of the range bands [m]")
-    query_scans: int = Field(default=1500, ge=1, description="scans (evenly spread) whose returns are scored")
-    map_move: float = Field(default=0.3, ge=0.0, description="a scan joins the map after the sensor moved this far [m] ...")
-    map_turn: float = Field(default=0.1, ge=0.0, description="... or turned this much [rad] since the last map scan")
-    neighbours: int = Field(default=32, ge=3, le=64, description="nearest map returns of other scans that make a local surface")
-    min_neighbours: int = Field(default=8, ge=3, description="fewest of them within radius for a residual")
-    radius: float = Field(default=0.5, gt=0.0, description="neighbour search radius [m]")
-    thinness: float = Field(default=0.3, gt=0.0, le=1.0, description="largest ratio of the scatter's eigenvalues (small: a line)")
-    min_incidence: float = Field(default=0.4, gt=0.0, le=1.0, description="smallest |cos| of the angle between beam and surface normal")
-    min_samples: int = Field(default=100, ge=1, description="residuals a band needs for its own figure")
 
 
 @dataclass
@@ -193,12 +176,6 @@ def map_scans(sensor_poses: np.ndarray, move: float, turn: float) -> np.ndarray:
             keep.append(i)
             last = p
     return np.array(keep, dtype=np.int64)
-
-
-def estimate_range_noise(logs: list[SensorLog], sensor_poses: list[np.ndarray], cfg: RangeNoiseConfig | None = None) -> RangeNoise:
-    """Range noise pooled over logs of one laser; ``sensor_poses[k]`` (S_k, 3) world frame for log k."""
-    cfg = cfg or RangeNoiseConfig()
-    return pool_range_noise([range_residuals(lg, sp, cfg) for lg, sp in zip(logs, sensor_poses, strict=True)], cfg)
 
 
 def pool_range_noise(parts: list[tuple[np.ndarray, np.ndarray, int]], cfg: RangeNoiseConfig | None = None) -> RangeNoise:

@@ -14,7 +14,7 @@ import dataclasses
 
 import numpy as np
 
-from detectors.logs import NS, Detections, ScanBatch, SensorLog
+from detectors.sensor_log import NS, Detections, ScanBatch, SensorLog
 from profiles.errors import DataError
 
 

@@ -40,7 +40,7 @@ from calib.io.atomic import atomic_output
 from calib.label import label_log
 from calib.scoring import score_counts, score_coverage, score_pd
 from detectors.circle import descriptor_matrix, hotelling_maha2
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from profiles.errors import DataError, UsageError
 from profiles.profile import DetectorProfile
 

@@ -3,7 +3,7 @@
 Imports only ``profiles``.
 """
 
-from detectors.logs import (
+from detectors.sensor_log import (
     Detections,
     Landmarks,
     Mount,

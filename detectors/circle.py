@@ -41,6 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from detectors.kinds import Detector, Measurements, register
 from profiles.errors import DataError
 from profiles.schema import CircleDetectorParams, HotellingParams
 
@@ -331,7 +332,7 @@ def detect_circles(
 
     ranges (N, B) or (B,) float, NaN = no return; angles (B,) sensor frame, or
     (N, B) per scan for a laser of several beam layouts
-    (:meth:`detectors.logs.SensorLog.scan_angles`; NaN past a scan's beams).
+    (:meth:`detectors.sensor_log.SensorLog.scan_angles`; NaN past a scan's beams).
     With ``hotelling`` the detections outside its ellipsoid are dropped; the
     squared Mahalanobis distance is reported either way when a model is given.
 
@@ -401,3 +402,47 @@ def _empty(with_model: bool) -> CircleDetections:
     z = np.zeros(0)
     zi = np.zeros(0, dtype=np.int64)
     return CircleDetections(zi, z, z, z, z, z, z, z, zi, zi, zi, np.zeros((0, 2, 2)), z, z)
+
+
+# ---------------------------------------------------------------------------- the kind at run time
+
+
+class ScanCircles:
+    """The profile's circle detector on every scan (with its Hotelling gate and the scan's own beam layout): each
+    detection's own fit covariance, the descriptor likelihood ratio (eq. 5.6), and the scan with its beam angles for
+    ray-traced P_D."""
+
+    def __init__(self, log, profile, detection, *, descriptor_likelihood: bool = True) -> None:
+        self.log = log
+        self.params = profile.detector.circle
+        self.detection = detection
+        sensor = log.sensor if log.sensor is not None else profile.sensor
+        self.range_sigma = sensor.range_sigma
+        self.hot = None
+        if profile.hotelling is not None:
+            self.hot = HotellingParams.model_validate(profile.hotelling.model_dump(include=set(HotellingParams.model_fields)))
+        self.ratio = descriptor_likelihood and self.hot is not None
+
+    def __call__(self, frame) -> Measurements:
+        scan = self.log.scans.ranges[frame.rows]
+        angles = self.log.scan_angles(frame.rows)  # this scan's own beam layout (NaN past its beams)
+        det = detect_circles(scan, angles, self.params, self.hot, self.range_sigma)
+        z = np.column_stack([det.range, det.bearing])
+        ratio = None
+        if self.ratio:
+            desc = det.descriptors(tuple(self.hot.names))
+            ratio = self.detection.g_true(desc) / np.maximum(self.detection.g_false(desc), 1e-300)
+        return Measurements(z, det.cov, ratio, scan, angles)
+
+
+class CircleDetector(Detector):
+    """``circle2d``: the thesis's laser circle detector, run on every scan of the log."""
+
+    stream = "scans"
+    needs = "detects circles in laser scans"
+
+    def source(self, log, profile, detection, options):
+        return ScanCircles(log, profile, detection, descriptor_likelihood=options.descriptor_likelihood)
+
+
+register("circle2d", CircleDetector())

@@ -195,12 +195,6 @@ def transform_points(points: np.ndarray, m: np.ndarray) -> np.ndarray:
     return p @ np.swapaxes(m[..., :3, :3], -1, -2) + m[..., None, :3, 3]
 
 
-def polygon_area(v2: np.ndarray) -> float:
-    """Area of a simple polygon given by its vertices (V, 2) in order (shoelace)."""
-    x, y = v2[:, 0], v2[:, 1]
-    return float(0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
-
-
 def min_area_rectangle(v2: np.ndarray) -> np.ndarray:
     """(4, 2) corners of the smallest rectangle enclosing a convex polygon (V, 2), counter-clockwise.
 

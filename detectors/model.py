@@ -37,13 +37,13 @@ from math import gamma as gamma_fn
 from math import pi
 
 import numpy as np
-from scipy.special import chdtr  # chi-square CDF; scipy.stats (0.6 s to import) is not needed here
+from scipy.special import chdtr  # chi-square CDF; scipy.stats (slow to import) is not needed here
 
 from detectors.circle import hotelling_maha2
-from detectors.logs import SensorModel
+from detectors.sensor_log import SensorModel
 from detectors.raytrace import buffer_zone, count_unoccluded, expected_pd, expected_unoccluded
 from profiles.errors import DataError
-from profiles.schema import ClutterParams, HotellingParams, MeasurementNoise, PdTable
+from profiles.schema import PD_COVARIATES, ClutterParams, HotellingParams, MeasurementNoise, PdTable
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:
@@ -84,10 +84,16 @@ class DetectionModel:
     occluder_weight: float = 0.5
 
     def __post_init__(self) -> None:
-        if self.pd_table.covariate == "n_p" and self.sensor.n_beams is None:
-            raise DataError("an n_p P_D table needs a sensor model with a beam geometry")
-        if self.pd_table.covariate == "n_p" and self.sensor.range_sigma is None:
-            raise DataError("an n_p P_D table needs the sensor's range_sigma (for the occlusion test)")
+        c = self.pd_table.covariate
+        if self.ray_traced and self.sensor.n_beams is None:
+            raise DataError(f"an {c} P_D table needs a sensor model with a beam geometry")
+        if self.ray_traced and self.sensor.range_sigma is None:
+            raise DataError(f"an {c} P_D table needs the sensor's range_sigma (for the occlusion test)")
+
+    @property
+    def ray_traced(self) -> bool:
+        """The P_D table's covariate is ray-traced against the current scan (n_p), not a function of the measurement."""
+        return PD_COVARIATES.get(self.pd_table.covariate).ray_traced
 
     @classmethod
     def from_profile(cls, profile, sensor: SensorModel | None = None, **options) -> DetectionModel:
@@ -105,6 +111,24 @@ class DetectionModel:
             noise=profile.noise,
             buffer_samples=profile.detector.buffer_samples,
             **{"occluder_radius": profile.detector.occluder_radius, "k_sigma": profile.detector.k_sigma, **options},
+        )
+
+    @classmethod
+    def from_options(cls, profile, sensor, options, k_sigma: float | None = None) -> DetectionModel:
+        """The runtime model with a filter's detection options (``slam_runtime.config.DetectionOptions``: P_D mode,
+        buffer zone, landmark radius, phase averaging, occlusion) and occlusion tolerance ``k_sigma`` (None: the
+        profile's)."""
+        o = options
+        return cls.from_profile(
+            profile,
+            sensor,
+            constant_pd=o.constant_pd if o.pd_mode == "constant" else None,
+            buffer=o.buffer_zone,
+            buffer_sigmas=o.buffer_sigmas,
+            landmark_radius=o.landmark_radius,
+            phase_average=o.phase_average,
+            **({} if o.occlusion else {"occluder_radius": None}),
+            **({} if k_sigma is None else {"k_sigma": k_sigma}),
         )
 
     @property
@@ -137,10 +161,6 @@ class DetectionModel:
 
     def pd_of_np(self, n_p: np.ndarray) -> np.ndarray:
         return self.pd_table.lookup(n_p)
-
-    def pd_covariate(self, v: np.ndarray) -> np.ndarray:
-        """P_D for covariate values (any shape): n_p counts or ranges, as the table says."""
-        return self.pd_table.lookup(v)
 
     def pd_landmarks(
         self,
@@ -190,11 +210,13 @@ class DetectionModel:
         """The table's P_D at z (..., 2) as if inside the field of view: a grid's bearing is held to its
         edges, so a feature in the buffer band beyond an edge gets the edge cell's value."""
         t = self.pd_table
-        if t.covariate == "n_p":
+        of_z = PD_COVARIATES.get(t.covariate).from_measurement
+        if of_z is None:
             raise DataError(f"P_D of a {t.covariate} table needs the scan (pd_points), not a predicted measurement")
+        v = of_z(z)
         if t.two_d:
-            return t.lookup_rb(z[..., 0], np.clip(z[..., 1], t.bearing_edges[0], t.bearing_edges[-1]))
-        return t.lookup(z[..., 0])
+            return t.lookup_rb(v[..., 0], np.clip(v[..., 1], t.bearing_edges[0], t.bearing_edges[-1]))
+        return t.lookup(v)
 
     def _edge_band(self, z: np.ndarray, s_rad: np.ndarray, s_lat: np.ndarray, pd_in: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """P_D and buffer flags at the edges of the field of view and the range limits.
@@ -228,7 +250,7 @@ class DetectionModel:
         and the features' weights or existence probabilities (P, J) (who can occlude whom). Detection
         models of other feature kinds (planes) offer the same method."""
         pd, buf = self.pd_points(sensor_poses, mu, cov, getattr(meas, "scan", None), getattr(meas, "angles", None))
-        if self.occluder_radius is not None and weights is not None and self.pd_table.covariate != "n_p" and mu.shape[1]:
+        if self.occluder_radius is not None and weights is not None and not self.ray_traced and mu.shape[1]:
             pd, buf = self._occlude(np.asarray(sensor_poses, dtype=np.float64), mu, cov, np.asarray(weights), pd, buf)
         return pd, buf
 
@@ -288,7 +310,7 @@ class DetectionModel:
         u = los / rr[..., None]
         s_rad = np.sqrt(np.maximum(u[..., 0] ** 2 * cov[..., 0, 0] + 2 * u[..., 0] * u[..., 1] * cov[..., 0, 1] + u[..., 1] ** 2 * cov[..., 1, 1], 0.0))
         s_lat = np.sqrt(np.maximum(u[..., 1] ** 2 * cov[..., 0, 0] - 2 * u[..., 0] * u[..., 1] * cov[..., 0, 1] + u[..., 0] ** 2 * cov[..., 1, 1], 0.0))
-        if self.constant_pd is not None or self.pd_table.covariate != "n_p":
+        if self.constant_pd is not None or not self.ray_traced:
             full = np.full((p, j), self.constant_pd) if self.constant_pd is not None else self._table_at(z)
             return self._edge_band(z, s_rad, s_lat, full)
         return self._pd_np(sp, mu, z, s_lat, scan, angles)

@@ -47,6 +47,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError
 
 from detectors.geometry3d import chart_from_normal, min_area_rectangle, plane_basis
+from detectors.kinds import Detector, Measurements, register
 from profiles.errors import DataError
 from profiles.planes import PlaneDetectorParams
 
@@ -349,31 +350,7 @@ def detect_planes(points: np.ndarray, params: PlaneDetectorParams | None = None,
         j = np.argmin(dist, axis=1)
         best = reg_nb[np.arange(free.size), j]
         region[free] = np.where(np.isfinite(dist[np.arange(free.size), j]), best, -1)
-    # then further out, cell by cell, while a good share of a cell's returns lie on the region's plane
-    # (a plane seen through a bush or behind a pole's cells keeps its returns there)
-    tol = 3.0 * sig
-    for _ in range(prm.grow_steps):
-        free = np.flatnonzero(region < 0)
-        if free.size == 0:
-            break
-        nbf = neighbours(free)
-        reg_nb = np.where(nbf >= 0, region[np.maximum(nbf, 0)], -1)
-        dist = np.where(reg_nb >= 0, np.abs((rn[np.maximum(reg_nb, 0)] * mean[free, None, :]).sum(-1) - rd[np.maximum(reg_nb, 0)]), np.inf)
-        j = np.argmin(dist, axis=1)
-        cand = np.where(np.isfinite(dist[np.arange(free.size), j]), reg_nb[np.arange(free.size), j], -1)
-        if not (cand >= 0).any():
-            break
-        cand_of = np.full(k, -1)
-        cand_of[free] = cand
-        pc = cand_of[cell]
-        m_ = np.flatnonzero(pc >= 0)
-        near = np.zeros(p.shape[0])
-        near[m_] = np.abs((rn[pc[m_]] * p[m_]).sum(1) - rd[pc[m_]]) <= tol
-        share = np.bincount(cell, weights=near, minlength=k) / np.maximum(cnt, 1.0)
-        adopt = free[(cand >= 0) & (share[free] >= prm.grow_share)]
-        if adopt.size == 0:
-            break
-        region[adopt] = cand_of[adopt]
+    region = _grow(region, cell, cnt, mean, p, rn, rd, neighbours, k, 3.0 * sig, prm)
     lab_all = region[cell]
     sub = np.flatnonzero(lab_all >= 0)  # only returns that some region may take
     p, lab, use = p[sub], lab_all[sub], use[sub]
@@ -411,6 +388,36 @@ def detect_planes(points: np.ndarray, params: PlaneDetectorParams | None = None,
         labels_out[use] = plab
         return det, labels_out
     return det
+
+
+def _grow(region, cell, cnt, mean, p, rn, rd, neighbours, k, tol, prm):
+    """Regions grown further out, cell by cell (``prm.grow_steps`` rings at most), while at least ``prm.grow_share``
+    of a cell's returns lie within ``tol`` of the neighbouring region's plane (a plane seen through a bush or behind
+    a pole's cells keeps its returns there): the region of each cell (k,), -1 for none."""
+    region = region.copy()
+    for _ in range(prm.grow_steps):
+        free = np.flatnonzero(region < 0)
+        if free.size == 0:
+            break
+        nbf = neighbours(free)
+        reg_nb = np.where(nbf >= 0, region[np.maximum(nbf, 0)], -1)
+        dist = np.where(reg_nb >= 0, np.abs((rn[np.maximum(reg_nb, 0)] * mean[free, None, :]).sum(-1) - rd[np.maximum(reg_nb, 0)]), np.inf)
+        j = np.argmin(dist, axis=1)
+        cand = np.where(np.isfinite(dist[np.arange(free.size), j]), reg_nb[np.arange(free.size), j], -1)
+        if not (cand >= 0).any():
+            break
+        cand_of = np.full(k, -1)
+        cand_of[free] = cand
+        pc = cand_of[cell]
+        m_ = np.flatnonzero(pc >= 0)
+        near = np.zeros(p.shape[0])
+        near[m_] = np.abs((rn[pc[m_]] * p[m_]).sum(1) - rd[pc[m_]]) <= tol
+        share = np.bincount(cell, weights=near, minlength=k) / np.maximum(cnt, 1.0)
+        adopt = free[(cand >= 0) & (share[free] >= prm.grow_share)]
+        if adopt.size == 0:
+            break
+        region[adopt] = cand_of[adopt]
+    return region
 
 
 def _merge_coplanar(lab, rn, rd, rcount, rlam, s_, ss_, prm):
@@ -475,3 +482,43 @@ def _outlines(p, plab, normal, d, cen, m):
         rects[i] = base + rc[:, :1] * u[i] + rc[:, 1:] * v[i]
     offs = np.concatenate([[0], np.cumsum([q.shape[0] for q in polys])]).astype(np.int64)
     return (np.vstack(polys) if polys else np.zeros((0, 3))), offs, areas, rects
+
+
+# ---------------------------------------------------------------------------- the kind at run time
+
+
+class CloudPlanes:
+    """The profile's plane detector on every cloud; the landmark planes (steep enough, enough inliers) as
+    sensor-frame charts (azimuth, elevation, offset) with their fit covariances, and the cloud for P_D."""
+
+    def __init__(self, log, profile, detection) -> None:
+        self.log = log
+        self.params = profile.detector.plane
+        self.detection = detection
+        self.min_points = profile.planes.min_points
+        self.min_width = profile.planes.min_width
+
+    def __call__(self, frame) -> Measurements:
+        cloud = self.log.clouds.frame(frame.rows)
+        det = detect_planes(cloud, self.params, where=f"{self.log.name}: cloud {frame.rows}")
+        use = self.detection.in_view(det.chart) & (det.inliers >= self.min_points) & (det.width >= self.min_width)
+        return Measurements(det.chart[use], det.cov[use], cloud=cloud)
+
+
+class PlaneDetector(Detector):
+    """``plane3d``: detcal's plane detector, run on every 3D lidar cloud of the log."""
+
+    stream = "clouds"
+    needs = "detects planes in point clouds"
+    features = "planes"
+
+    def detection_model(self, profile, sensor, options, k_sigma):
+        from detectors.plane_model import PlaneDetectionModel
+
+        return PlaneDetectionModel.from_options(profile, sensor, options, k_sigma)
+
+    def source(self, log, profile, detection, options):
+        return CloudPlanes(log, profile, detection)
+
+
+register("plane3d", PlaneDetector())

@@ -77,6 +77,13 @@ class PlaneDetectionModel:
             raise DataError(f"a plane detection model needs a P_D table over points, not {self.pd_table.covariate}")
 
     @classmethod
+    def from_options(cls, profile, sensor, options, k_sigma: float | None = None) -> PlaneDetectionModel:
+        """The runtime model with a filter's detection options (P_D mode, buffer zone; the point features' options
+        and the occlusion tolerance do not apply to planes)."""
+        o = options
+        return cls.from_profile(profile, constant_pd=o.constant_pd if o.pd_mode == "constant" else None, buffer=o.buffer_zone, buffer_sigmas=o.buffer_sigmas)
+
+    @classmethod
     def from_profile(cls, profile, *, constant_pd: float | None = None, buffer: bool = True, buffer_sigmas: float = 2.0, **_ignored) -> PlaneDetectionModel:
         """The runtime model of a ``lidar3d-planes`` :class:`profiles.profile.DetectorProfile`."""
         st = profile.planes

@@ -36,7 +36,7 @@ def count_unoccluded(
 
     sensor_poses (S, 3) world frame; angles (B,) sensor frame, or (S, B) one row
     per scan for a laser of several beam layouts (NaN past a scan's own beams:
-    no beam there, see :meth:`detectors.logs.SensorLog.scan_angles`);
+    no beam there, see :meth:`detectors.sensor_log.SensorLog.scan_angles`);
     ranges (S, B) measured, NaN = no return (a (B,) scan is shared by all poses);
     centres (L, 2) world frame, shared by all poses, or (S, L, 2): one set per pose
     (the maps of a particle filter); radii (L,) or scalar.

@@ -111,10 +111,6 @@ class Scene:
         return int(self.poly_count.size)
 
     @property
-    def n_primitives(self) -> int:
-        return self.n_polygons + int(self.cyl_r.size) + int(self.sph_r.size)
-
-    @property
     def poly_normal(self) -> np.ndarray:
         return self._poly[0]
 
@@ -124,7 +120,7 @@ class Scene:
 
 
 def polygon_scene(planes) -> Scene:
-    """A scene of the polygons of a :class:`detectors.logs.PlaneLandmarks` (no other primitives)."""
+    """A scene of the polygons of a :class:`detectors.sensor_log.PlaneLandmarks` (no other primitives)."""
     counts = np.diff(planes.offsets)
     v = np.zeros((len(planes), int(counts.max()) if counts.size else 3, 3))
     for i in range(len(planes)):

@@ -36,12 +36,14 @@ The planar path (``plane3d`` detectors, ``sensor.lidar``, ``planes``) is schema 
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass
 from typing import Any, Literal
 
 from pydantic import Field, field_validator, model_validator
 
 from profiles.planes import PlaneDetectorParams, PlaneStats
-from profiles.schema import CircleDetectorParams, ClutterParams, HotellingParams, MeasurementNoise, PdTable, SensorModel, Strict
+from profiles.registry import Registry, literal_field
+from profiles.schema import PD_COVARIATES, CircleDetectorParams, ClutterParams, HotellingParams, MeasurementNoise, PdTable, SensorModel, Strict
 
 SCHEMA_VERSION = 2
 SUPPORTED_SCHEMAS = (1, 2)
@@ -66,6 +68,34 @@ def semver_key(v: str) -> tuple[int, int, int]:
     return int(m.group(1)), int(m.group(2)), int(m.group(3))
 
 
+@dataclass(frozen=True)
+class DetectorKind:
+    """What a detector kind means to a profile.
+
+    ``params``: the field of :class:`DetectorSpec` holding its parameters (None: none); ``label``: the profile's
+    kind is ``<sensor kind>-<label>``; ``planes``: its profiles have P_D over the points of planes, a planes
+    section and clutter in plane space, on a ``sensor`` of that kind with its lidar geometry; ``schema``: the
+    first profile schema that can say it. What it does at run time is in ``detectors.kinds``.
+    """
+
+    params: str | None = None
+    label: str = "external"
+    planes: bool = False
+    sensor: str | None = None
+    schema: int = 1
+
+
+#: The detector kinds a profile may name (``detector.kind``); a new detector registers its kind here through
+#: ``detectors.kinds.register`` (with what it does at run time).
+DETECTOR_KINDS: Registry[DetectorKind] = Registry("detector kind")
+DETECTOR_KINDS.add("circle2d", DetectorKind(params="circle", label="circles"))
+DETECTOR_KINDS.add("external", DetectorKind())
+DETECTOR_KINDS.add("plane3d", DetectorKind(params="plane", label="planes", planes=True, sensor="lidar3d", schema=2))
+
+#: the parameter fields of :class:`DetectorSpec` and their models
+_PARAMS = {"circle": CircleDetectorParams, "plane": PlaneDetectorParams}
+
+
 class DetectorSpec(Strict):
     """Which detector and its parameters.
 
@@ -75,7 +105,7 @@ class DetectorSpec(Strict):
     plane detector on 3D lidar clouds (``plane`` holds its parameters).
     """
 
-    kind: Literal["circle2d", "external", "plane3d"] = "circle2d"
+    kind: str = "circle2d"  # (one of DETECTOR_KINDS: set below)
     circle: CircleDetectorParams | None = None
     plane: PlaneDetectorParams | None = None
     k_sigma: float = Field(default=3.0, gt=0.0, description="occlusion tolerance of the n_p ray tracer, in sigma_r")
@@ -89,15 +119,13 @@ class DetectorSpec(Strict):
     )
 
     @model_validator(mode="after")
-    def _circle(self) -> DetectorSpec:
-        if self.kind == "circle2d" and self.circle is None:
-            self.circle = CircleDetectorParams()
-        if self.kind != "circle2d" and self.circle is not None:
-            raise ValueError(f"a {self.kind} detector has no circle parameters")
-        if self.kind == "plane3d" and self.plane is None:
-            self.plane = PlaneDetectorParams()
-        if self.kind != "plane3d" and self.plane is not None:
-            raise ValueError(f"a {self.kind} detector has no plane parameters")
+    def _params(self) -> DetectorSpec:
+        own = DETECTOR_KINDS.get(self.kind).params
+        for field, model in _PARAMS.items():
+            if own == field and getattr(self, field) is None:
+                setattr(self, field, model())
+            if own != field and getattr(self, field) is not None:
+                raise ValueError(f"a {self.kind} detector has no {field} parameters")
         if self.buffer_samples % 2 == 0:
             raise ValueError("buffer_samples must be odd")
         return self
@@ -213,22 +241,27 @@ class DetectorProfile(Strict):
 
     @model_validator(mode="after")
     def _consistent(self) -> DetectorProfile:
-        if self.pd.covariate == "n_p":
-            if self.detector.kind != "circle2d":
-                raise ValueError("pd.covariate n_p needs a circle2d detector (ray tracing of its scans)")
-            if self.sensor.n_beams is None or self.sensor.range_sigma is None:
-                raise ValueError("pd.covariate n_p needs sensor.n_beams and sensor.range_sigma")
+        d, c = self.detector.kind, self.pd.covariate
+        kind, cov = DETECTOR_KINDS.get(d), PD_COVARIATES.get(c)
+        allowed = cov.detectors is None or d in cov.detectors
+        if cov.sensor_needs:
+            if not allowed:
+                raise ValueError(cov.refusal)
+            if any(getattr(self.sensor, f) is None for f in cov.sensor_needs):
+                raise ValueError(f"pd.covariate {c} needs {' and '.join(f'sensor.{f}' for f in cov.sensor_needs)}")
         if (self.descriptor_likelihoods is not None) and self.hotelling is None:
             raise ValueError("descriptor_likelihoods need a hotelling model")
-        planar = self.detector.kind == "plane3d"
-        if planar and (self.sensor.kind != "lidar3d" or self.sensor.lidar is None):
-            raise ValueError("a plane3d detector needs a lidar3d sensor with its lidar geometry")
-        if planar and (self.pd.covariate != "points" or self.planes is None or self.clutter.space != "plane"):
-            raise ValueError("a plane3d profile needs pd.covariate points, a planes section and clutter.space plane")
-        if not planar and (self.planes is not None or self.pd.covariate == "points"):
-            raise ValueError("planes and a P_D table over points belong to plane3d detectors")
-        if self.pd.two_d and self.detector.kind == "circle2d":
-            raise ValueError("a range_bearing P_D table is for detection-level sensors (external detector)")
+        if kind.planes and (self.sensor.kind != kind.sensor or self.sensor.lidar is None):
+            raise ValueError(f"a {d} detector needs a {kind.sensor} sensor with its lidar geometry")
+        if kind.planes and (not allowed or cov.detectors is None or self.planes is None or self.clutter.space != "plane"):
+            own = ", ".join(n for n, v in PD_COVARIATES.items() if v.detectors is not None and d in v.detectors)
+            raise ValueError(f"a {d} profile needs pd.covariate {own}, a planes section and clutter.space plane")
+        of_planes = cov.detectors is not None and all(DETECTOR_KINDS.get(k, DetectorKind()).planes for k in cov.detectors)
+        if not kind.planes and (self.planes is not None or of_planes):
+            planar = " or ".join(n for n, v in DETECTOR_KINDS.items() if v.planes)
+            raise ValueError(f"planes and a P_D table over points belong to {planar} detectors")
+        if not allowed:
+            raise ValueError(cov.refusal)
         if self.schema_version == 1:
             used = schema2_fields_used(self)
             if used:
@@ -237,12 +270,9 @@ class DetectorProfile(Strict):
 
     @property
     def kind(self) -> str:
-        """What the profile is for: ``laser2d-circles``, ``lidar3d-planes`` or ``<sensor kind>-external``."""
-        if self.detector.kind == "plane3d":
-            return "lidar3d-planes"
-        if self.detector.kind == "circle2d":
-            return f"{self.sensor.kind}-circles"
-        return f"{self.sensor.kind}-external"
+        """What the profile is for: ``<sensor kind>-<the detector kind's label>`` (``laser2d-circles``,
+        ``lidar3d-planes``, ``camera-external``)."""
+        return f"{self.sensor.kind}-{DETECTOR_KINDS.get(self.detector.kind).label}"
 
     @property
     def ref(self) -> str:
@@ -253,17 +283,26 @@ def schema2_fields_used(p: DetectorProfile) -> list[str]:
     """Field paths of ``p`` that hold something only schema 2 can say (a value other than the default)."""
     used = [f"pd.{k}" for k in sorted(V2_FIELDS["pd"]) if getattr(p.pd, k) != type(p.pd).model_fields[k].default]
     used += [f"clutter.{k}" for k in sorted(V2_FIELDS["clutter"]) if getattr(p.clutter, k) != type(p.clutter).model_fields[k].default]
-    if p.pd.covariate == "range_bearing":
+    if PD_COVARIATES.get(p.pd.covariate).schema >= 2:
         used.insert(0, "pd.covariate")
     if p.hotelling is not None:
         h = p.hotelling
         used += [f"hotelling.{k}" for k in sorted(V2_FIELDS["hotelling"]) if getattr(h, k) != type(h).model_fields[k].default]
     if p.sensors is not None:
         used.append("sensors")
-    if p.detector.kind == "plane3d":
+    if DETECTOR_KINDS.get(p.detector.kind).schema >= 2:
         used.insert(0, "detector.kind")
     if p.sensor.lidar is not None:
         used.append("sensor.lidar")
     if p.planes is not None:
         used.append("planes")
     return used
+
+
+def _kinds() -> None:
+    literal_field(DetectorSpec, "kind", DETECTOR_KINDS.names(), DetectorProfile)
+
+
+_kinds()
+DETECTOR_KINDS.on_change(_kinds)
+PD_COVARIATES.on_change(lambda: DetectorProfile.model_rebuild(force=True))

@@ -6,12 +6,16 @@ runtime (``detectors.model``) and the calibration (``calib``) both read these.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_serializer, model_validator
 
 from profiles.errors import DataError
+from profiles.override import updated
+from profiles.registry import Registry, literal_field
 
 
 class Strict(BaseModel):
@@ -80,7 +84,7 @@ class SensorModel(Strict):
     angles; CARMEN ``ROBOTLASER1`` lines that carry their own geometry) lists
     its layouts in ``geometries`` instead; ``n_beams`` is then the widest
     count (the width of the scan arrays) and each scan says which layout it
-    used (:meth:`detectors.logs.SensorLog.scan_angles`). Detection-only
+    used (:meth:`detectors.sensor_log.SensorLog.scan_angles`). Detection-only
     sensors (a camera, a vendor's tree extractor) give ``fov`` instead of a
     beam geometry. A 3D lidar gives its ring and column layout in ``lidar``
     (written only when present).
@@ -147,7 +151,7 @@ class SensorModel(Strict):
         itself when ``yaw`` is 0."""
         if not yaw:
             return self
-        return self.model_copy(update={"mount": self.mount.model_copy(update={"theta": self.mount.theta + yaw})})
+        return updated(self, {"mount.theta": self.mount.theta + yaw})
 
     def angle_span(self) -> tuple[float, float] | None:
         """(lowest, highest) beam angle [rad] over every layout; None without a beam geometry."""
@@ -243,6 +247,41 @@ def _shape(v) -> tuple[int, ...]:
     return np.asarray(v, dtype=np.float64).shape
 
 
+@dataclass(frozen=True)
+class Covariate:
+    """What a P_D covariate is: what the profile checks and how a filter finds the covariate of a map feature.
+
+    ``from_measurement``: the covariate of a feature predicted at measurement z (..., dz), (...) for a 1-D table or
+    (..., 2) for a grid; None when it is not a function of the measurement (``ray_traced``: it needs the current
+    scan, n_p). ``grid``: the table is a grid (``edges`` x ``bearing_edges``). ``integer``: one bin per count.
+    ``detectors``: the detector kinds whose profiles may use it (None: any), ``refusal`` the message for others.
+    ``sensor_needs``: the sensor fields it needs. ``schema``: the first profile schema that can say it.
+    """
+
+    from_measurement: Callable[[np.ndarray], np.ndarray] | None = None
+    ray_traced: bool = False
+    grid: bool = False
+    integer: bool = False
+    detectors: tuple[str, ...] | None = None
+    refusal: str = ""
+    sensor_needs: tuple[str, ...] = ()
+    schema: int = 1
+
+
+#: The P_D covariates a profile's table may be over (``pd.covariate``); the table's field follows it.
+PD_COVARIATES: Registry[Covariate] = Registry("P_D covariate")
+PD_COVARIATES.add("n_p", Covariate(
+    ray_traced=True, integer=True, detectors=("circle2d",), refusal="pd.covariate n_p needs a circle2d detector (ray tracing of its scans)",
+    sensor_needs=("n_beams", "range_sigma"),
+))  # fmt: skip
+PD_COVARIATES.add("range", Covariate(from_measurement=lambda z: z[..., 0]))
+PD_COVARIATES.add("range_bearing", Covariate(
+    from_measurement=lambda z: z, grid=True, schema=2, detectors=("external",),
+    refusal="a range_bearing P_D table is for detection-level sensors (external detector)",
+))  # fmt: skip
+PD_COVARIATES.add("points", Covariate(detectors=("plane3d",)))  # (planes: the profile's plane checks say why)
+
+
 class PdTable(Strict):
     """P_D against a covariate, piecewise constant (thesis eq. 6.2, Table 6.1).
 
@@ -272,7 +311,7 @@ class PdTable(Strict):
     (:mod:`calib.drift`) allows for the profile's own sampling error.
     """
 
-    covariate: Literal["n_p", "range", "range_bearing", "points"] = "n_p"
+    covariate: str = "n_p"  # (one of PD_COVARIATES: set below)
     edges: list[float] = Field(min_length=2)
     bearing_edges: list[float] | None = Field(default=None, min_length=2)
     pd: list[float] | list[list[float]]
@@ -296,9 +335,10 @@ class PdTable(Strict):
         e = np.asarray(self.edges)
         if np.any(np.diff(e) <= 0):
             raise ValueError("edges must increase strictly")
-        two_d = self.covariate == "range_bearing"
+        two_d = self.two_d
         if two_d != (self.bearing_edges is not None):
-            raise ValueError("bearing_edges are given exactly when the covariate is range_bearing")
+            grids = " or ".join(n for n, c in PD_COVARIATES.items() if c.grid)
+            raise ValueError(f"bearing_edges are given exactly when the covariate is {grids}")
         shape: tuple[int, ...] = (e.size - 1,)
         if two_d:
             be = np.asarray(self.bearing_edges)
@@ -325,12 +365,12 @@ class PdTable(Strict):
 
     @property
     def two_d(self) -> bool:
-        return self.covariate == "range_bearing"
+        return PD_COVARIATES.get(self.covariate).grid
 
     def lookup(self, v: np.ndarray) -> np.ndarray:
         """P_D for covariate values ``v`` (any shape) of a one-covariate table."""
         if self.two_d:
-            raise ValueError("a range_bearing table needs range and bearing: use lookup_rb")
+            raise ValueError(f"a {self.covariate} table needs range and bearing: use lookup_rb")
         e = np.asarray(self.edges)
         pd = np.asarray(self.pd)
         i = np.clip(np.searchsorted(e, v, side="right") - 1, 0, pd.size - 1)
@@ -343,9 +383,11 @@ class PdTable(Strict):
         """
         r = np.asarray(r, dtype=np.float64)
         if not self.two_d:
-            if self.covariate != "range":
+            of_z = PD_COVARIATES.get(self.covariate).from_measurement
+            if of_z is None:
                 raise ValueError(f"a {self.covariate} table cannot be looked up by range and bearing")
-            return self.lookup(np.broadcast_to(r, np.broadcast_shapes(r.shape, np.shape(b))))
+            z = np.stack(np.broadcast_arrays(r, np.asarray(b, dtype=np.float64)), axis=-1)
+            return self.lookup(of_z(z))
         b = np.asarray(b, dtype=np.float64)
         e, be = np.asarray(self.edges), np.asarray(self.bearing_edges)
         pd = np.asarray(self.pd)
@@ -353,6 +395,14 @@ class PdTable(Strict):
         j = np.clip(np.searchsorted(be, b, side="right") - 1, 0, pd.shape[1] - 1)
         inside = (r >= e[0]) & (b >= be[0]) & (b <= be[-1])
         return np.where(inside, pd[i, j], 0.0)
+
+
+def _covariates() -> None:
+    literal_field(PdTable, "covariate", PD_COVARIATES.names())
+
+
+_covariates()
+PD_COVARIATES.on_change(_covariates)
 
 
 class MeasurementNoise(Strict):

@@ -17,7 +17,6 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,7 +25,8 @@ from pydantic import ValidationError
 
 from profiles.atomic import atomic_output
 from profiles.errors import DataError, DetcalError, UsageError
-from profiles.profile import LATER_OPTIONAL, SCHEMA_VERSION, SUPPORTED_SCHEMAS, V2_FIELDS, DetectorProfile, semver_key
+from profiles.profile import DETECTOR_KINDS, LATER_OPTIONAL, SCHEMA_VERSION, SUPPORTED_SCHEMAS, V2_FIELDS, DetectorProfile, semver_key
+from profiles.provenance import parameter_models
 
 BUILTIN = Path(__file__).resolve().parent / "builtin"
 
@@ -43,27 +43,17 @@ def _field_path(loc: tuple) -> str:
     return ".".join(str(p) for p in loc) or "(top level)"
 
 
-#: How the parameters recorded in ``provenance.parameters`` are validated, per detector kind: the
-#: detcal version whose records they describe, and factories of pydantic models refusing unknown
-#: keys -- one per way this detcal makes profiles of that kind (calibration, self-calibration, a
-#: simulator's truth). The calibrating package registers them (``calib`` does on import);
-#: ``profiles`` cannot import it.
-PARAMETER_MODELS: dict[str, tuple[str, list[Callable[[], type]]]] = {}
-
-
-def register_parameters(kind: str, detcal_version: str, *models: Callable[[], type]) -> None:
-    """Validate the recorded parameters of ``kind`` profiles made by ``detcal_version``: they must fit one of ``models``."""
-    PARAMETER_MODELS[kind] = (detcal_version, list(models))
-
-
 def _check_parameters(prof: DetectorProfile, where: str) -> None:
-    known = PARAMETER_MODELS.get(prof.detector.kind)
-    if known is None or known[0] != prof.provenance.detcal_version or not prof.provenance.parameters:
-        return  # none recorded (a profile written by hand), or by another detcal version: kept as recorded
+    """The recorded parameters must fit one of the models of the way this detcal makes such profiles
+    (:mod:`profiles.provenance`); a profile written by hand (none recorded) or by another detcal version is kept as
+    recorded."""
+    models = parameter_models(prof.detector.kind, prof.provenance.detcal_version)
+    if not models or not prof.provenance.parameters:
+        return
     closest = None
-    for factory in known[1]:
+    for model in models:
         try:
-            factory().model_validate(prof.provenance.parameters)
+            model.model_validate(prof.provenance.parameters)
             return
         except ValidationError as exc:
             if closest is None or exc.error_count() < closest.error_count():
@@ -157,8 +147,9 @@ def dump_profile(profile: DetectorProfile, fmt: str = "yaml") -> str:
     det = data.get("detector", {})
     if det.get("plane", 0) is None:
         det.pop("plane")
-    if det.get("kind") == "plane3d" and det.get("circle", 0) is None:
-        det.pop("circle")
+    kind = DETECTOR_KINDS.get(det.get("kind"), None)
+    if det.get("circle", 0) is None and kind is not None and kind.schema >= 2:
+        det.pop("circle")  # kinds that came with schema 2 never wrote the circle: null schema-1 documents carry
     if fmt == "json":
         return json.dumps(data, indent=2) + "\n"
     if fmt != "yaml":
@@ -176,7 +167,7 @@ _NOT_CONTENT = ("created", "command")
 
 #: Relative tolerance within which two profiles' numbers are the same content: a calibration's sums (a
 #: covariance through BLAS, say) round differently in the last bits under another numpy or BLAS build, which
-#: does not make it another profile. Measured: 1-2 units in the last place (about 1e-16) between numpy builds.
+#: does not make it another profile (a few units in the last place between numpy builds).
 SAME_REL_TOL = 1e-9
 
 

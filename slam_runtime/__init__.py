@@ -1,6 +1,8 @@
-"""Runtime SLAM filters that load detector profiles.
+"""RFS SLAM at run time: what a robot embeds.
 
-Must never import ``calib``: a filter takes arrays and a detection model.
+Takes arrays, models and a detector profile object (loaded by ``profiles``) and
+returns results; it never imports ``calib``, pandas, matplotlib or Dask, and
+writes no files (the ``detcal`` application writes run folders).
 
 The seam every filter shares (see the README's architecture section):
 
@@ -16,6 +18,6 @@ The seam every filter shares (see the README's architecture section):
   implementation on Gaussian mixtures of all particles (``gm``);
 * ``slam`` -- the Rao-Blackwellised particle loop; ``sources`` -- measurement
   sources per kind of log and the controls; ``config`` -- settings and the
-  factory; ``run`` -- run and evaluate; ``report`` -- run folders; ``sweep`` --
-  Monte Carlo sweeps; ``metrics`` -- OSPA/GOSPA and trajectory RMSE.
+  factory; ``run`` -- run and evaluate; ``metrics`` -- OSPA/GOSPA and
+  trajectory RMSE.
 """

@@ -7,107 +7,63 @@ noise, the detection options and the measurement noise are shared by every
 filter. ``detcal slam run --config F`` reads it; the run folder keeps a copy
 of the settings actually used. Overrides go through :func:`override`, which
 validates them (``particles: 0`` is refused, not copied in).
+
+The parts that depend on what is registered are read from the registries: the
+``filter`` union (:data:`slam_runtime.mapfilter.MAP_FILTERS`), the groups of
+``motion`` (:data:`slam_runtime.vehicle.VEHICLE_MODELS`), the fields of
+``measurement`` and the ``features`` choices
+(:data:`slam_runtime.features.FEATURE_MODELS`); the models are rebuilt when one
+is registered later.
 """
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Literal, Union
 
 import numpy as np
-from pydantic import AllowInfNan, BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator
+from pydantic import AllowInfNan, BaseModel, ConfigDict, Field, ValidationInfo, field_validator
+from pydantic.fields import FieldInfo
 from pydantic_core import PydanticCustomError
 
+from detectors.kinds import DETECTORS
 from profiles.errors import DataError, UsageError
-from slam_runtime.glmb import GLMBConfig
-from slam_runtime.lmb import LMBConfig
-from slam_runtime.rbphd import RBPHDConfig
+from profiles.override import updated
+from slam_runtime.features import FEATURE_MODELS
+from slam_runtime.mapfilter import MAP_FILTERS
+from slam_runtime.vehicle import VEHICLE_MODELS
 
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
-class IncrementNoise(_Strict):
-    """Pose-increment odometry (see :class:`slam_runtime.vehicle.OdometryIncrement`)."""
-
-    a_trans: float = Field(default=0.05, ge=0.0, description="std along per metre travelled")
-    a_rot: float = Field(default=0.05, ge=0.0, description="heading std per radian turned")
-    a_rot_trans: float = Field(default=0.01, ge=0.0, description="heading std per metre travelled [rad/m]")
-    lateral: float = Field(default=0.02, ge=0.0, description="std across per metre travelled")
-    s_x: float = Field(default=0.0, ge=0.0, description="constant std along [m / sqrt(s)]")
-    s_y: float = Field(default=0.0, ge=0.0, description="constant std across [m / sqrt(s)]")
-    s_theta: float = Field(default=0.0, ge=0.0, description="constant heading std [rad / sqrt(s)]")
-
-
-class VelocityNoise(_Strict):
-    """Unicycle (v, omega) commands."""
-
-    sigma_v: float = Field(default=0.05, ge=0.0, description="m/s")
-    sigma_omega: float = Field(default=0.05, ge=0.0, description="rad/s")
-    speed_scale: float = Field(default=1.0, gt=0.5, lt=2.0, description="factor on every speed command")
-    omega_offset: float = Field(default=0.0, ge=-0.5, le=0.5, description="turn-rate bias removed from every command [rad/s]")
-
-
-class AckermannNoise(_Strict):
-    """Encoder speed and steering angle."""
-
-    sigma_speed: float = Field(default=0.1, ge=0.0, description="m/s")
-    sigma_steer: float = Field(default=0.02, ge=0.0, description="rad")
-    steer_offset: float = Field(default=0.0, ge=-0.2, le=0.2, description="steering bias removed from every reading [rad]")
-    speed_scale: float = Field(default=1.0, gt=0.5, lt=2.0, description="factor on every speed reading")
-
-
-class ECTNoise(_Strict):
-    """Extended Constant Turn model (eq. 36 of Gostar et al.) driven by speed and yaw-rate odometry."""
-
-    sigma_v: float = Field(default=0.15, ge=0.0, description="speed reading [m/s]")
-    sigma_omega: float = Field(default=0.03, ge=0.0, description="yaw-rate reading [rad/s]")
-    sigma_ax: float = Field(default=0.05, ge=0.0, description="model acceleration noise along X [m/s^2]")
-    sigma_ay: float = Field(default=0.05, ge=0.0, description="model acceleration noise along Y [m/s^2]")
-    sigma_alpha: float = Field(default=0.005, ge=0.0, description="model yaw acceleration noise [rad/s^2]")
+def _choice(names: tuple[str, ...]):
+    return Literal[names]  # type: ignore[valid-type]
 
 
 class MotionNoise(_Strict):
-    model: Literal["auto", "ect"] = Field(
-        default="auto", description="auto: by the odometry's kind (ECT for planar features on speed and yaw-rate odometry); ect: always ECT"
-    )
-    increment: IncrementNoise = IncrementNoise()
-    velocity: VelocityNoise = VelocityNoise()
-    ackermann: AckermannNoise = AckermannNoise()
-    ect: ECTNoise = ECTNoise()
+    """The vehicle models' noise, one group per registered model (:data:`VEHICLE_MODELS`)."""
+
+    model: str = "auto"  # (its choices and the groups are set by _rebuild from the registry)
 
 
 class MeasurementNoiseConfig(_Strict):
-    """The filter's measurement noise floor; default: the profile's measured noise, else 0.1 m / 0.01 rad."""
-
-    sigma_range: float | None = Field(default=None, gt=0.0, description="[m]")
-    sigma_bearing: float | None = Field(default=None, gt=0.0, description="[rad]")
-    sigma_azimuth: float | None = Field(default=None, gt=0.0, description="planes: normal azimuth [rad]")
-    sigma_elevation: float | None = Field(default=None, gt=0.0, description="planes: normal elevation [rad]")
-    sigma_offset: float | None = Field(default=None, gt=0.0, description="planes: offset [m]")
+    """The filter's measurement noise floor (the fields of every feature model's ``Noise``); default: the profile's."""
 
 
 class DetectionOptions(_Strict):
     """How the filter uses the profile's detection statistics."""
 
-    pd_mode: Literal["profile", "constant"] = "profile"
+    pd_mode: Literal["profile", "constant"] = Field(default="profile", description="P_D from the profile, or constant inside the sensor's range and field of view (for comparison)")
     constant_pd: float = Field(default=0.9, gt=0.0, le=1.0, description="P_D inside the field of view in constant mode")
-    buffer_zone: bool = True
+    buffer_zone: bool = Field(default=True, description="keep a feature's weight when it is missed near the edges of the view (eq. 3.21)")
     buffer_sigmas: float = Field(default=2.0, gt=0.0, description="buffer-zone half-width in standard deviations")
     landmark_radius: float | None = Field(
         default=None, gt=0.0, description="radius the n_p ray tracer gives map features [m]; default: the profile's typical true radius"
     )
     phase_average: bool = Field(default=True, description="n_p averaged over where the beams fall, not the integer count")
-    descriptor_likelihood: bool = Field(
-        default=True, description="weigh each detection by g_x(d) / g_FA(d) of its descriptors (eqs. 2.26, 5.6) when the profile has a Hotelling model"
-    )
-    occlusion_sigmas: Annotated[float, AllowInfNan(True)] | Literal["profile"] | None = Field(
-        default=None,
-        description="n_p profiles: a return occludes a map feature when it is shorter than the feature's surface by more than "
-        "this many range sigmas ('profile': the profile's k_sigma, the tolerance its P_D table was measured with; .inf: no return "
-        "does, and a feature's P_D is the table's at the count of beams it would get; default: the filter's, "
-        "OCCLUSION_DEFAULT: the profile's for RB-PHD, .inf for LMB and delta-GLMB)",
-    )
+    descriptor_likelihood: bool = Field(default=True, description="weigh detections by their descriptors' likelihood ratio (eqs. 2.26, 5.6) when the profile has one")
+    occlusion_sigmas: Annotated[float, AllowInfNan(True)] | Literal["profile"] | None = Field(default=None, description="range sigmas a return must fall short to occlude a map feature ('profile', .inf; null: the filter's)")
     occlusion: bool = Field(
         default=True, description="detection-level profiles with an occluder radius: features hidden behind a nearer mapped one have P_D 0"
     )
@@ -137,7 +93,6 @@ class MetricConfig(_Strict):
     plane_length: float = Field(default=10.0, gt=0.0, description="planes: L of the distance sqrt(L^2 |n1 - n2|^2 + (d1 - d2)^2) [m]")
 
 
-FilterConfig = Annotated[RBPHDConfig | LMBConfig | GLMBConfig, Field(discriminator="kind")]
 
 
 #: the settings that apply to point features only, and what each does to them (the message that refuses planes)
@@ -149,55 +104,25 @@ _POINTS_ONLY = {
 
 
 class SlamConfig(_Strict):
-    features: Literal["points", "planes"] = Field(default="points", description="point landmarks (2D) or planes (3D lidar clouds)")
-    particles: int = Field(default=20, ge=1, le=100_000)
-    resampler: Literal["systematic", "stratified", "multinomial", "residual"] = "systematic"
+    features: str = Field(default="points", description="point landmarks (2D) or planes (3D lidar clouds)")
+    particles: int = Field(default=20, ge=1, le=100_000, description="particles of the filter (over every island)")
+    resampler: Literal["systematic", "stratified", "multinomial", "residual"] = Field(default="systematic", description="low-variance resampling scheme")
     resample_ess: float = Field(default=0.5, gt=0.0, le=1.0, description="resample when ESS < this x particles")
     resample_every: int = Field(default=1, ge=1, description="updates at least between two resamplings")
-    islands: int = Field(
-        default=1,
-        ge=1,
-        le=1_000,
-        description="independent particle filters the particles are split into (each resamples on its own); the estimate "
-        "averages their heaviest particles' trajectories and, with a labelled filter, maps (label by label; see island_match); "
-        "particles must be a multiple of it",
-    )
-    island_match: float | None = Field(
-        default=None,
-        gt=0.0,
-        description="[m] islands with a labelled point-feature filter: the features of an island's estimate and the reference "
-        "island's that no label pairs are paired by position, one to one, the least total distance, pairs this far apart or "
-        "more not made; a pair is one landmark the islands bore from different measurements and is averaged as one; null: "
-        "by label only",
-    )
+    islands: int = Field(default=1, ge=1, le=1_000, description="independent particle filters the particles are split into; particles must be a multiple of it")
+    island_match: float | None = Field(default=None, gt=0.0, description="[m] pair islands' unlabelled features by position up to this distance (labelled filters; null: by label)")
     proposal: Literal["prior", "optimal"] = Field(
         default="prior", description="draw poses from the motion model, or from its Gaussian updated by the measurements the map explains"
     )
-    filter: FilterConfig = RBPHDConfig()
-    mount_yaw: float = Field(
-        default=0.0,
-        ge=-0.2,
-        le=0.2,
-        description="[rad] added to the sensor's mount yaw (a sensor mounted a little turned: the map then holds the heading "
-        "while the odometry drives crabwise); a calibration the log evidence can choose",
-    )
-    measurement: MeasurementNoiseConfig = MeasurementNoiseConfig()
-    motion: MotionNoise = MotionNoise()
+    filter: BaseModel = Field(default=None)  # the union of the registered filters' settings (set by _rebuild)
+    mount_yaw: float = Field(default=0.0, ge=-0.2, le=0.2, description="[rad] correction added to the sensor's mount yaw (chosen by the log evidence)")
+    measurement: MeasurementNoiseConfig = Field(default_factory=MeasurementNoiseConfig)
+    motion: MotionNoise = Field(default_factory=MotionNoise)
     detection: DetectionOptions = DetectionOptions()
     metric: MetricConfig = MetricConfig()
-    map_refine: bool = Field(
-        default=False,
-        description="after the run, re-estimate the map's positions along the estimated trajectory with every scan's "
-        "measurements, the associations not given (slam_runtime.refine: a smoother after the filter; the metrics keep the "
-        "filter's own map OSPA as map_ospa_filter); point features only",
-    )
+    map_refine: bool = Field(default=False, description="after the run, re-estimate the map's positions along the estimated trajectory (point features)")
 
-    poses: Literal["estimated", "ground_truth"] = Field(
-        default="estimated",
-        description="estimated: full SLAM; ground_truth: mapping only, every particle put at the log's ground-truth pose "
-        "(interpolated to the frame's time) before every frame's update: the map filter and the detector profile alone, "
-        "without the path's error (the log needs ground-truth poses spanning its frames; planar poses: point features)",
-    )
+    poses: Literal["estimated", "ground_truth"] = Field(default="estimated", description="estimated (full SLAM) or ground_truth (mapping only: the particles on the log's true path)")
 
     @field_validator("poses")
     @classmethod
@@ -228,7 +153,36 @@ class SlamConfig(_Strict):
         return islands
 
 
-FILTER_KINDS = ("rbphd", "lmb", "glmb")
+def _copy(info: FieldInfo) -> FieldInfo:
+    return FieldInfo.merge_field_infos(info)
+
+
+def _rebuild() -> None:
+    """Read the registries into the settings' models and rebuild them (the nested ones first)."""
+    motion = {
+        "model": FieldInfo.from_annotated_attribute(
+            _choice(("auto", *VEHICLE_MODELS.names())),
+            Field(default="auto", description="auto: the model of the odometry's kind and the features; a model's name: always that model"),
+        )
+    }
+    for name, cls in VEHICLE_MODELS.items():
+        motion[name] = FieldInfo.from_annotated_attribute(cls.Noise, Field(default_factory=cls.Noise))
+    MotionNoise.__pydantic_fields__ = motion
+    MotionNoise.model_rebuild(force=True)
+    MeasurementNoiseConfig.__pydantic_fields__ = {n: _copy(f) for cls in FEATURE_MODELS.values() for n, f in cls.Noise.model_fields.items()}
+    MeasurementNoiseConfig.model_rebuild(force=True)
+    fields = SlamConfig.__pydantic_fields__
+    old = fields["features"]
+    fields["features"] = FieldInfo.from_annotated_attribute(_choice(FEATURE_MODELS.names()), Field(default=old.default, description=old.description))
+    configs = [cls.Config for cls in MAP_FILTERS.values()]
+    union = Annotated[Union[tuple(configs)], Field(discriminator="kind")] if len(configs) > 1 else configs[0]  # noqa: UP007
+    fields["filter"] = FieldInfo.from_annotated_attribute(union, configs[0]())
+    SlamConfig.model_rebuild(force=True)
+
+
+_rebuild()
+for _registry in (MAP_FILTERS, VEHICLE_MODELS, FEATURE_MODELS):
+    _registry.on_change(_rebuild)
 
 
 def override(cfg: SlamConfig, **changes) -> SlamConfig:
@@ -239,24 +193,8 @@ def override(cfg: SlamConfig, **changes) -> SlamConfig:
 
 def with_settings(cfg: SlamConfig, changes: dict) -> SlamConfig:
     """A validated copy of ``cfg`` with ``changes`` ({dotted path: value}; None sets None); a bad key or value raises a
-    UsageError naming it."""
-    data = cfg.model_dump()
-    for key, value in changes.items():
-        node = data
-        *path, last = key.split(".")
-        for i, part in enumerate(path):
-            if not isinstance(node.get(part), dict):
-                raise UsageError(f"{key}: unknown key ({'.'.join(path[: i + 1])} is not a group of settings)")
-            node = node[part]
-        if last == "kind" and path == ["filter"] and node.get("kind") != value:
-            node.clear()  # another filter: its own defaults
-        node[last] = value
-    try:
-        return SlamConfig.model_validate(data)
-    except ValidationError as exc:
-        e = exc.errors()[0]
-        msg = "unknown key" if e["type"] == "extra_forbidden" else e["msg"]
-        raise UsageError(f"{'.'.join(str(x) for x in e['loc'])}: {msg}") from None
+    UsageError naming it; a change of ``filter.kind`` starts the filter from its own defaults."""
+    return updated(cfg, changes, reset=("filter.kind",))
 
 
 #: Settings whose name two filters share but whose meaning or default differs: never carried from one filter to another
@@ -272,114 +210,49 @@ def with_filter(cfg: SlamConfig, kind: str | None) -> SlamConfig:
     the others take the new filter's defaults."""
     if kind is None or kind == cfg.filter.kind:
         return cfg
-    target = {"rbphd": RBPHDConfig, "lmb": LMBConfig, "glmb": GLMBConfig}.get(kind)
-    if target is None:
-        raise UsageError(f"filter.kind: {kind!r} is not available (expected one of {', '.join(FILTER_KINDS)})")
+    if kind not in MAP_FILTERS:
+        raise UsageError(f"filter.kind: {kind!r} is not available (expected one of {', '.join(MAP_FILTERS.names())})")
+    target = MAP_FILTERS.get(kind).Config
     shared = {k: v for k, v in cfg.filter.model_dump().items() if k not in _NOT_CARRIED and k in target.model_fields}
     return override(cfg, **{"filter": {**shared, "kind": kind}})
 
 
 # ---------------------------------------------------------------------- factory
 def vehicle_model(kind: str, noise: MotionNoise, vehicle=None, features: str = "points"):
-    """The vehicle model that odometry of ``kind`` drives (the ECT model for planes on speed and yaw-rate odometry)."""
-    from slam_runtime.vehicle import Ackermann, OdometryIncrement, Unicycle
-
-    if noise.model == "ect" or (features == "planes" and kind == "velocity"):
-        if kind != "velocity":
-            raise DataError(f"the ECT model takes speed and yaw-rate odometry, not {kind!r}")
-        from slam_runtime.ect import ECT
-
-        return ECT(**noise.ect.model_dump())
-    if kind in ("pose", "increment"):
-        return OdometryIncrement(**noise.increment.model_dump())
-    if kind == "velocity":
-        return Unicycle(**noise.velocity.model_dump())
-    if kind == "ackermann":
-        if vehicle is None:
-            raise DataError("Ackermann odometry needs the vehicle geometry (wheelbase)")
-        return Ackermann(vehicle.wheelbase, vehicle.encoder_offset, **noise.ackermann.model_dump())
-    raise DataError(f"odometry of kind {kind!r} cannot drive the filter")
-
-
-#: the occlusion tolerance of each filter when the settings give none (``detection.occlusion_sigmas``). The labelled
-#: filters keep every static object the detector fires on as a track, the profile's clutter included (the simulated
-#: park's bushes); with the profile's tolerance a bush's own returns and its neighbours' hide its track so often that
-#: its misses are excused and it outlives them. Without the test, on 16 held-out parks, LMB's map OSPA is 0.048 lower
-#: and delta-GLMB's 0.033, and on the park without bushes they are level; RB-PHD, which merges its components and keeps
-#: fewer such features, gains nothing there and loses 0.055 on the park without bushes, where the test is what lets it
-#: keep a tree hidden behind another (docs/labelled-filters.md, the simulated park).
-OCCLUSION_DEFAULT = {"rbphd": "profile", "lmb": float("inf"), "glmb": float("inf")}
+    """The vehicle model that odometry of ``kind`` drives: ``noise.model`` when it names one, else the first registered
+    model that takes this odometry for these features (the ECT model for planes on speed and yaw-rate odometry)."""
+    if noise.model != "auto":
+        cls = VEHICLE_MODELS.get(noise.model)
+        if kind not in cls.odometry:
+            raise DataError(f"the {cls.label} model takes {cls.takes}, not {kind!r}")
+    else:
+        cls = next((c for c in VEHICLE_MODELS.values() if kind in c.odometry and features in c.features), None)
+        if cls is None:
+            raise DataError(f"odometry of kind {kind!r} cannot drive the filter")
+    name = next(n for n, c in VEHICLE_MODELS.items() if c is cls)
+    return cls.from_settings(getattr(noise, name), vehicle)
 
 
 def occlusion_sigmas(opts: DetectionOptions, filter_kind: str) -> float | None:
-    """The occlusion tolerance a filter runs with, in range sigmas (None: the profile's)."""
-    k = OCCLUSION_DEFAULT[filter_kind] if opts.occlusion_sigmas is None else opts.occlusion_sigmas
+    """The occlusion tolerance a filter runs with, in range sigmas (None: the profile's): the settings', else the
+    filter's own default (``MapFilter.occlusion_default``)."""
+    k = MAP_FILTERS.get(filter_kind).occlusion_default if opts.occlusion_sigmas is None else opts.occlusion_sigmas
     return None if k == "profile" else k
 
 
-def detection_model(profile, opts: DetectionOptions, sensor=None, *, filter_kind: str = "rbphd"):
-    """The profile's runtime detection model with the filter's options (``filter_kind`` chooses the occlusion tolerance
-    when the options give none: :data:`OCCLUSION_DEFAULT`)."""
-    from detectors.model import DetectionModel
-
-    if profile.detector.kind == "plane3d":
-        from detectors.plane_model import PlaneDetectionModel
-
-        return PlaneDetectionModel.from_profile(
-            profile, constant_pd=opts.constant_pd if opts.pd_mode == "constant" else None, buffer=opts.buffer_zone, buffer_sigmas=opts.buffer_sigmas
-        )
-
-    return DetectionModel.from_profile(
-        profile,
-        sensor,
-        constant_pd=opts.constant_pd if opts.pd_mode == "constant" else None,
-        buffer=opts.buffer_zone,
-        buffer_sigmas=opts.buffer_sigmas,
-        landmark_radius=opts.landmark_radius,
-        phase_average=opts.phase_average,
-        **({} if opts.occlusion else {"occluder_radius": None}),
-        **({} if (k := occlusion_sigmas(opts, filter_kind)) is None else {"k_sigma": k}),
-    )
+def detection_model(profile, opts: DetectionOptions, sensor=None, *, filter_kind: str | None = None):
+    """The profile's runtime detection model (its detector kind's, :data:`detectors.kinds.DETECTORS`) with the
+    filter's options; ``filter_kind`` chooses the occlusion tolerance when the options give none
+    (``MapFilter.occlusion_default``; default: the first registered filter's)."""
+    k = occlusion_sigmas(opts, filter_kind or MAP_FILTERS.names()[0])
+    return DETECTORS.get(profile.detector.kind).detection_model(profile, sensor, opts, k)
 
 
-#: least (azimuth [rad], elevation [rad], offset [m]) noise of a plane measurement when the settings give none
-PLANE_NOISE_FLOOR = (0.005, 0.005, 0.05)
-
-
-def feature_model(detection, noise: MeasurementNoiseConfig, mount: np.ndarray, metric: MetricConfig | None = None):
-    """The range-bearing point feature with its noise floor (settings, else the profile's measured noise, else 0.1 m / 0.01 rad);
-    for a plane detection model the plane feature (settings, else the profile's measured chart noise)."""
-    from slam_runtime.features import RangeBearing
-
-    if hasattr(detection, "in_view"):  # planes
-        from slam_runtime.plane_features import PlaneFeature
-
-        # the profile's noise of true detections, but no less than PLANE_NOISE_FLOOR: tens of particles cannot
-        # follow a likelihood narrower than their own spread (on the simulated street the profile's 0.01 deg and
-        # 3 mm left the map 0.8 deg and 8 cm off; this floor 0.03 deg and 2 cm)
-        sa, se, so = np.maximum(detection.noise_sigmas, PLANE_NOISE_FLOOR)
-        sa = noise.sigma_azimuth if noise.sigma_azimuth is not None else sa
-        se = noise.sigma_elevation if noise.sigma_elevation is not None else se
-        so = noise.sigma_offset if noise.sigma_offset is not None else so
-        length = (metric or MetricConfig()).plane_length
-        return PlaneFeature(np.diag([sa**2, se**2, so**2]), mount, height=detection.height, metric_length=length)
-
-    sr, sb = detection.noise_sigmas if detection.noise is not None else (0.1, 0.01)
-    sr = noise.sigma_range if noise.sigma_range is not None else sr
-    sb = noise.sigma_bearing if noise.sigma_bearing is not None else sb
-    return RangeBearing(np.diag([sr**2, sb**2]), mount)
+def feature_model(features: str, detection, noise: MeasurementNoiseConfig, mount: np.ndarray, metric: MetricConfig | None = None):
+    """The feature model ``features`` (:data:`FEATURE_MODELS`) with its noise floor from the settings and the profile."""
+    return FEATURE_MODELS.get(features).from_settings(detection, noise, mount, metric)
 
 
 def map_filter(cfg: SlamConfig, feature, detection):
-    from slam_runtime.glmb import GLMB
-    from slam_runtime.lmb import LMB
-    from slam_runtime.rbphd import RBPHD
-
-    f = cfg.filter
-    if f.kind == "rbphd":
-        return RBPHD(feature, detection, f)
-    if f.kind == "lmb":
-        return LMB(feature, detection, f)
-    if f.kind == "glmb":
-        return GLMB(feature, detection, f)
-    raise UsageError(f"filter.kind: {f.kind!r} is not available")
+    """The map filter ``cfg.filter.kind`` (:data:`MAP_FILTERS`) with its settings."""
+    return MAP_FILTERS.get(cfg.filter.kind)(feature, detection, cfg.filter)

@@ -30,9 +30,10 @@ the paper's Algorithm 1 does.
 from __future__ import annotations
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 
-from detectors.logs import wrap_angle
-from slam_runtime.vehicle import VehicleModel
+from detectors.sensor_log import wrap_angle
+from slam_runtime.vehicle import VEHICLE_MODELS, VehicleModel
 
 #: columns of the planar pose (X, Y, phi) in the state
 POSE = (0, 2, 4)
@@ -92,6 +93,17 @@ def noise_gain(t: float) -> np.ndarray:
     return g
 
 
+class ECTNoise(BaseModel):
+    """Extended Constant Turn model (eq. 36 of Gostar et al.) driven by speed and yaw-rate odometry."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    sigma_v: float = Field(default=0.15, ge=0.0, description="speed reading [m/s]")
+    sigma_omega: float = Field(default=0.03, ge=0.0, description="yaw-rate reading [rad/s]")
+    sigma_ax: float = Field(default=0.05, ge=0.0, description="model acceleration noise along X [m/s^2]")
+    sigma_ay: float = Field(default=0.05, ge=0.0, description="model acceleration noise along Y [m/s^2]")
+    sigma_alpha: float = Field(default=0.005, ge=0.0, description="model yaw acceleration noise [rad/s^2]")
+
+
 class ECT(VehicleModel):
     """Extended Constant Turn model (eq. 36) driven by speed and yaw-rate odometry u = (v [m/s], omega [rad/s]).
 
@@ -101,6 +113,11 @@ class ECT(VehicleModel):
 
     dim = 6
     control_dim = 2
+    label = "ECT"
+    odometry = ("velocity",)
+    takes = "speed and yaw-rate odometry"
+    features = ("planes",)
+    Noise = ECTNoise
 
     def __init__(
         self, *, sigma_v: float = 0.15, sigma_omega: float = 0.03, sigma_ax: float = 0.05, sigma_ay: float = 0.05, sigma_alpha: float = 0.005
@@ -165,3 +182,6 @@ class ECT(VehicleModel):
         df = transition_matrix_dw(x[:, 5], dt)
         f[:, :, 5] += np.einsum("pij,pj->pi", df, x)
         return f
+
+
+VEHICLE_MODELS.add("ect", ECT)

@@ -16,6 +16,12 @@ components x measurements):
 Poses are vehicle poses (x, y, theta) in the world frame; the model holds the
 sensor's mount on the vehicle. A plane in Hesse form is a second
 implementation of the same protocol (the planar-feature filters).
+
+Every feature model is found through :data:`FEATURE_MODELS` under the settings'
+``features`` value ("points", "planes"); its ``Noise`` settings (the noise
+floor of a measurement) become fields of the SLAM settings' ``measurement``
+group, and :meth:`FeatureModel.from_settings` builds it from them and the
+detection model.
 """
 
 from __future__ import annotations
@@ -23,8 +29,10 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 
 from detectors.geometry import compose
+from profiles.registry import Registry
 
 
 def wrap(a: np.ndarray) -> np.ndarray:
@@ -63,6 +71,8 @@ def lookup(keys: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 class FeatureModel(ABC):
     dim_x: int
     dim_z: int
+    #: the noise floor of a measurement, settable in the SLAM settings' ``measurement`` group (None: the profile's)
+    Noise: type[BaseModel]
     #: which measurement components are angles (wrapped in innovations)
     angular: tuple[int, ...] = ()
     #: which state components are angles (wrapped when states of one feature are averaged)
@@ -106,6 +116,12 @@ class FeatureModel(ABC):
         return x
 
 
+class RangeBearingNoise(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    sigma_range: float | None = Field(default=None, gt=0.0, description="[m]")
+    sigma_bearing: float | None = Field(default=None, gt=0.0, description="[rad]")
+
+
 class RangeBearing(FeatureModel):
     """A point landmark (x, y) [m, world frame] measured as (range [m], bearing [rad]) in the sensor frame.
 
@@ -116,6 +132,16 @@ class RangeBearing(FeatureModel):
     dim_x = 2
     dim_z = 2
     angular = (1,)
+    Noise = RangeBearingNoise
+
+    @classmethod
+    def from_settings(cls, detection, noise, mount: np.ndarray, metric=None) -> RangeBearing:
+        """The noise floor: the settings' (``noise``: sigma_range, sigma_bearing), else the profile's measured noise,
+        else 0.1 m / 0.01 rad."""
+        sr, sb = detection.noise_sigmas if detection.noise is not None else (0.1, 0.01)
+        sr = noise.sigma_range if noise.sigma_range is not None else sr
+        sb = noise.sigma_bearing if noise.sigma_bearing is not None else sb
+        return cls(np.diag([sr**2, sb**2]), mount)
 
     def predict_sensor(self, sensor, x):
         dx = x[..., 0] - sensor[..., 0]
@@ -156,3 +182,9 @@ class RangeBearing(FeatureModel):
         g[..., 1, 0] = s
         g[..., 1, 1] = z[..., 0] * c
         return pos, g
+
+
+
+#: The feature models by the settings' ``features`` value, in the settings' order.
+FEATURE_MODELS: Registry[type[FeatureModel]] = Registry("feature model", builtins=("slam_runtime.features", "slam_runtime.plane_features"))
+FEATURE_MODELS.add("points", RangeBearing)

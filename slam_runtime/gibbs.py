@@ -1,6 +1,7 @@
-"""Compiled kernels of the labelled map filters (delta-GLMB, LMB): optimal assignment, the Gibbs
-sampler of the joint prediction/update (Vo, Vo & Hoang 2017; delta-GLMB-SLAM paper eqs. 11-17), the
-reduction of its hypotheses, and the detections' log eta of point landmarks (:func:`detection_costs`).
+"""Compiled kernels of the labelled map filters (delta-GLMB, LMB): the Gibbs sampler of the joint
+prediction/update (Vo, Vo & Hoang 2017; delta-GLMB-SLAM paper eqs. 11-17) and the detections' log eta of point
+landmarks (:func:`detection_costs`); the reduction of the hypotheses it draws is :mod:`slam_runtime.hypotheses`,
+the helpers both share (the optimal assignment among them) :mod:`slam_runtime.kernels`.
 
 The joint prediction/update of one prior hypothesis ``(I, xi)`` with weight w
 draws association maps gamma over the hypothesis's candidate tracks (its
@@ -20,8 +21,7 @@ the P particles (-inf where an option is impossible or a measurement lies
 outside the gate).
 
 For every prior hypothesis, the chain starts at the optimal assignment (the
-highest-weight child, :func:`hungarian`: a shortest-augmenting-path solver
-checked against ``scipy.optimize.linear_sum_assignment`` in the tests) and then
+highest-weight child, :func:`slam_runtime.kernels.hungarian`) and then
 makes one Gibbs sweep per further sample (Vo, Vo & Hoang 2017, Algorithm 1:
 each gamma_i drawn from its conditional given the others, with the
 measurements the others hold locked out). Samples are allocated to the prior
@@ -52,19 +52,16 @@ exactly; the caller updates it on its own (``held``, ``l_held``):
 * a birth that gates no measurement and is likelier not born (r_B <
   1 / (2 - P_D): any birth probability of the paper's kind) is dropped by
   delta-GLMB (its born-but-missed children are not kept) and given its exact
-  existence, r_B (1 - P_D) / (1 - r_B P_D), by LMB (``sum_idle_births``).
-  Sampled, these births (one per measurement of the previous scan: 15-17 at
-  15 false alarms per scan) took a share of the samples that changed from
+  existence, r_B (1 - P_D) / (1 - r_B P_D), by LMB (``sum_idle_births``):
+  sampled, such births would take a share of the samples that changes from
   particle to particle, and with it each particle's missing mass, its weight;
 * delta-GLMB updates the other independent births and released tracks exactly
   as Bernoulli components outside the hypotheses (``factor_independent``):
   existence the share of its options in which it exists, density the moment
-  match of its missed and detected versions. Sampled, a new landmark's first
-  detections (a child of weight r_B P_D g / kappa, 0.01 x 3.5 at 15 false
-  alarms per scan) were drawn in only some steps with 60 samples, and the
-  tentative track's existence stayed 5-10 times below the exact one (measured
-  against 2,000 samples on glmb-paper), so landmarks seen 14-18 times were
-  never confirmed.
+  match of its missed and detected versions; sampled, a new landmark's first
+  detections (a child of small weight r_B P_D g / kappa) are drawn in only
+  some steps, and a tentative track's existence stays below the exact one
+  (docs/results.md).
 
 Why compiled: the sweep is sequential by nature (each gamma_i is drawn given
 the current values of all the others, so no two draws of one chain can be
@@ -79,150 +76,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-_BIG = 1e15  # a forbidden pair in the assignment (every row has a finite option: its own dummy column)
-
-
-@numba.njit(cache=True, nogil=True)
-def hungarian(cost):  # pragma: no cover - compiled
-    """Minimum-cost assignment of every row of ``cost`` (n, m), n <= m, to a distinct column.
-
-    Shortest augmenting paths with row and column potentials (Kuhn-Munkres in
-    O(n^2 m)). Returns (n,) int64 column indices. Costs must be finite (use a
-    large value for forbidden pairs).
-    """
-    n, m = cost.shape
-    u = np.zeros(n + 1)
-    v = np.zeros(m + 1)
-    p = np.zeros(m + 1, np.int64)
-    way = np.zeros(m + 1, np.int64)
-    minv = np.empty(m + 1)
-    used = np.empty(m + 1, np.bool_)
-    for i in range(1, n + 1):
-        p[0] = i
-        j0 = 0
-        minv[:] = np.inf
-        used[:] = False
-        while True:
-            used[j0] = True
-            i0 = p[j0]
-            delta = np.inf
-            j1 = 0
-            for j in range(1, m + 1):
-                if not used[j]:
-                    cur = cost[i0 - 1, j - 1] - u[i0] - v[j]
-                    if cur < minv[j]:
-                        minv[j] = cur
-                        way[j] = j0
-                    if minv[j] < delta:
-                        delta = minv[j]
-                        j1 = j
-            for j in range(m + 1):
-                if used[j]:
-                    u[p[j]] += delta
-                    v[j] -= delta
-                else:
-                    minv[j] -= delta
-            j0 = j1
-            if p[j0] == 0:
-                break
-        while True:
-            j1 = way[j0]
-            p[j0] = p[j1]
-            j0 = j1
-            if j0 == 0:
-                break
-    out = np.full(n, -1, np.int64)
-    for j in range(1, m + 1):
-        if p[j] != 0:
-            out[p[j] - 1] = j - 1
-    return out
-
-
-@numba.njit(cache=True, nogil=True)
-def argsort_stable(x):  # pragma: no cover - compiled
-    """Stable ascending argsort (bottom-up merge sort) of a 1-d array; compiles much faster than np.argsort."""
-    n = x.shape[0]
-    idx = np.arange(n)
-    tmp = np.empty(n, np.int64)
-    width = 1
-    while width < n:
-        i = 0
-        while i < n:
-            mid = min(i + width, n)
-            hi = min(i + 2 * width, n)
-            a = i
-            b = mid
-            k = i
-            while a < mid and b < hi:
-                if x[idx[b]] < x[idx[a]]:
-                    tmp[k] = idx[b]
-                    b += 1
-                else:
-                    tmp[k] = idx[a]
-                    a += 1
-                k += 1
-            while a < mid:
-                tmp[k] = idx[a]
-                a += 1
-                k += 1
-            while b < hi:
-                tmp[k] = idx[b]
-                b += 1
-                k += 1
-            i += 2 * width
-        idx, tmp = tmp, idx
-        width *= 2
-    return idx
-
-
-@numba.njit(cache=True, nogil=True)
-def _maha2(c, ci, x, a, b, work):  # pragma: no cover - compiled
-    """dd^T c[ci]^-1 dd with dd = x[a] - x[b], for a small symmetric positive definite c[ci] (d, d), by Gaussian
-    elimination in the scratch ``work`` (d, d + 3) (rows indexed here, not sliced: a view or a temporary per pair
-    costs more than the elimination)."""
-    d = x.shape[1]
-    for r in range(d):
-        for k in range(d):
-            work[r, k] = c[ci, r, k]
-        work[r, d] = x[a, r] - x[b, r]
-        work[r, d + 1] = work[r, d]
-    for i in range(d):
-        piv = work[i, i]
-        if piv <= 1e-300:
-            return np.inf
-        for r in range(i + 1, d):
-            f = work[r, i] / piv
-            for k in range(i, d):
-                work[r, k] -= f * work[i, k]
-            work[r, d] -= f * work[i, d]
-    for i in range(d - 1, -1, -1):
-        t = work[i, d]
-        for k in range(i + 1, d):
-            t -= work[i, k] * work[k, d + 2]
-        work[i, d + 2] = t / work[i, i]
-    m2 = 0.0
-    for i in range(d):
-        m2 += work[i, d + 1] * work[i, d + 2]
-    return m2
-
-
-@numba.njit(cache=True, nogil=True)
-def _grow_i(a, need):  # pragma: no cover - compiled
-    if need <= a.shape[0]:
-        return a
-    b = np.empty(max(need, 2 * a.shape[0]), a.dtype)
-    b[: a.shape[0]] = a
-    return b
-
-
-@numba.njit(cache=True, nogil=True)
-def _grow_f(a, need):  # pragma: no cover - compiled
-    if need <= a.shape[0]:
-        return a
-    b = np.empty(max(need, 2 * a.shape[0]), a.dtype)
-    b[: a.shape[0]] = a
-    return b
-
+from slam_runtime.kernels import BIG, argsort_stable, grow, hungarian, log_norm, logaddexp, prune_cap
 
 @numba.njit(cache=True, nogil=True)
 def _splitmix(x):  # pragma: no cover - compiled
@@ -441,7 +295,7 @@ def joint_update(seeds, logw, member, act, nact, l_death, l_miss, l_det, total, 
                             col_of[j] = nc
                             col_meas[nc] = j
                             nc += 1
-                cost = np.full((nr, nc + nr), _BIG)
+                cost = np.full((nr, nc + nr), BIG)
                 for q in range(nr):
                     i = rows[sub_rows[q]]
                     for g in range(ng[i]):
@@ -545,8 +399,7 @@ def joint_update(seeds, logw, member, act, nact, l_death, l_miss, l_det, total, 
                             same = False
                             break
                 if same:
-                    hi = max(ch_lw[ca], ch_lw[cb])
-                    ch_lw[ca] = hi + np.log(np.exp(ch_lw[ca] - hi) + np.exp(ch_lw[cb] - hi))
+                    ch_lw[ca] = logaddexp(ch_lw[ca], ch_lw[cb])
                     alive[cb] = False
         # the normalisation constant (eq. 25), then normalise, prune and cap
         mx = -np.inf
@@ -559,39 +412,17 @@ def joint_update(seeds, logw, member, act, nact, l_death, l_miss, l_det, total, 
                 tot += np.exp(ch_lw[c] - mx)
         ll = mx + np.log(tot)
         loglik[p] = ll + l_summed
-        cand = np.empty(nch, np.int64)
-        ncand = 0
-        for c in range(nch):
-            if alive[c]:
-                cand[ncand] = c
-                ncand += 1
-        lws = np.empty(ncand)
-        for q in range(ncand):
-            lws[q] = -ch_lw[cand[q]]
-        srt = argsort_stable(lws)
-        kept = np.empty(ncand, np.int64)
-        nk = 0
-        for q in range(ncand):
-            c = cand[srt[q]]
-            if nk > 0 and np.exp(ch_lw[c] - ll) < prune:
-                break
-            if nk >= cap:
-                capped = True
-                break
-            kept[nk] = c
-            nk += 1
-        kt = 0.0
-        for q in range(nk):
-            kt += np.exp(ch_lw[kept[q]] - mx)
-        lnorm = mx + np.log(kt)
+        kept, nk, cap_hit = prune_cap(ch_lw[:nch], alive, ll, prune, cap)
+        capped = capped or cap_hit
+        lnorm = log_norm(ch_lw, kept, nk)
         # the new slots: (source slot, assignment), shared by the children that hold them
         table = np.full(S * (M + 1), -1, np.int64)
         ns = 0
         for q in range(nk):
             c = kept[q]
             h = ch_parent[c]
-            hyp_logw = _grow_f(hyp_logw, n_hyp + 1)
-            mem_count = _grow_i(mem_count, n_hyp + 1)
+            hyp_logw = grow(hyp_logw, n_hyp + 1)
+            mem_count = grow(mem_count, n_hyp + 1)
             hyp_logw[n_hyp] = ch_lw[c] - lnorm
             cnt = 0
             for s in range(S):
@@ -606,12 +437,12 @@ def joint_update(seeds, logw, member, act, nact, l_death, l_miss, l_det, total, 
                 t = s * (M + 1) + a
                 if table[t] < 0:
                     table[t] = ns
-                    slot_src = _grow_i(slot_src, n_slot + ns + 1)
-                    slot_a = _grow_i(slot_a, n_slot + ns + 1)
+                    slot_src = grow(slot_src, n_slot + ns + 1)
+                    slot_a = grow(slot_a, n_slot + ns + 1)
                     slot_src[n_slot + ns] = s
                     slot_a[n_slot + ns] = a
                     ns += 1
-                mem_slot = _grow_i(mem_slot, n_mem + 1)
+                mem_slot = grow(mem_slot, n_mem + 1)
                 mem_slot[n_mem] = table[t]
                 n_mem += 1
                 cnt += 1
@@ -646,7 +477,7 @@ def _inv2(s00, s01, s10, s11):  # pragma: no cover - compiled
 @numba.njit(cache=True, nogil=True)
 def detection_costs(zhat, hph, z, rz, own_cov, r, logdet_r, wrap_bearing, gate, dzlog, l_base, log_kappa, in_a, pd_pos):  # pragma: no cover - compiled
     """log eta of the detections of 2-d measurements, fused over (particle, candidate, measurement): the same
-    arithmetic as the vectorised form in :meth:`slam_runtime.glmb.LabelledFilter._det_costs` (one pass instead of
+    arithmetic as the vectorised form in :meth:`slam_runtime.labelled.LabelledFilter._det_costs` (one pass instead of
     some twenty (P, A, M) temporaries).
 
     zhat (P, A, 2), hph (P, A, 2, 2): the candidates' predicted measurements and H P H^T; z (M, 2); the innovation
@@ -687,381 +518,3 @@ def detection_costs(zhat, hph, z, rz, own_cov, r, logdet_r, wrap_bearing, gate, 
     return l_det, gated
 
 
-@numba.njit(cache=True, nogil=True)
-def _moments(w, mu, cov, key, n):  # pragma: no cover - compiled
-    """Moment match of the weighted Gaussians w (N,), mu (N, d), cov (N, d, d) into the n groups key (N,) names:
-    each group's summed weight (n,), mean (n, d) and covariance (n, d, d) (zero where its weight is)."""
-    d = mu.shape[1]
-    gw = np.zeros(n)
-    gmu = np.zeros((n, d))
-    gcov = np.zeros((n, d, d))
-    for k in range(w.shape[0]):
-        g = key[k]
-        gw[g] += w[k]
-        for i in range(d):
-            gmu[g, i] += w[k] * mu[k, i]
-    for g in range(n):
-        if gw[g] > 0.0:
-            for i in range(d):
-                gmu[g, i] /= gw[g]
-    for k in range(w.shape[0]):
-        g = key[k]
-        for i in range(d):
-            for j in range(d):
-                gcov[g, i, j] += w[k] * (cov[k, i, j] + (mu[k, i] - gmu[g, i]) * (mu[k, j] - gmu[g, j]))
-    for g in range(n):
-        if gw[g] > 0.0:
-            for i in range(d):
-                for j in range(d):
-                    gcov[g, i, j] /= gw[g]
-    return gw, gmu, gcov
-
-
-@numba.njit(cache=True, nogil=True)
-def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, mem_count, mem_slot, merge, together, prune, cap):  # pragma: no cover - compiled
-    """Merge close versions of each label and alternative labels of one landmark, release unseen labels,
-    merge identical hypotheses; prune and cap.
-
-    Input, flat over the P particles as :func:`joint_update` returns it: the new
-    slots (slot_count (P,), label (N,), mu (N, d), cov (N, d, d), release (N,)
-    bool) and the hypotheses (hyp_count (P,), normalised hyp_logw, mem_count,
-    mem_slot: slot indices within the particle).
-
-    * The weight of a version (a label's density under one association
-      history, eq. 29) is the summed weight of the hypotheses that hold it.
-    * A label all of whose versions are flagged ``release`` (tracks the sensor
-      could not see this step) leaves the hypotheses: it becomes one Bernoulli
-      component, existence = its summed weight, density = the moment match of
-      its versions.
-    * The other versions of a label are merged greedily, heaviest first, when
-      within squared Mahalanobis distance ``merge`` of the head (Vo & Ma's rule,
-      within one label); a merged version is the moment match of its members.
-      ``merge`` <= 0 merges nothing.
-    * Alternatives: groups of different labels, both released or both kept,
-      within squared Mahalanobis distance ``merge`` of the heavier, that the
-      hypotheses hold together (with any version of the heavier's labels)
-      with at most ``together`` x the lighter's weight, become one group under
-      the heavier's label: the moment match of its members, a released one of
-      existence the weight of the hypotheses that hold any member; a kept one
-      is held once by each hypothesis that held any. A hypothesis that held a
-      merged alternative beside another version of the head's label, or beside
-      an alternative merged under another version of it (both counted in the
-      ``together`` share), keeps one: its own version of the label, else the
-      group of the label's heavier version. Every hypothesis holds a label
-      once. ``together`` <= 0 merges none.
-    * Hypotheses that then hold the same versions are one hypothesis (weights
-      added); those below ``prune`` are dropped (the heaviest is kept), at most
-      ``cap`` are kept, the weights renormalised, and versions no hypothesis
-      holds removed.
-
-    Returns (capped, slot_count, label, mu, cov, hyp_count, hyp_logw, mem_count,
-    mem_slot, free_count (P,), free_label, free_r, free_mu, free_cov).
-    """
-    P = slot_count.shape[0]
-    d = mu.shape[1]
-    capped = False
-    n_in = label.shape[0]
-    o_slot_count = np.zeros(P, np.int64)
-    o_hyp_count = np.zeros(P, np.int64)
-    o_free_count = np.zeros(P, np.int64)
-    o_label = np.empty(n_in, np.int64)
-    o_mu = np.empty((n_in, d))
-    o_cov = np.empty((n_in, d, d))
-    f_label = np.empty(n_in, np.int64)
-    f_r = np.empty(n_in)
-    f_mu = np.empty((n_in, d))
-    f_cov = np.empty((n_in, d, d))
-    o_logw = np.empty(hyp_logw.shape[0])
-    o_mem_count = np.empty(hyp_logw.shape[0], np.int64)
-    o_mem_slot = np.empty(mem_slot.shape[0], np.int64)
-    n_out_slot = 0
-    n_out_hyp = 0
-    n_out_mem = 0
-    n_free = 0
-    s0 = 0
-    h0 = 0
-    m0 = 0
-    work = np.empty((d, d + 3))
-    for p in range(P):
-        ns = slot_count[p]
-        nh = hyp_count[p]
-        wv = np.zeros(ns)
-        hm0 = np.empty(nh + 1, np.int64)
-        hm0[0] = m0
-        for h in range(nh):
-            hm0[h + 1] = hm0[h] + mem_count[h0 + h]
-            w = np.exp(hyp_logw[h0 + h])
-            for q in range(hm0[h], hm0[h + 1]):
-                wv[mem_slot[q]] += w
-        # group the versions of each label (heaviest first); a released label is one group
-        lab = label[s0 : s0 + ns]
-        order0 = argsort_stable(lab)
-        grp = np.full(ns, -1, np.int64)
-        gfree = np.zeros(ns, np.bool_)
-        sub = np.empty(ns, np.int64)
-        key = np.empty(ns)
-        ng = 0
-        a = 0
-        while a < ns:
-            b = a
-            while b < ns and lab[order0[b]] == lab[order0[a]]:
-                b += 1
-            # the label's versions, heaviest first (a stable insertion sort: a label has a few versions)
-            nb = b - a
-            allrel = True
-            for q in range(nb):
-                t = order0[a + q]
-                if not release[s0 + t]:
-                    allrel = False
-                r = q - 1
-                while r >= 0 and wv[sub[r]] < wv[t]:
-                    sub[r + 1] = sub[r]
-                    r -= 1
-                sub[r + 1] = t
-            if allrel:
-                for q in range(nb):
-                    grp[sub[q]] = ng
-                gfree[ng] = True
-                ng += 1
-            else:
-                for q in range(nb):
-                    first = sub[q]
-                    if grp[first] >= 0:
-                        continue
-                    grp[first] = ng
-                    if merge > 0.0:
-                        for r in range(q + 1, nb):
-                            o = sub[r]
-                            if grp[o] < 0 and _maha2(cov, s0 + first, mu, s0 + o, s0 + first, work) <= merge:
-                                grp[o] = ng
-                    ng += 1
-            a = b
-        # moments of each group
-        glab = np.empty(ng, np.int64)
-        for k in range(ns):
-            glab[grp[k]] = lab[k]
-        gw, gmu, gcov = _moments(wv, mu[s0 : s0 + ns], cov[s0 : s0 + ns], grp, ng)
-        # alternatives of one landmark: groups of different labels, both released or both kept, within squared
-        # Mahalanobis distance merge of the heavier, that the hypotheses hold together with at most ``together``
-        # of the lighter's weight, become one group under the heavier's label (its existence: the weight of the
-        # hypotheses that hold any of them)
-        head = np.arange(ng)
-        merged = False
-        if merge > 0.0 and together > 0.0 and ng > 1:
-            gtr = np.zeros(ng)  # each group's covariance trace: a cheap bound before the Mahalanobis test
-            for g in range(ng):
-                for k in range(d):
-                    gtr[g] += gcov[g, k, k]
-            hg = np.zeros((nh, ng), np.bool_)
-            for h in range(nh):
-                for q in range(hm0[h], hm0[h + 1]):
-                    hg[h, grp[mem_slot[q]]] = True
-            for g in range(ng):
-                key[g] = -gw[g]
-            gord = argsort_stable(key[:ng])
-            inl = np.zeros(ng, np.bool_)
-            for y in range(1, ng):
-                j = gord[y]
-                for x in range(y):
-                    i = gord[x]
-                    if head[i] != i or gfree[i] != gfree[j] or glab[i] == glab[j]:
-                        continue
-                    dd2 = 0.0
-                    for k in range(d):
-                        dd2 += (gmu[j, k] - gmu[i, k]) ** 2
-                    if dd2 > merge * gtr[i] or _maha2(gcov, i, gmu, j, i, work) > merge:
-                        continue
-                    # held together: j beside any version of a label already in i's group (also a version
-                    # too far from i to be in it) or beside an alternative merged under another version of i's
-                    # label; within the allowance such a hypothesis keeps one of them (the drop below), so that
-                    # the tracks it loses are at most ``together`` of j's weight
-                    inl[:] = False
-                    for m in range(ng):
-                        if head[m] == i:
-                            for k in range(ng):
-                                if glab[k] == glab[m]:
-                                    inl[k] = True
-                    for k in range(ng):
-                        if glab[head[k]] == glab[i]:
-                            inl[k] = True
-                    both = 0.0
-                    for h in range(nh):
-                        if hg[h, j]:
-                            for k in range(ng):
-                                if k != j and hg[h, k] and inl[k]:
-                                    both += np.exp(hyp_logw[h0 + h])
-                                    break
-                    if both <= together * gw[j]:
-                        head[j] = i
-                        merged = True
-                        break
-        if merged:
-            # existence of the merged groups, their moments (a mixture of the members by their weights)
-            un = np.zeros(ng)
-            mark = np.full(ng, -1, np.int64)
-            for h in range(nh):
-                w = np.exp(hyp_logw[h0 + h])
-                for q in range(hm0[h], hm0[h + 1]):
-                    g = head[grp[mem_slot[q]]]
-                    if mark[g] != h:
-                        mark[g] = h
-                        un[g] += w
-            mw, mm, mc = _moments(gw, gmu, gcov, head, ng)
-            for g in range(ng):
-                if head[g] == g and mw[g] > gw[g]:
-                    gmu[g] = mm[g]
-                    gcov[g] = mc[g]
-                    gw[g] = un[g]
-        # released labels: independent Bernoulli components
-        nf = 0
-        for g in range(ng):
-            if gfree[g] and head[g] == g and gw[g] > 0.0:
-                f_label[n_free + nf] = glab[g]
-                f_r[n_free + nf] = min(gw[g], 1.0)
-                f_mu[n_free + nf] = gmu[g]
-                f_cov[n_free + nf] = gcov[g]
-                nf += 1
-        # hypotheses as sorted lists of their (kept) groups; identical ones merged
-        hl = np.empty(hm0[nh] - m0, np.int64)
-        hn = np.zeros(nh, np.int64)
-        hkey = np.empty(nh, np.int64)
-        own = np.full(ng, -1, np.int64)  # own[g] == h: hypothesis h holds group g through a version of g's label
-        for h in range(nh):
-            a0 = hm0[h] - m0
-            n = 0
-            for q in range(hm0[h + 1] - hm0[h]):
-                k = grp[mem_slot[hm0[h] + q]]
-                g = head[k]
-                if not gfree[g]:
-                    hl[a0 + n] = g
-                    n += 1
-                    if glab[k] == glab[g]:
-                        own[g] = h
-            for q in range(1, n):  # sorted in place (insertion sort: a hypothesis holds a few groups)
-                t = hl[a0 + q]
-                r = q - 1
-                while r >= 0 and hl[a0 + r] > t:
-                    hl[a0 + r + 1] = hl[a0 + r]
-                    r -= 1
-                hl[a0 + r + 1] = t
-            u = 0
-            for q in range(n):  # a group once, also where the hypothesis held two of the alternatives it merged
-                if u == 0 or hl[a0 + q] != hl[a0 + u - 1]:
-                    hl[a0 + u] = hl[a0 + q]
-                    u += 1
-            n = u
-            if merged:
-                # a label once: an alternative merged into a group of label l, held beside a version of l outside
-                # that group (within the ``together`` allowance), leaves the hypothesis, which keeps its own version
-                # of l (of two alternatives' groups of one label, the first: the group of l's heavier head version;
-                # a label's groups are numbered by their head versions' weights, heaviest first)
-                u = 0
-                for q in range(n):
-                    g = hl[a0 + q]
-                    drop = False
-                    if own[g] != h:
-                        for x in range(n):
-                            o = hl[a0 + x]
-                            if o != g and glab[o] == glab[g] and (own[o] == h or o < g):
-                                drop = True
-                                break
-                    if not drop:
-                        hl[a0 + u] = g
-                        u += 1
-                n = u
-            hn[h] = n
-            hh = np.int64(n)
-            for q in range(n):
-                hh = hh * np.int64(1000003) + hl[a0 + q] + np.int64(7)
-            hkey[h] = hh
-        lw = hyp_logw[h0 : h0 + nh].copy()
-        alive = np.ones(nh, np.bool_)
-        order = argsort_stable(hkey)
-        for x in range(nh):
-            ha = order[x]
-            if not alive[ha]:
-                continue
-            for y in range(x + 1, nh):
-                hb = order[y]
-                if hkey[hb] != hkey[ha]:
-                    break
-                if not alive[hb] or hn[hb] != hn[ha]:
-                    continue
-                same = True
-                for q in range(hn[ha]):
-                    if hl[hm0[ha] - m0 + q] != hl[hm0[hb] - m0 + q]:
-                        same = False
-                        break
-                if same:
-                    hi = max(lw[ha], lw[hb])
-                    lw[ha] = hi + np.log(np.exp(lw[ha] - hi) + np.exp(lw[hb] - hi))
-                    alive[hb] = False
-        # prune, cap, renormalise
-        cand = np.empty(nh, np.int64)
-        nc = 0
-        for h in range(nh):
-            if alive[h]:
-                cand[nc] = h
-                nc += 1
-        neg = np.empty(nc)
-        for q in range(nc):
-            neg[q] = -lw[cand[q]]
-        srt = argsort_stable(neg)
-        kept = np.empty(nc, np.int64)
-        nk = 0
-        for q in range(nc):
-            h = cand[srt[q]]
-            if nk > 0 and np.exp(lw[h]) < prune:
-                break
-            if nk >= cap:
-                capped = True
-                break
-            kept[nk] = h
-            nk += 1
-        mx = lw[kept[0]] if nk > 0 else 0.0
-        tot = 0.0
-        for q in range(nk):
-            tot += np.exp(lw[kept[q]] - mx)
-        lnorm = mx + np.log(tot) if nk > 0 else 0.0
-        # the versions the kept hypotheses hold, renumbered in order of first use
-        newid = np.full(ng, -1, np.int64)
-        nn = 0
-        for q in range(nk):
-            h = kept[q]
-            o_logw[n_out_hyp] = lw[h] - lnorm
-            o_mem_count[n_out_hyp] = hn[h]
-            for r in range(hn[h]):
-                g = hl[hm0[h] - m0 + r]
-                if newid[g] < 0:
-                    newid[g] = nn
-                    o_label[n_out_slot + nn] = glab[g]
-                    o_mu[n_out_slot + nn] = gmu[g]
-                    o_cov[n_out_slot + nn] = gcov[g]
-                    nn += 1
-                o_mem_slot[n_out_mem] = newid[g]
-                n_out_mem += 1
-            n_out_hyp += 1
-        o_slot_count[p] = nn
-        o_hyp_count[p] = nk
-        o_free_count[p] = nf
-        n_out_slot += nn
-        n_free += nf
-        s0 += ns
-        h0 += nh
-        m0 = hm0[nh]
-    return (
-        capped,
-        o_slot_count,
-        o_label[:n_out_slot].copy(),
-        o_mu[:n_out_slot].copy(),
-        o_cov[:n_out_slot].copy(),
-        o_hyp_count,
-        o_logw[:n_out_hyp].copy(),
-        o_mem_count[:n_out_hyp].copy(),
-        o_mem_slot[:n_out_mem].copy(),
-        o_free_count,
-        f_label[:n_free].copy(),
-        f_r[:n_free].copy(),
-        f_mu[:n_free].copy(),
-        f_cov[:n_free].copy(),
-    )

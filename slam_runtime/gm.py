@@ -161,8 +161,7 @@ def prune_merge(
     changed. Not the C++ RFS-SLAM library's ``covInflationFactor``, which
     multiplies the whole merged covariance: with a low P_D a mapped feature
     merges with its own missed-detection copy at every step, so that factor
-    compounds (measured on UTIAS at P_D ~ 0.3: covariances grew ~1.05x per step
-    until they overflowed); inflating the spread adds uncertainty in proportion
+    compounds (until the covariances overflow); inflating the spread adds uncertainty in proportion
     to how far apart the merged means were, and does not compound.
     mutual: a component joins the head only when each lies in the other's gate
     (Vo & Ma test only the head's): a heavy, broad head (a feature seen from

@@ -8,7 +8,7 @@ filter that has no labels they record NaN.
   label that enters the estimate starts a span (a track birth), one that leaves
   it ends its span (a track death); its per-step value is the number of labels
   in the estimate. A label is the step and measurement its birth track came
-  from (:func:`slam_runtime.glmb.label_parts`), so the same landmark keeps its
+  from (:func:`slam_runtime.labelled.label_parts`), so the same landmark keeps its
   label across a loop, and particles that gave birth to a landmark from the
   same measurement share the label.
 * :class:`HypothesisCount` records the mean number of hypotheses per particle.
@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slam_runtime.glmb import label_parts
+from slam_runtime.labelled import label_parts
 
 
 @dataclass
@@ -46,7 +46,7 @@ class LabelHistory:
 
     def __call__(self, k: int, slam) -> float:
         mf = slam.mf
-        if not hasattr(mf, "labels"):
+        if not mf.labelled:
             return float("nan")
         lab, x, r = mf.labels(slam.maps, slam.best())
         seen = set()
@@ -93,7 +93,7 @@ class HypothesisCount:
 
     def __call__(self, k: int, slam) -> float:
         mf = slam.mf
-        if not hasattr(mf, "hypotheses"):
+        if not mf.labelled:
             return float("nan")
         return float(np.mean(mf.hypotheses(slam.maps)))
 

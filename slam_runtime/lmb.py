@@ -26,10 +26,9 @@ P_D, the buffer zone, kappa, survival and adaptive birth as in
 :mod:`slam_runtime.glmb`.
 
 With ``merge_alternatives`` (off by default) the update's delta-GLMB goes
-through delta-GLMB's reduction (:func:`slam_runtime.gibbs.reduce_hypotheses`)
+through delta-GLMB's reduction (:func:`slam_runtime.hypotheses.reduce_hypotheses`)
 before the LMB approximation, so that labels it holds as alternatives of one
-landmark become one track (measured with the poses given: LMB's misses at 15
-false alarms per scan halved; docs/labelled-filters.md).
+landmark become one track (docs/labelled-filters.md).
 
 P_D learned per track (``learn_pd``): :mod:`slam_runtime.pd_factor`, per track.
 
@@ -48,10 +47,11 @@ import numpy as np
 from pydantic import Field
 
 from slam_runtime.features import FeatureModel, lookup
-from slam_runtime.gibbs import reduce_hypotheses
-from slam_runtime.glmb import Births, GLMBConfig, JointResult, LabelledFilter, LabelledSettings, Tracks
+from slam_runtime.hypotheses import reduce_hypotheses
+from slam_runtime.glmb import GLMBConfig
+from slam_runtime.labelled import Births, JointResult, LabelledFilter, LabelledSettings, Tracks
 from slam_runtime.gm import moment_match
-from slam_runtime.mapfilter import Measurements
+from slam_runtime.mapfilter import MAP_FILTERS, Measurements
 from slam_runtime.pd_factor import beta_update, mean_factor, prior_ab, store_key
 
 #: merge_alternatives: the squared Mahalanobis distance within which two labels' updated densities are alternatives
@@ -64,21 +64,8 @@ class LMBConfig(LabelledSettings):
 
     kind: Literal["lmb"] = "lmb"
     prune_tracks: float = Field(default=1e-3, gt=0.0, lt=1.0, description="tracks of smaller existence probability are removed")
-    factor_independent: bool = Field(
-        default=False,
-        description="tracks and births that share no gated measurement with another candidate are updated exactly outside the "
-        "sampler (existence the share of their options in which they exist, density the moment match of their versions: the "
-        "grouping of Reuter et al. 2014); false: every candidate in view joins the sampler's one chain (the fast LMB update)",
-    )
-    merge_alternatives: float = Field(
-        default=0.0,
-        ge=0.0,
-        le=1.0,
-        description="before the LMB approximation, labels whose updated densities lie within squared Mahalanobis distance "
-        "ALTERNATIVES_GATE (4, delta-GLMB's merge) of each other and that the update's hypotheses hold together with at "
-        "most this share of the lighter's weight become one track under the heavier's label, existence the weight of the "
-        "hypotheses that held either: alternative labels of one landmark, as delta-GLMB's merge_alternatives (0: none)",
-    )
+    factor_independent: bool = Field(default=False, description="update candidates that share no gated measurement outside the sampler, exactly (Reuter et al. 2014)")
+    merge_alternatives: float = Field(default=0.0, ge=0.0, le=1.0, description="merge labels the hypotheses hold as alternatives of one landmark up to this weight share (0: off)")
 
 
 @dataclass
@@ -99,6 +86,7 @@ class LMB(LabelledFilter):
     """LMB map per particle (module docstring)."""
 
     name = "LMB"
+    Config = LMBConfig
 
     def __init__(self, feature: FeatureModel, detection, cfg: LMBConfig, rng: np.random.Generator | None = None) -> None:
         super().__init__(feature, detection, cfg, rng)
@@ -213,7 +201,7 @@ class LMB(LabelledFilter):
     def _merged(self, sl, res: JointResult, label: np.ndarray, mu: np.ndarray, cov: np.ndarray):
         """The LMB approximation (per source slot, flat (P S,): existence, mean, covariance) of the update's
         delta-GLMB (res; the new slots' label, mu, cov) after its alternative labels of one landmark are merged
-        (``merge_alternatives``; :func:`slam_runtime.gibbs.reduce_hypotheses`, which also merges each label's versions
+        (``merge_alternatives``; :func:`slam_runtime.hypotheses.reduce_hypotheses`, which also merges each label's versions
         within ALTERNATIVES_GATE: the moment match of merged versions is the moment match of them all). A label merged
         into another leaves its slot empty (existence 0). The existence is the weight of the children that hold the
         track, each once (the reduction leaves every child each label once; counted by child, the existence stays
@@ -257,3 +245,6 @@ class LMB(LabelledFilter):
     def estimate(self, maps: LMBMaps, i: int) -> tuple[np.ndarray, np.ndarray]:
         _, x, r = self.labels(maps, i)
         return x, r
+
+
+MAP_FILTERS.add("lmb", LMB)

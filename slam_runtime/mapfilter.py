@@ -15,6 +15,14 @@ The filter uses a feature model (:mod:`slam_runtime.features`: predict z and H,
 inverse for birth, innovation) and the detection model
 (:class:`detectors.model.DetectionModel`: P_D, buffer zone, clutter kappa(z),
 descriptor likelihoods); it never reads a profile or a file.
+
+Every filter is found through :data:`MAP_FILTERS` (its settings' ``filter.kind``
+-> its class): a new filter is a module with a :class:`MapFilter` subclass, its
+settings model (``Config``, a pydantic model whose ``kind`` is a one-value
+Literal) and one registration line; the settings' union, the command line's
+``--filter`` choices and the docs' list follow the table. What a filter can do
+beyond the seam is declared on its class (``labelled``, ``proposes_poses``,
+``occlusion_default``), never guessed from its kind's name.
 """
 
 from __future__ import annotations
@@ -23,35 +31,14 @@ import time
 from abc import ABC, abstractmethod
 from collections import defaultdict
 from contextlib import contextmanager
-from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 
+from detectors.kinds import Measurements
+from profiles.registry import Registry
 from slam_runtime.features import FeatureModel
 from slam_runtime.proposal import pose_proposal
-
-
-@dataclass
-class Measurements:
-    """One frame's measurements, sensor frame.
-
-    z (M, dz); cov (M, dz, dz) each measurement's own covariance (e.g. a circle
-    fit's), added to the filter's noise floor, or None; ratio (M,) the
-    descriptor likelihood ratio g_x(d) / g_FA(d) of eq. 5.6, or None; scan (B,)
-    and angles (B,) the laser scan the measurements came from (ray-traced P_D),
-    or None; cloud (N, 4) the point cloud they came from (3D features), or None.
-    """
-
-    z: np.ndarray
-    cov: np.ndarray | None = None
-    ratio: np.ndarray | None = None
-    scan: np.ndarray | None = None
-    angles: np.ndarray | None = None
-    cloud: np.ndarray | None = None
-
-    def __len__(self) -> int:
-        return int(self.z.shape[0])
 
 
 class MapState(Protocol):
@@ -76,7 +63,17 @@ class Timers:
 class MapFilter(ABC):
     """Base of the map filters; ``timers`` splits their time by stage (P_D, update, weight, merge)."""
 
+    #: the filter's name in results ("RB-PHD")
     name: str = "map filter"
+    #: its settings: a pydantic model refusing unknown keys, whose ``kind`` is a one-value Literal (the registry name)
+    Config: type
+    #: its tracks carry labels: it offers ``labels(maps, i)`` and ``hypotheses(maps)``, and a run records the label history
+    labelled: bool = False
+    #: it offers ``pose_proposal`` (the optimal proposal draws poses from it)
+    proposes_poses: bool = False
+    #: ``detection.occlusion_sigmas`` when the settings give none: "profile" (the profile's k_sigma) or a number of
+    #: range sigmas (inf: no return occludes a map feature)
+    occlusion_default: float | str = "profile"
 
     def __init__(self, feature: FeatureModel, detection) -> None:
         self.feature = feature
@@ -138,6 +135,10 @@ class MapFilter(ABC):
     def predict(self, maps: MapState, dt: float) -> MapState:
         return maps
 
+    def record(self, maps: MapState, logw: np.ndarray) -> None:
+        """Receive the particles' log-weights after every update (the particle loop calls this); the labelled
+        filters' map estimate averages the particles' weighted states, the others ignore it."""
+
     @abstractmethod
     def update(self, maps: MapState, poses: np.ndarray, meas: Measurements) -> tuple[MapState, np.ndarray]: ...
 
@@ -152,3 +153,7 @@ class MapFilter(ABC):
     @abstractmethod
     def size(self, maps: MapState) -> np.ndarray:
         """(P,) components (or tracks) per particle."""
+
+
+#: The map filters by their settings' ``filter.kind``, in the order the settings' union lists them.
+MAP_FILTERS: Registry[type[MapFilter]] = Registry("map filter", builtins=("slam_runtime.rbphd", "slam_runtime.lmb", "slam_runtime.glmb"))

@@ -45,12 +45,11 @@ from scipy.optimize import linear_sum_assignment
 from scipy.sparse.linalg import splu
 
 from detectors.geometry import compose, interpolate_poses
-from detectors.logs import SensorLog, wrap_angle
+from detectors.sensor_log import SensorLog, wrap_angle
 from profiles.errors import DataError, UsageError
+from slam_runtime.oracle_factors import Blocks, ackermann_factors, bicycle, increment_factors, range_bearing_factors, range_bearing_jacobian
 from slam_runtime.refine import association_weights
 
-#: the dynamics of Ackermann controls are constraints, kept to this residual scale [m, rad]
-_STIFF = 1e-5
 
 
 @dataclass
@@ -174,7 +173,7 @@ def _problem(log: SensorLog, odometry_sigma) -> _Problem:
         dts = np.diff(stamps) * 1e-9
         ctrl = odo[:-1].copy()  # row k drives pose k to pose k + 1 (the last row is held past the end)
         for k in range(n - 1):
-            x[k + 1] = _bicycle(x[k], ctrl[k], dts[k], wb)
+            x[k + 1] = bicycle(x[k], ctrl[k], dts[k], wb)
     else:
         ctrl = np.zeros((0, 2))
         for k in range(1, n):
@@ -187,18 +186,18 @@ def _problem(log: SensorLog, odometry_sigma) -> _Problem:
     return _Problem(log.name, stamps, ack, odo, ctrl, dts, wb, sig, start, ids, detected, k_of, lj, zr, zb, x, lm)
 
 
-def _motion_blocks(prob: _Problem, x: np.ndarray, ctrl: np.ndarray) -> _Blocks:
+def _motion_blocks(prob: _Problem, x: np.ndarray, ctrl: np.ndarray) -> Blocks:
     """The odometry's factors and the first pose's anchor."""
-    blocks = _Blocks()
+    blocks = Blocks()
     nx = 3 * prob.stamps.size
     if prob.ack:
-        _ackermann_factors(blocks, x, ctrl, prob.odo[:-1], prob.dts, prob.wb, prob.sig, nx)
+        ackermann_factors(blocks, x, ctrl, prob.odo[:-1], prob.dts, prob.wb, prob.sig, nx)
     else:
-        _increment_factors(blocks, x, prob.odo, prob.sig)
+        increment_factors(blocks, x, prob.odo, prob.sig)
     return blocks
 
 
-def _anchor(prob: _Problem, blocks: _Blocks, x: np.ndarray) -> None:
+def _anchor(prob: _Problem, blocks: Blocks, x: np.ndarray) -> None:
     d0 = x[0] - prob.start
     d0[2] = wrap_angle(d0[2])
     blocks.add(1e6 * d0, [(np.arange(3), np.full(3, 1e6))])  # the first pose is the true start
@@ -288,7 +287,7 @@ def _solve_labelled(prob: _Problem, range_sigma: float, bearing_sigma: float, it
     converged = False
     for it in range(1, iterations + 1):
         blocks = _motion_blocks(prob, x, ctrl)
-        _range_bearing_factors(blocks, x, lm, prob.k_of, prob.lj, prob.zr, prob.zb, range_sigma, bearing_sigma, nx + nc)
+        range_bearing_factors(blocks, x, lm, prob.k_of, prob.lj, prob.zr, prob.zb, range_sigma, bearing_sigma, nx + nc)
         _anchor(prob, blocks, x)
         jac, res = blocks.build(nv)
         h = (jac.T @ jac).tocsc()
@@ -348,7 +347,7 @@ def clutter_oracle(
 
     def weighted(dj, lj, w):
         blocks = _motion_blocks(prob, x, ctrl)
-        _range_bearing_factors(blocks, x, lm, k_all[dj], lj, zr_all[dj], zb_all[dj], range_sigma, bearing_sigma, nx + nc, w)
+        range_bearing_factors(blocks, x, lm, k_all[dj], lj, zr_all[dj], zb_all[dj], range_sigma, bearing_sigma, nx + nc, w)
         _anchor(prob, blocks, x)
         return blocks.build(nv)
 
@@ -368,7 +367,7 @@ def clutter_oracle(
     mjac, mres = motion.build(nv)
     cost = 0.5 * float(mres @ mres)  # the odometry's (and the anchor's) part of the objective
     # the measurements' Gauss-Newton information, sum_j w_j J_j^T J_j, from the pairs' dense blocks (whitened)
-    r, jb, cols = _range_bearing_jacobian(x, lm, k_all[dj], lj, zr_all[dj], zb_all[dj], range_sigma, bearing_sigma, nx + nc)
+    r, jb, cols = range_bearing_jacobian(x, lm, k_all[dj], lj, zr_all[dj], zb_all[dj], range_sigma, bearing_sigma, nx + nc)
     h_meas = _sparse_blocks(w[:, None, None] * np.einsum("mki,mkj->mij", jb, jb), cols, nv)
     h_gn = ((mjac.T @ mjac) + h_meas).tocsc()
     # Louis's missing information: per (scan, landmark) group, sum_j w_j s_j s_j^T - s_bar s_bar^T over the
@@ -535,113 +534,3 @@ def clutter_information_ratio(pd: float, density: float, rng: np.random.Generato
     return float(np.mean(score**2) / pd)
 
 
-# ---------------------------------------------------------------------------------------------- factors
-class _Blocks:
-    """Rows of a sparse Jacobian and the whitened residuals, added a factor type at a time."""
-
-    def __init__(self) -> None:
-        self.rows: list[np.ndarray] = []
-        self.cols: list[np.ndarray] = []
-        self.vals: list[np.ndarray] = []
-        self.res: list[np.ndarray] = []
-        self.n = 0
-
-    def add(self, r: np.ndarray, entries) -> None:
-        ri = self.n + np.arange(r.size)
-        for c, v in entries:
-            self.rows.append(ri)
-            self.cols.append(np.asarray(c))
-            self.vals.append(np.broadcast_to(np.asarray(v, dtype=np.float64), (r.size,)))
-        self.res.append(r)
-        self.n += r.size
-
-    def build(self, nv: int) -> tuple[sp.csr_matrix, np.ndarray]:
-        jac = sp.csr_matrix(
-            (np.concatenate(self.vals), (np.concatenate(self.rows), np.concatenate(self.cols))), shape=(self.n, nv)
-        )
-        return jac, np.concatenate(self.res)
-
-
-def _bicycle(x: np.ndarray, u: np.ndarray, dt: float, wb: float) -> np.ndarray:
-    v, s = u
-    return np.array([x[0] + dt * v * np.cos(x[2]), x[1] + dt * v * np.sin(x[2]), wrap_angle(x[2] + dt * v / wb * np.tan(s))])
-
-
-def _increment_factors(b: _Blocks, x: np.ndarray, odo: np.ndarray, sig: np.ndarray) -> None:
-    """relative(x_{k-1}, x_k) - odo_k, whitened by sig (3,), for k = 1..N-1."""
-    a, c = x[:-1], x[1:]
-    co, si = np.cos(a[:, 2]), np.sin(a[:, 2])
-    dx, dy = c[:, 0] - a[:, 0], c[:, 1] - a[:, 1]
-    u = odo[1:]
-    ia = 3 * np.arange(x.shape[0] - 1)
-    ib = ia + 3
-    sx, sy, st = sig
-    b.add(
-        (co * dx + si * dy - u[:, 0]) / sx,
-        [(ia, -co / sx), (ia + 1, -si / sx), (ia + 2, (-si * dx + co * dy) / sx), (ib, co / sx), (ib + 1, si / sx)],
-    )
-    b.add(
-        (-si * dx + co * dy - u[:, 1]) / sy,
-        [(ia, si / sy), (ia + 1, -co / sy), (ia + 2, (-co * dx - si * dy) / sy), (ib, -si / sy), (ib + 1, co / sy)],
-    )
-    b.add(wrap_angle(c[:, 2] - a[:, 2] - u[:, 2]) / st, [(ia + 2, -1.0 / st), (ib + 2, 1.0 / st)])
-
-
-def _ackermann_factors(b: _Blocks, x, ctrl, odo, dts, wb, sig, off) -> None:
-    """The controls' prior (logged reading - control, whitened by sig (2,)) and the bicycle dynamics as stiff
-    constraints x_{k+1} = f(x_k, u_k)."""
-    sv, ss = sig
-    k = np.arange(ctrl.shape[0])
-    ix, ic = 3 * k, off + 2 * k
-    b.add((ctrl[:, 0] - odo[:, 0]) / sv, [(ic, 1.0 / sv)])
-    b.add(wrap_angle(ctrl[:, 1] - odo[:, 1]) / ss, [(ic + 1, 1.0 / ss)])
-    th, v, s = x[:-1, 2], ctrl[:, 0], ctrl[:, 1]
-    co, si, t = np.cos(th), np.sin(th), np.tan(s)
-    f = x[:-1] + np.column_stack([dts * v * co, dts * v * si, dts * v / wb * t])
-    r = x[1:] - f
-    r[:, 2] = wrap_angle(r[:, 2])
-    e = _STIFF
-    b.add(r[:, 0] / e, [(ix + 3, 1 / e), (ix, -1 / e), (ix + 2, dts * v * si / e), (ic, -dts * co / e)])
-    b.add(r[:, 1] / e, [(ix + 4, 1 / e), (ix + 1, -1 / e), (ix + 2, -dts * v * co / e), (ic, -dts * si / e)])
-    b.add(r[:, 2] / e, [(ix + 5, 1 / e), (ix + 2, -1 / e), (ic, -dts / wb * t / e), (ic + 1, -dts * v / wb / np.cos(s) ** 2 / e)])
-
-
-def _range_bearing_factors(b: _Blocks, x, lm, k_of, lj, zr, zb, sr, sb, off, w=None) -> None:
-    """Range and bearing of landmark lj from pose k_of, whitened by (sr, sb); with w (per pair), each pair's
-    rows scaled by sqrt(w) (its squared residual weighted by w)."""
-    if w is not None:
-        root = np.sqrt(w)
-        sr, sb = sr / root, sb / root
-    q = lm[lj] - x[k_of, :2]
-    q2 = np.maximum((q**2).sum(axis=1), 1e-12)
-    r = np.sqrt(q2)
-    ip, il = 3 * k_of, off + 2 * lj
-    b.add(
-        (r - zr) / sr, [(ip, -q[:, 0] / r / sr), (ip + 1, -q[:, 1] / r / sr), (il, q[:, 0] / r / sr), (il + 1, q[:, 1] / r / sr)]
-    )
-    bb = wrap_angle(np.arctan2(q[:, 1], q[:, 0]) - x[k_of, 2] - zb)
-    b.add(
-        bb / sb,
-        [
-            (ip, q[:, 1] / q2 / sb),
-            (ip + 1, -q[:, 0] / q2 / sb),
-            (ip + 2, -1.0 / sb),
-            (il, -q[:, 1] / q2 / sb),
-            (il + 1, q[:, 0] / q2 / sb),
-        ],
-    )
-
-
-def _range_bearing_jacobian(x, lm, k_of, lj, zr, zb, sr, sb, off) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The same factors as dense blocks: whitened residuals (M, 2), Jacobians (M, 2, 5) and their variable
-    indices (M, 5): the pose's x, y, heading, the landmark's x, y."""
-    b = _Blocks()
-    _range_bearing_factors(b, x, lm, k_of, lj, zr, zb, sr, sb, off)
-    m = k_of.size
-    jac = np.zeros((m, 2, 5))
-    # the entries in _range_bearing_factors' order: range (x, y, lx, ly), bearing (x, y, heading, lx, ly)
-    v = b.vals
-    jac[:, 0, [0, 1, 3, 4]] = np.column_stack(v[:4])
-    jac[:, 1, :] = np.column_stack(v[4:])
-    cols = np.column_stack([3 * k_of, 3 * k_of + 1, 3 * k_of + 2, off + 2 * lj, off + 2 * lj + 1])
-    return np.column_stack(b.res), jac, cols

@@ -30,9 +30,20 @@ about 0.17 m of offset.
 from __future__ import annotations
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 
 from detectors.geometry3d import normal_from_chart, orient_away, sensor_to_world, world_to_sensor
-from slam_runtime.features import FeatureModel
+from slam_runtime.features import FEATURE_MODELS, FeatureModel
+
+#: least (azimuth [rad], elevation [rad], offset [m]) noise of a plane measurement when the settings give none
+PLANE_NOISE_FLOOR = (0.005, 0.005, 0.05)
+
+
+class PlaneNoiseSettings(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    sigma_azimuth: float | None = Field(default=None, gt=0.0, description="planes: normal azimuth [rad]")
+    sigma_elevation: float | None = Field(default=None, gt=0.0, description="planes: normal elevation [rad]")
+    sigma_offset: float | None = Field(default=None, gt=0.0, description="planes: offset [m]")
 
 
 class PlaneFeature(FeatureModel):
@@ -47,6 +58,19 @@ class PlaneFeature(FeatureModel):
     dim_z = 3
     angular = (0,)
     state_angular = (0,)
+    Noise = PlaneNoiseSettings
+
+    @classmethod
+    def from_settings(cls, detection, noise, mount: np.ndarray, metric=None) -> PlaneFeature:
+        """The noise floor: the settings' (``noise``: sigma_azimuth, sigma_elevation, sigma_offset), else the
+        profile's noise of true detections but no less than :data:`PLANE_NOISE_FLOOR` (tens of particles cannot
+        follow a likelihood narrower than their own spread); ``metric``: the settings' map metric (plane_length)."""
+        sa, se, so = np.maximum(detection.noise_sigmas, PLANE_NOISE_FLOOR)
+        sa = noise.sigma_azimuth if noise.sigma_azimuth is not None else sa
+        se = noise.sigma_elevation if noise.sigma_elevation is not None else se
+        so = noise.sigma_offset if noise.sigma_offset is not None else so
+        length = metric.plane_length if metric is not None else 10.0
+        return cls(np.diag([sa**2, se**2, so**2]), mount, height=detection.height, metric_length=length)
 
     def __init__(self, r: np.ndarray, mount: np.ndarray | None = None, *, height: float = 0.0, metric_length: float = 10.0) -> None:
         super().__init__(r, mount)
@@ -79,3 +103,7 @@ def plane_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     d1 = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=-1)
     d2 = np.linalg.norm(a[:, None, :] + b[None, :, :], axis=-1)
     return np.minimum(d1, d2)
+
+
+
+FEATURE_MODELS.add("planes", PlaneFeature)

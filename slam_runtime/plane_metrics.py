@@ -25,7 +25,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from detectors.geometry import compose, interpolate_poses
-from detectors.logs import SensorLog
+from detectors.sensor_log import SensorLog
 from detectors.raytrace3d import BeamGrid, polygon_scene, range_image, visible_planes
 from slam_runtime.metrics import gospa, ospa
 from slam_runtime.plane_features import embed, plane_distance
@@ -103,28 +103,3 @@ def plane_map_metrics(log: SensorLog, est: np.ndarray, c: float = 1.0, p: float 
     return out
 
 
-def draw_planes(ax, log: SensorLog, est: np.ndarray, trajectory: np.ndarray, reach: float = 30.0) -> None:
-    """Top view: the true landmark planes' outlines and each mapped plane's trace near the trajectory."""
-    pl = log.planes
-    if pl is not None:
-        steep = np.abs(pl.normal[:, 2]) <= np.sin(np.radians(45.0))
-        for i in np.flatnonzero(steep):
-            v = pl.polygon(int(i))
-            ax.plot(v[:, 0], v[:, 1], "-", color="0.6", lw=0.8, label="true planes" if i == np.flatnonzero(steep)[0] else None)
-    est = np.asarray(est, dtype=np.float64).reshape(-1, 4)
-    if not est.size:
-        return
-    lo, hi = trajectory[:, :2].min(0) - reach, trajectory[:, :2].max(0) + reach
-    t = np.linspace(-np.hypot(*(hi - lo)), np.hypot(*(hi - lo)), 2000)
-    first = True
-    for e in est:
-        n = e[:3] / max(np.linalg.norm(e[:3]), 1e-12)
-        h = np.hypot(n[0], n[1])
-        if h < 0.3:
-            continue
-        foot = np.array([n[0], n[1]]) / h**2 * e[3]  # where the plane crosses z = 0, nearest the origin
-        pts = foot + t[:, None] * np.array([-n[1], n[0]]) / h
-        near = np.min(np.hypot(*(pts[:, None, :] - trajectory[None, ::10, :2]).transpose(2, 0, 1)), axis=1) <= reach
-        if near.any():
-            ax.plot(pts[near, 0], pts[near, 1], "g.", ms=1.2, label="mapped planes (traces)" if first else None)
-            first = False

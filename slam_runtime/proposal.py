@@ -15,10 +15,8 @@ test_proposal.py`` checks them against each other):
 * the hot path, range-bearing point landmarks with one measurement noise for
   the whole frame, is compiled (numba): the association is a loop over
   (feature, measurement) pairs of one particle, and numpy's version of it
-  builds (P, J, M, 2, 2) covariances that differ only in their (J) part; the
-  compiled pass took the proposal stage (P_D of the features included) from
-  35.6 to 5.3 ms per step at 200 particles on rfs-sim (wall time, seed 0,
-  ``benchmarks/bench_slam.py``);
+  builds (P, J, M, 2, 2) covariances that differ only in their (J) part
+  (the compiled pass's speed: ``benchmarks/bench_slam.py``, docs/results.md);
 * every other feature model (planes) and per-measurement noise go through
   numpy, batched over particles, features and measurements.
 

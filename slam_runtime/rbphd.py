@@ -35,7 +35,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from slam_runtime.features import FeatureModel
 from slam_runtime.gm import GMBatch, det, gaussian, inv, matmul, matvec, prune_merge, quad, transpose
-from slam_runtime.mapfilter import MapFilter, Measurements
+from slam_runtime.mapfilter import MAP_FILTERS, MapFilter, Measurements
 
 
 class RBPHDConfig(BaseModel):
@@ -46,20 +46,17 @@ class RBPHDConfig(BaseModel):
     noise_inflation: float = Field(default=1.0, ge=1.0, description="factor on the measurement noise covariance")
     birth_weight: float = Field(default=0.03, gt=0.0, le=1.0, description="weight of a birth component per unexplained measurement")
     adaptive_birth: bool = Field(default=True, description="scale each birth by the share of its measurement the map left unexplained")
-    prune: float = Field(default=1e-3, gt=0.0)
+    prune: float = Field(default=1e-3, gt=0.0, description="components of smaller weight are dropped")
     merge: float = Field(default=4.0, gt=0.0, description="squared Mahalanobis distance for merging")
     merge_rule: Literal["head", "mutual"] = Field(
         default="head", description="merge a component into the heaviest one when it lies in the head's gate (Vo & Ma), or in both gates"
     )
     merge_inflation: float = Field(default=1.0, ge=1.0, description="factor on the spread of the means of a merged group (not on the whole covariance: that compounds)")
-    merge_scope: Literal["fresh", "all"] = Field(
-        default="fresh",
-        description="test only the pairs with a component this step updated or created (the rest was merged before), or every pair (Vo & Ma)",
-    )
+    merge_scope: Literal["fresh", "all"] = Field(default="fresh", description="merge only pairs with a component updated or created this step (fresh), or every pair (all)")
     cap: int = Field(default=150, ge=1, description="components per particle at most")
     gate: float = Field(default=16.0, gt=0.0, description="squared Mahalanobis distance beyond which a measurement does not update a component")
     landmark_noise: float = Field(default=0.0, ge=0.0, description="landmark position variance added per second [m^2/s]")
-    weighting: Literal["multi_feature", "marginal", "empty_set", "single_feature"] = "multi_feature"
+    weighting: Literal["multi_feature", "marginal", "empty_set", "single_feature"] = Field(default="multi_feature", description="particle weighting: multi_feature (sec. 3.1.4), marginal, empty_set or single_feature")
     map_threshold: float = Field(default=0.5, gt=0.0, description="a component of this weight or more is a map feature")
 
 
@@ -107,6 +104,8 @@ class _Innovations:
 
 class RBPHD(MapFilter):
     name = "RB-PHD"
+    Config = RBPHDConfig
+    proposes_poses = True
 
     def __init__(self, feature: FeatureModel, detection, cfg: RBPHDConfig) -> None:
         super().__init__(feature, detection)
@@ -286,3 +285,6 @@ class RBPHD(MapFilter):
             lam = (pd_m[..., None] * g).sum(axis=1)  # (P, M)
             lik += np.log1p(lam / np.maximum(kappa[None, :], 1e-300)).sum(axis=1)
         return base + ratio + lik
+
+
+MAP_FILTERS.add("rbphd", RBPHD)

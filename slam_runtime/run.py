@@ -1,6 +1,6 @@
 """Run a SLAM filter over a log, then evaluate it: run -> evaluate -> write (the CLI writes).
 
-Takes a :class:`detectors.logs.SensorLog` in memory and a profile object; no
+Takes a :class:`detectors.sensor_log.SensorLog` in memory and a profile object; no
 file paths. :func:`build` turns the settings into a vehicle model, a feature
 model, the profile's detection model, a map filter and a measurement source;
 :func:`run_slam` drives the particle loop (:class:`slam_runtime.slam.RBSlam`)
@@ -19,13 +19,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from detectors.geometry import compose, interpolate_poses, relative
-from detectors.logs import SensorLog
+from detectors.kinds import DETECTORS
+from detectors.sensor_log import SensorLog
 from profiles.errors import DataError, UsageError
+from profiles.schema import PD_COVARIATES
 from slam_runtime.config import SlamConfig, detection_model, feature_model, map_filter, vehicle_model
 from slam_runtime.metrics import axis_rmse, gospa, ospa, trajectory_rmse
 from slam_runtime.refine import refine_map
 from slam_runtime.slam import RBSlam
-from slam_runtime.sources import CloudPlanes, LoggedDetections, ScanCircles, control_rows, frames
+from slam_runtime.sources import control_rows, frames
+from slam_runtime.vehicle import VEHICLE_MODELS
 
 
 @dataclass
@@ -61,20 +64,17 @@ class SlamResult:
 def check_inputs(log: SensorLog, profile) -> None:
     """Refuse a log this profile cannot run on: the measurements it needs, odometry, and for an
     n_p table the beam geometry it was measured with (it holds for no other)."""
-    if profile.detector.kind == "circle2d" and log.scans is None:
-        raise UsageError(f"{log.name}: profile {profile.ref} detects circles in laser scans, and this log has none")
-    if profile.detector.kind == "plane3d" and log.clouds is None:
-        raise UsageError(f"{log.name}: profile {profile.ref} detects planes in point clouds, and this log has none")
-    if profile.detector.kind == "external" and log.detections is None:
-        raise UsageError(f"{log.name}: profile {profile.ref} takes the log's detections, and this log has none")
+    kind = DETECTORS.get(profile.detector.kind)
+    if getattr(log, kind.stream) is None:
+        raise UsageError(f"{log.name}: profile {profile.ref} {kind.needs}, and this log has none")
     if log.odometry is None:
         raise UsageError(f"{log.name}: no odometry to drive the filter")
-    if profile.pd.covariate == "n_p" and log.sensor is not None:
+    if PD_COVARIATES.get(profile.pd.covariate).ray_traced and log.sensor is not None:
         _same_beams(profile, log.sensor)
 
 
 def _same_beams(profile, sensor) -> None:
-    """An n_p table holds only for the beam layouts it was measured with: the log's must be among them."""
+    """A ray-traced table (n_p) holds only for the beam layouts it was measured with: the log's must be among them."""
     theirs = profile.sensor.layouts()
     for g in sensor.layouts():
         if not any(
@@ -100,9 +100,11 @@ class Built:
 
 
 def check_features(profile, cfg: SlamConfig, planes: str = "--features planes") -> None:
-    """Plane profiles go with ``features: planes``, every other with points; ``planes`` is how the command sets it."""
-    planar = profile.detector.kind == "plane3d"
-    if planar != (cfg.features == "planes"):
+    """A profile goes with the features its detector makes (plane profiles with ``features: planes``, the others with
+    points); ``planes`` is how the command sets planes."""
+    made = DETECTORS.get(profile.detector.kind).features
+    planar = made == "planes"
+    if made != cfg.features:
         raise UsageError(
             f"profile {profile.ref} is a {profile.kind} profile; "
             + (f"run it with {planes}" if planar else f"{planes} needs a lidar3d-planes profile")
@@ -114,17 +116,11 @@ def build(log: SensorLog, profile, cfg: SlamConfig) -> Built:
     sensor = (log.sensor if log.sensor is not None else profile.sensor).turned(cfg.mount_yaw)
     mount = np.array([sensor.mount.x, sensor.mount.y, sensor.mount.theta])
     check_features(profile, cfg)
-    planar = cfg.features == "planes"
     det = detection_model(profile, cfg.detection, None, filter_kind=cfg.filter.kind)
-    feat = feature_model(det, cfg.measurement, mount, cfg.metric)
+    feat = feature_model(cfg.features, det, cfg.measurement, mount, cfg.metric)
     mf = map_filter(cfg, feat, det)
     veh = vehicle_model(log.odometry.kind, cfg.motion, log.vehicle, cfg.features)
-    if planar:
-        measure = CloudPlanes(log, profile, det)
-    elif log.scans is not None and profile.detector.kind == "circle2d":
-        measure = ScanCircles(log, profile, det, descriptor_likelihood=cfg.detection.descriptor_likelihood)
-    else:
-        measure = LoggedDetections(log, landmarks_only=cfg.detection.landmarks_only)
+    measure = DETECTORS.get(profile.detector.kind).source(log, profile, det, cfg.detection)
     return Built(veh, mf, measure, mount)
 
 
@@ -373,3 +369,27 @@ def evaluate(log: SensorLog, res: SlamResult, c: float = 1.0, p: float = 1.0, cf
         out["ospa_c_m"], out["ospa_p"] = c, p
     out["stage_ms_per_step"] = {k: round(v / max(res.stamps.size, 1), 4) for k, v in res.stage_ms.items()}
     return out
+
+
+def describe(log: SensorLog, profile, cfg: SlamConfig) -> dict[str, str]:
+    """What a run of ``cfg`` on ``log`` with ``profile`` uses, one line per role: the filter, the vehicle model and its
+    noise, the measurement noise floor, P_D and clutter, each with where it comes from (the settings, the profile or a
+    model's defaults). ``detcal slam run`` prints it when it derived the settings."""
+    b = build(log, profile, cfg)
+    group = next(n for n, c in VEHICLE_MODELS.items() if isinstance(b.vehicle, c))
+    noise = getattr(cfg.motion, group)
+    given = {k: v for k, v in cfg.measurement.model_dump().items() if v is not None}
+    sig = np.sqrt(np.diag(b.mapfilter.feature.r))
+    src = "the settings" if given else ("the profile" if profile.noise is not None or cfg.features == "planes" else "the defaults")
+    pd = profile.pd
+    rows = {
+        "filter": f"{b.mapfilter.name} ({cfg.filter.kind}), {cfg.particles} particles, {cfg.proposal} proposal",
+        "features": cfg.features,
+        "motion": f"{b.vehicle.label} model for {log.odometry.kind} odometry, motion.{group}: "
+        + ", ".join(f"{k} {v:g}" for k, v in noise.model_dump().items()),
+        "measurement noise": f"{', '.join(f'{s:.4g}' for s in sig)} (sigmas of the measurement's components, from {src})",
+        "P_D": f"constant {cfg.detection.constant_pd:g} in view" if cfg.detection.pd_mode == "constant"
+        else f"the profile's {pd.covariate} table ({len(pd.edges) - 1} bins)",
+        "clutter": f"{profile.clutter.rate:.4g} false alarms per frame ({profile.clutter.count_model}, the profile's)",
+    }  # fmt: skip
+    return rows

@@ -109,8 +109,7 @@ class RBSlam:
         # log p(Z_1:k) of each island up to the filter's constant (log of the clutter-only likelihood): the sum over
         # steps of the log normaliser of its weights (the sequential Monte Carlo estimate of the marginal likelihood)
         self._evidence = np.zeros(islands)
-        if hasattr(mapfilter, "bind"):
-            mapfilter.bind(rng, islands)  # filters that sample draw from the run's generator, each island its own draws
+        mapfilter.bind(rng, islands)  # filters that sample draw from the run's generator, each island its own draws
         self.maps = mapfilter.empty(n)
         self.history = ParticleHistory(self.x)
         self._pending = np.arange(n, dtype=np.int32)  # parents of the next history row
@@ -119,7 +118,7 @@ class RBSlam:
         self._heaviest = np.full(islands, -1, np.int64)
         self.time = {"predict": 0.0, "resample": 0.0}
         # the optimal proposal needs a planar-pose vehicle and a map filter that offers it
-        self.proposal = proposal if (vehicle.dim == 3 and hasattr(mapfilter, "pose_proposal")) else "prior"
+        self.proposal = proposal if (vehicle.dim == 3 and mapfilter.proposes_poses) else "prior"
         self._prior: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
@@ -184,8 +183,7 @@ class RBSlam:
                 raise FloatingPointError(f"every particle of island {k} (of {self.islands}) has zero weight") from None
             self._evidence[k] += log_norm
         self.logw = logw
-        if hasattr(self.mf, "record"):  # the labelled filters' map estimate averages the particles' weighted states
-            self.mf.record(self.maps, self.logw)
+        self.mf.record(self.maps, self.logw)  # (the labelled filters' map estimate averages the particles' weighted states)
         t0 = time.perf_counter()
         e = np.array([ess(self.logw[sl]) for sl in self._isl])
         self._since += 1
@@ -250,7 +248,7 @@ class RBSlam:
     def map_estimate(self, i: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Particle i's map estimate (states, weights); default: the best particle's, and with islands and a labelled
         filter each of its labels at the mean of its state in the islands' heaviest particles' estimates that hold it."""
-        if i is not None or self.islands == 1 or not hasattr(self.mf, "labels"):
+        if i is not None or self.islands == 1 or not self.mf.labelled:
             return self.mf.estimate(self.maps, self.best() if i is None else i)
         ref = self.best()
         lab, x, r = self.mf.labels(self.maps, ref)
@@ -283,8 +281,7 @@ def match_labels(feature, label: np.ndarray, x: np.ndarray, other_label: np.ndar
     assignment of least total cost, a pair costing the distance between the positions (``feature.position``) and a
     feature left unpaired ``gate`` [m] (OSPA's cut-off: pairs ``gate`` or more apart are not made; their labels stay).
     A label is one landmark in every particle of an island, but in every island only if each bore the landmark from
-    the same measurement; under heavy clutter they often do not (glmb-paper's held-out worlds at 15 false alarms per
-    scan: a mean of 63 %, 42-83 %, of the reference's labels in another island's estimate; 100 % at 1)."""
+    the same measurement; under heavy clutter they often do not (docs/labelled-filters.md, islands)."""
     out = np.array(other_label, dtype=np.int64, copy=True)
     free_ref = np.flatnonzero(~np.isin(label, other_label))
     free_oth = np.flatnonzero(~np.isin(other_label, label))

@@ -20,6 +20,13 @@ and detection models need.
   bicycle of wheelbase L; an optional steering offset is removed and a speed
   scale applied first (:func:`fit_ackermann_bias` measures both against a
   trajectory).
+
+Every model is found through :data:`VEHICLE_MODELS` under the name of its noise
+settings' group (``motion.increment``, ``motion.velocity``, ...): its class
+declares the odometry kinds that drive it, the feature kinds it is the model
+of by default, and its noise settings (``Noise``), which become that group of
+the SLAM settings. A new model is a module with a :class:`VehicleModel`
+subclass and one registration line.
 """
 
 from __future__ import annotations
@@ -28,9 +35,12 @@ from abc import ABC, abstractmethod
 
 import numba
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 
 from detectors.geometry import compose
-from detectors.logs import wrap_angle
+from detectors.sensor_log import wrap_angle
+from profiles.errors import DataError
+from profiles.registry import Registry
 
 
 class VehicleModel(ABC):
@@ -39,6 +49,28 @@ class VehicleModel(ABC):
     dim: int = 3
     #: columns of a control row
     control_dim: int = 3
+    #: the model's name in messages
+    label: str = "vehicle"
+    #: the odometry kinds (``Odometry.kind``) that drive it, and what they are in words (messages)
+    odometry: tuple[str, ...] = ()
+    takes: str = ""
+    #: the feature kinds whose filters it drives when the settings leave the choice to the odometry (``motion.model: auto``)
+    features: tuple[str, ...] = ("points", "planes")
+    #: its noise settings: a pydantic model refusing unknown keys, the group of ``motion`` it is registered under
+    Noise: type[BaseModel]
+    #: the settings of its group a self-calibration measures against a trajectory (:meth:`fit_biases`), with their
+    #: labels, and how little their change must be for the iteration to have settled
+    biases: dict[str, str] = {}
+    settled: dict[str, float] = {}
+
+    def fit_biases(self, controls: list[tuple[np.ndarray, np.ndarray]], trajectory: np.ndarray) -> dict:
+        """The :attr:`biases` measured against a trajectory (T, 3), given each frame's control rows and durations."""
+        raise NotImplementedError(f"{type(self).__name__} has no biases to measure")
+
+    @classmethod
+    def from_settings(cls, noise: BaseModel, vehicle=None) -> VehicleModel:
+        """The model with its noise settings; ``vehicle``: the log's vehicle geometry (models that need it)."""
+        return cls(**noise.model_dump())
 
     def initial(self, pose: np.ndarray, n: int) -> np.ndarray:
         """(n, dim) states at a planar pose (3,) (at rest)."""
@@ -104,6 +136,19 @@ def _noisy(n: int, values: np.ndarray, sigmas: np.ndarray, rng: np.random.Genera
     return out
 
 
+class IncrementNoise(BaseModel):
+    """Pose-increment odometry (see :class:`slam_runtime.vehicle.OdometryIncrement`)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    a_trans: float = Field(default=0.05, ge=0.0, description="std along per metre travelled")
+    a_rot: float = Field(default=0.05, ge=0.0, description="heading std per radian turned")
+    a_rot_trans: float = Field(default=0.01, ge=0.0, description="heading std per metre travelled [rad/m]")
+    lateral: float = Field(default=0.02, ge=0.0, description="std across per metre travelled")
+    s_x: float = Field(default=0.0, ge=0.0, description="constant std along [m / sqrt(s)]")
+    s_y: float = Field(default=0.0, ge=0.0, description="constant std across [m / sqrt(s)]")
+    s_theta: float = Field(default=0.0, ge=0.0, description="constant heading std [rad / sqrt(s)]")
+
+
 class OdometryIncrement(VehicleModel):
     """Pose increments u = (dx, dy, dtheta) in the previous vehicle frame.
 
@@ -115,6 +160,10 @@ class OdometryIncrement(VehicleModel):
     """
 
     control_dim = 3
+    label = "increment"
+    odometry = ("pose", "increment")
+    takes = "pose or increment odometry"
+    Noise = IncrementNoise
 
     def __init__(
         self,
@@ -150,10 +199,25 @@ class OdometryIncrement(VehicleModel):
         return f
 
 
+class VelocityNoise(BaseModel):
+    """Unicycle (v, omega) commands."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    sigma_v: float = Field(default=0.05, ge=0.0, description="m/s")
+    sigma_omega: float = Field(default=0.05, ge=0.0, description="rad/s")
+    speed_scale: float = Field(default=1.0, gt=0.5, lt=2.0, description="factor on every speed command")
+    omega_offset: float = Field(default=0.0, ge=-0.5, le=0.5, description="turn-rate bias removed from every command [rad/s]")
+
+
 class Unicycle(VehicleModel):
     """Velocity commands u = (v [m/s], omega [rad/s]) held for dt, Gaussian noise on each."""
 
     control_dim = 2
+    label = "unicycle"
+    odometry = ("velocity",)
+    takes = "speed and yaw-rate odometry"
+    features = ("points",)
+    Noise = VelocityNoise
 
     def __init__(self, *, sigma_v: float = 0.05, sigma_omega: float = 0.05, speed_scale: float = 1.0, omega_offset: float = 0.0) -> None:
         self.sig = np.array([sigma_v, sigma_omega], dtype=np.float64)
@@ -184,10 +248,35 @@ class Unicycle(VehicleModel):
         return f
 
 
+class AckermannNoise(BaseModel):
+    """Encoder speed and steering angle."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    sigma_speed: float = Field(default=0.1, ge=0.0, description="m/s")
+    sigma_steer: float = Field(default=0.02, ge=0.0, description="rad")
+    steer_offset: float = Field(default=0.0, ge=-0.2, le=0.2, description="steering bias removed from every reading [rad]")
+    speed_scale: float = Field(default=1.0, gt=0.5, lt=2.0, description="factor on every speed reading")
+
+
 class Ackermann(VehicleModel):
     """Encoder speed and steering u = (v [m/s], steer [rad]) of a car-like vehicle (rear-axle frame)."""
 
     control_dim = 2
+    label = "Ackermann"
+    odometry = ("ackermann",)
+    takes = "encoder speed and steering odometry"
+    Noise = AckermannNoise
+    biases = {"steer_offset": "steering offset [rad]", "speed_scale": "speed scale"}
+    settled = {"steer_offset": 5e-4}
+
+    def fit_biases(self, controls, trajectory) -> dict:
+        return fit_ackermann_bias(self, controls, trajectory)
+
+    @classmethod
+    def from_settings(cls, noise: BaseModel, vehicle=None) -> Ackermann:
+        if vehicle is None:
+            raise DataError("Ackermann odometry needs the vehicle geometry (wheelbase)")
+        return cls(vehicle.wheelbase, vehicle.encoder_offset, **noise.model_dump())
 
     def __init__(
         self,
@@ -225,7 +314,7 @@ class Ackermann(VehicleModel):
 
     def predict_gaussian(self, x, controls, dts):
         """As :meth:`VehicleModel.predict_gaussian`, with the control Jacobian in closed form and the rows of a
-        frame integrated in one compiled loop (a frame of Victoria Park holds ~7 odometry rows; the generic
+        frame integrated in one compiled loop (a frame holds several odometry rows; the generic
         form costs six vectorised model evaluations per row)."""
         if np.ndim(self.steer_offset) or np.ndim(self.speed_scale):  # one bias per state: the generic form
             return super().predict_gaussian(x, controls, dts)
@@ -336,3 +425,10 @@ def fit_ackermann_bias(
         "heading_rms_without_rad": float(np.sqrt(err[np.argmin(np.abs(offsets))] / max(len(starts), 1))),
         "windows": int(len(starts)),
     }
+
+
+#: The vehicle models by the name of their noise settings' group (``motion.<name>``), in the settings' order.
+VEHICLE_MODELS: Registry[type[VehicleModel]] = Registry("vehicle model", builtins=("slam_runtime.vehicle", "slam_runtime.ect"))
+VEHICLE_MODELS.add("increment", OdometryIncrement)
+VEHICLE_MODELS.add("velocity", Unicycle)
+VEHICLE_MODELS.add("ackermann", Ackermann)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -9,7 +10,8 @@ import pytest
 from calib.sim.park import ParkConfig, simulate_park
 
 ROOT = Path(__file__).resolve().parents[1]
-SHARED_DATA = ROOT.parent / "shared" / "data"
+#: the real logs: beside the repository, or where $DETCAL_SHARED_DATA says (a checkout elsewhere)
+SHARED_DATA = Path(os.environ.get("DETCAL_SHARED_DATA") or ROOT.parent / "shared" / "data")
 VENDORED = Path(__file__).resolve().parent / "data"
 
 

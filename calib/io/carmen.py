@@ -27,7 +27,7 @@ import numpy as np
 from pydantic import ValidationError
 
 from calib.io.common import DEFAULT_MAX_BACKSTEP, file_digest, iter_lines, parse_floats, parse_stamp, time_order
-from detectors.logs import BeamGeometry, Mount, Odometry, ReferencePoses, ScanBatch, SensorLog, SensorModel
+from detectors.sensor_log import BeamGeometry, Mount, Odometry, ReferencePoses, ScanBatch, SensorLog, SensorModel
 from profiles.errors import DataError, UsageError
 
 LASER_TYPES = ("FLASER", "RLASER", "ROBOTLASER1")

@@ -14,12 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from detectors.logs import MAX_SECONDS, seconds_to_stamp
+from detectors.sensor_log import MAX_SECONDS, seconds_to_stamp
 from profiles.errors import DataError, UsageError
 
 #: Default tolerance for records that step back in time within one stream.
-#: Real logs have such jitter: the Intel CARMEN log steps back by up to 0.9 s
-#: 631 times (inter-process timestamps). Within this tolerance records are
+#: Real logs have such jitter (inter-process timestamps of the Radish CARMEN logs). Within this tolerance records are
 #: sorted back into order and counted; beyond it the log is refused.
 DEFAULT_MAX_BACKSTEP = 1.0
 

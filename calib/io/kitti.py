@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.io.common import file_digest
-from detectors.logs import PointClouds, SensorLog, SensorModel
+from detectors.sensor_log import PointClouds, SensorLog, SensorModel
 from profiles.errors import DataError, UsageError
 
 PERIOD_NS = 100_000_000

@@ -31,7 +31,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from calib.io.atomic import atomic_output
-from detectors.logs import (
+from detectors.sensor_log import (
     Detections,
     Landmarks,
     Odometry,

@@ -31,7 +31,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from calib.io.atomic import atomic_output
 from calib.io.common import DEFAULT_MAX_BACKSTEP, file_digest, time_order
-from detectors.logs import (
+from detectors.sensor_log import (
     BeamGeometry,
     Detections,
     Landmarks,

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.io.common import DEFAULT_MAX_BACKSTEP, file_digest, index_of, read_table, require_rows, table_stamps, table_time_order
-from detectors.logs import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel
+from detectors.sensor_log import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel
 from profiles.errors import DataError, UsageError
 
 N_ROBOTS = 5

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.io.common import DEFAULT_MAX_BACKSTEP, file_digest, read_table, require_rows, table_stamps, table_time_order
-from detectors.logs import Detections, Mount, Odometry, ReferencePoses, SensorLog, SensorModel, Vehicle
+from detectors.sensor_log import Detections, Mount, Odometry, ReferencePoses, SensorLog, SensorModel, Vehicle
 from profiles.errors import UsageError
 
 FILES = ("measurements.dat", "inputs.dat", "gps.dat")

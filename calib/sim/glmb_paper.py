@@ -37,54 +37,11 @@ reproducible from its text).
 from __future__ import annotations
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from detectors.logs import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, Vehicle, wrap_angle
+from calib.sim import SIMULATORS, Option, Simulated, Simulator, with_truth
+from detectors.sensor_log import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, Vehicle, wrap_angle
 from profiles.errors import UsageError
-
-#: the 23 landmarks [m], world frame, 1-2 m beside the default circuit (each in range for 22-58 scans)
-LANDMARKS = [
-    [1.6, 1.1], [5.6, -1.8], [9.1, 1.1], [12.6, -1.5], [16.2, 1.7], [20.5, -1.2], [22.5, 2.9], [27.2, 4.7],
-    [24.6, 8.6], [27.1, 12.5], [22.5, 14.6], [20.6, 18.0], [16.3, 15.5], [12.6, 18.8], [9.1, 16.1], [5.7, 18.2],
-    [2.7, 14.0], [-1.4, 13.3], [0.0, 8.9], [-3.0, 5.7], [1.4, 3.0], [-1.8, 1.0], [8.0, -3.0],
-]  # fmt: skip
-
-#: the pre-planned path: from the origin heading east round the circuit, then along its first side again
-WAYPOINTS = [[24.0, 0.0], [24.0, 16.0], [0.0, 16.0], [0.0, 0.0], [14.0, 0.0]]
-
-
-class GlmbPaperConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    landmarks: list[tuple[float, float]] = Field(default_factory=lambda: [tuple(x) for x in LANDMARKS], min_length=1)
-    waypoints: list[tuple[float, float]] = Field(default_factory=lambda: [tuple(x) for x in WAYPOINTS], min_length=1)
-    speed: float = Field(default=1.0, gt=0.0, description="[m/s]")
-    dt: float = Field(default=0.025, gt=0.0, description="control period [s]")
-    observe_every: int = Field(default=8, ge=1, description="control steps per scan")
-    wheelbase: float = Field(default=4.0, gt=0.0, description="[m]")
-    max_steer: float = Field(default=float(np.radians(30.0)), gt=0.0, lt=np.pi / 2, description="[rad]")
-    steer_rate: float = Field(default=float(np.radians(20.0)), gt=0.0, description="[rad/s]")
-    switch: float = Field(default=6.0, gt=0.0, description="distance at which the next waypoint is taken [m]")
-    arrive: float = Field(default=1.0, gt=0.0, description="the run ends this close to the last waypoint [m]")
-    max_steps: int = Field(default=20000, ge=10, le=1_000_000, description="control steps at most")
-    sigma_v: float = Field(default=0.1, ge=0.0, description="control noise on the speed [m/s]")
-    sigma_steer: float = Field(default=float(np.radians(2.0)), ge=0.0, description="control noise on the steering angle [rad]")
-    range_min: float = Field(default=0.0, ge=0.0)
-    range_max: float = Field(default=3.0, gt=0.0)
-    pd: float = Field(default=0.7, gt=0.0, le=1.0)
-    clutter: float = Field(default=5.0, ge=0.0, le=10_000.0, description="false alarms per scan (Poisson mean)")
-    sigma_range: float = Field(default=0.3, gt=0.0, description="[m]")
-    sigma_bearing: float = Field(default=float(np.radians(2.0)), gt=0.0, description="[rad]")
-
-    @model_validator(mode="after")
-    def _ranges(self) -> GlmbPaperConfig:
-        if self.range_min >= self.range_max:
-            raise ValueError("range_min must be below range_max")
-        if len(self.waypoints) == 1 and float(np.hypot(*self.waypoints[0])) < self.arrive:
-            raise ValueError(
-                f"waypoints: the only waypoint is within arrive ({self.arrive} m) of the start (0, 0): the path would have no step"
-            )
-        return self
-
+from profiles.parameters import GlmbPaperConfig
 
 def sensor_model(cfg: GlmbPaperConfig) -> SensorModel:
     """The sensor as the filter sees it: its reports reach 4 range sigmas past the detection range (noise)."""
@@ -239,30 +196,14 @@ def summary(log: SensorLog, cfg: GlmbPaperConfig) -> dict:
     }
 
 
-def plot_overview(log: SensorLog, path) -> None:
-    import matplotlib
+def _run(cfg: GlmbPaperConfig, seed: int, progress=None) -> Simulated:
+    log = simulate_glmb_paper(cfg, seed)
+    return with_truth(log, {"seed": seed, **summary(log, cfg)}, truth_profile(cfg))
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    poses = log.reference["ground_truth"].poses
-    d = log.detections
-    fs = log.reference["ground_truth"]
-    at = np.searchsorted(fs.stamp, d.frame_stamp[d.frame])
-    sp = fs.poses[at]
-    a = sp[:, 2] + d.bearing
-    xy = np.column_stack([sp[:, 0] + d.range * np.cos(a), sp[:, 1] + d.range * np.sin(a)])
-    clutter = np.asarray(d.descriptors["landmark"]) == 0
-    fig, ax = plt.subplots(figsize=(8, 6))
-    ax.plot(xy[clutter, 0], xy[clutter, 1], ".", color="tab:green", ms=1.5, alpha=0.5, label="false alarms")
-    ax.plot(xy[~clutter, 0], xy[~clutter, 1], ".", color="tab:purple", ms=1.5, alpha=0.5, label="landmark detections")
-    ax.plot(poses[:, 0], poses[:, 1], "b--", lw=1, label="true path")
-    ax.plot(log.landmarks.xy[:, 0], log.landmarks.xy[:, 1], "k+", ms=10, mew=2, label="landmarks")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_title(f"{log.name}: {len(d)} detections over {d.n_frames} scans", fontsize=9)
-    ax.legend(fontsize=7, loc="upper right")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110, metadata={"Software": None})
-    plt.close(fig)
+SIMULATORS.add("glmb-paper", Simulator(
+    GlmbPaperConfig, "glmb_paper",
+    "The delta-GLMB-SLAM paper's simulation: 23 landmarks beside a pre-planned loop, v = 1 m/s, range-bearing sensor 0-3 m "
+    "over the full circle, P_D 0.7, noise 0.3 m / 2 deg, Poisson clutter; writes the log and the profile of its true statistics.",
+    "glmb-paper scenario", _run, Option("clutter", float, "False alarms per scan (the paper: 1, 5, 10, 15; default: the config's, 5)."),
+))  # fmt: skip

@@ -28,10 +28,13 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy.spatial import cKDTree
 
-from calib.config import check_order
+from calib.config import dump_yaml
+from calib.sim import SIMULATORS, Simulated, Simulator
 from detectors.geometry import cast, compose, relative
-from detectors.logs import Landmarks, Mount, Odometry, ReferencePoses, ScanBatch, SensorLog, SensorModel, seconds_to_stamp
+from detectors.sensor_log import Landmarks, Mount, Odometry, ReferencePoses, ScanBatch, SensorLog, SensorModel, seconds_to_stamp
 from profiles.errors import DataError
+from profiles.override import updated
+from profiles.parameters import check_order
 
 #: odometry ticks a simulated run may hold at most (about 14 hours at 200 Hz): a slower speed or a faster rate is refused
 MAX_TICKS = 10_000_000
@@ -68,8 +71,7 @@ class BushesConfig(_Strict):
     """Irregular shrubs: the main source of false alarms.
 
     Many small ones rather than a few big ones: the clutter rate of a world then
-    varies little between worlds of the same statistics (with 40 bushes of
-    0.6-2 m it varied by +-25 % between seeds; with 150 of 0.3-1 m by +-8 %).
+    varies little between worlds of the same statistics (docs/results.md).
     """
 
     count: int = Field(default=150, ge=0)
@@ -187,17 +189,15 @@ CHANGES = {
 
 def changed(cfg: ParkConfig, change: str) -> ParkConfig:
     """``cfg`` with one of :data:`CHANGES` applied (validated anew); ``same`` leaves it as it is."""
-    d = cfg.model_dump()
     if change == "pd_lower":
-        d["laser"].update(landmark_dropout=0.1, dropout_beyond=10.0)
-    elif change == "clutter_double":
-        for k in ("bushes", "posts", "walls"):
-            d[k]["count"] *= 2
-    elif change == "noise_double":
-        d["laser"]["range_sigma"] *= 2
-    elif change != "same":
+        return updated(cfg, {"laser.landmark_dropout": 0.1, "laser.dropout_beyond": 10.0})
+    if change == "clutter_double":
+        return updated(cfg, {f"{k}.count": 2 * getattr(cfg, k).count for k in ("bushes", "posts", "walls")})
+    if change == "noise_double":
+        return updated(cfg, {"laser.range_sigma": 2 * cfg.laser.range_sigma})
+    if change != "same":
         raise ValueError(f"unknown change {change!r}; choose from same, {', '.join(CHANGES)}")
-    return ParkConfig.model_validate(d)
+    return cfg
 
 
 @dataclass(frozen=True, eq=False)
@@ -502,3 +502,30 @@ def simulate_park(cfg: ParkConfig, seed: int, progress=None) -> Simulation:
         source={"reader": "simulator", "simulator": "park", "seed": seed},
     )
     return Simulation(cfg, seed, world, log)
+
+
+def park_summary(sim: Simulation) -> dict:
+    """What a park simulation holds: scans, beams, odometry, duration, path length, returns, the world's objects."""
+    log = sim.log
+    r = log.scans.ranges
+    return {
+        "seed": sim.seed,
+        "scans": len(log.scans),
+        "beams": log.scans.n_beams,
+        "odometry_rows": len(log.odometry),
+        "duration_s": float((log.scans.stamp[-1] - log.scans.stamp[0]) / 1e9),
+        "path_length_m": float(np.sum(np.hypot(*np.diff(log.reference["ground_truth"].poses[:, :2], axis=0).T))),
+        "returning_beam_share": float(np.isfinite(r).mean()),
+        "trees": int(sim.world.tree_r.size),
+        "posts": int(sim.world.post_r.size),
+        "bushes": int(sim.world.bush_offsets.size - 1),
+        "wall_segments": int(sim.world.wall_p0.shape[0]),
+    }
+
+
+def _run(cfg: ParkConfig, seed: int, progress=None) -> Simulated:
+    sim = simulate_park(cfg, seed, progress=progress)
+    return Simulated(sim.log, park_summary(sim), {"world.yaml": dump_yaml(sim.world.to_dict())}, sim)
+
+
+SIMULATORS.add("park", Simulator(ParkConfig, "park", "Simulate a 2D park (trees, bushes, walls, posts, dust) seen by a laser on a moving vehicle.", "simulated park", _run))

@@ -28,40 +28,11 @@ calibration of these logs should recover. Same config and seed, same bytes.
 from __future__ import annotations
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from calib.config import check_order
+from calib.sim import SIMULATORS, Option, Simulated, Simulator, with_truth
 from detectors.geometry import compose
-from detectors.logs import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, wrap_angle
-
-
-class RfsSimConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    steps: int = Field(default=1000, ge=60, le=1_000_000)
-    dt: float = Field(default=0.1, gt=0.0)
-    segments: int = Field(default=20, ge=1)
-    still_steps: int = Field(default=50, ge=0, description="steps the vehicle stands still at the start")
-    max_dx: float = Field(default=0.30, gt=0.0, description="largest forward speed [m/s]")
-    min_dx: float = Field(default=0.10, ge=0.0, description="smallest forward speed [m/s]")
-    max_dy: float = Field(default=0.0, ge=0.0, description="largest sideways speed [m/s]")
-    max_dtheta: float = Field(default=0.50, ge=0.0, description="largest turn rate [rad/s]")
-    var_odometry: float = Field(default=2e-3, ge=0.0, description="odometry noise: variance x dt^2 per step and axis")
-    landmarks: int = Field(default=50, ge=1)
-    range_min: float = Field(default=0.5, ge=0.0)
-    range_max: float = Field(default=2.5, gt=0.0)
-    pd: float = Field(default=0.99, gt=0.0, le=1.0)
-    clutter_intensity: float = Field(default=1e-4, ge=0.0, description="false alarms per m rad per step")
-    var_range: float = Field(default=5e-4, gt=0.0, description="[m^2]")
-    var_bearing: float = Field(default=5e-5, gt=0.0, description="[rad^2]")
-
-    @model_validator(mode="after")
-    def _order(self) -> RfsSimConfig:
-        check_order(self, "min_dx", "max_dx")
-        check_order(self, "range_min", "range_max", strict=True)
-        lam = self.clutter_intensity * (self.range_max - self.range_min) * 2 * np.pi
-        if lam > 10_000:
-            raise ValueError(f"clutter_intensity ({self.clutter_intensity}) gives {lam:.3g} false alarms per step; at most 10,000 are simulated")
-        return self
+from detectors.sensor_log import Detections, Landmarks, Odometry, ReferencePoses, SensorLog, SensorModel, wrap_angle
+from profiles.parameters import RfsSimConfig
 
 
 def sensor_model(cfg: RfsSimConfig) -> SensorModel:
@@ -178,21 +149,14 @@ def summary(log: SensorLog, cfg: RfsSimConfig) -> dict:
     }
 
 
-def plot_overview(log: SensorLog, path) -> None:
-    import matplotlib
+def _run(cfg: RfsSimConfig, seed: int, progress=None) -> Simulated:
+    log = simulate_rfs(cfg, seed)
+    return with_truth(log, {"seed": seed, **summary(log, cfg)}, truth_profile(cfg))
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    poses = log.reference["ground_truth"].poses
-    fig, ax = plt.subplots(figsize=(7, 6))
-    ax.plot(poses[:, 0], poses[:, 1], "k-", lw=1, label="true path")
-    ax.plot(log.landmarks.xy[:, 0], log.landmarks.xy[:, 1], "g*", ms=8, label="landmarks")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_title(f"{log.name}: {len(log.detections)} detections over {log.detections.n_frames} steps", fontsize=9)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+SIMULATORS.add("rfs-sim", Simulator(
+    RfsSimConfig, "rfs_sim",
+    "The C++ RFS-SLAM library's 2D RB-PHD-SLAM scenario: 50 landmarks along a piecewise constant-velocity path, range-bearing "
+    "sensor 0.5-2.5 m, P_D 0.99; writes the log and the profile of its true statistics.",
+    "rfs-sim scenario", _run, Option("steps", int, "Time steps of 0.1 s (default: the config's, 1,000)."),
+))  # fmt: skip

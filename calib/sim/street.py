@@ -33,11 +33,12 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from calib.config import check_order
+from calib.sim import SIMULATORS, Option, Simulated, Simulator
 from detectors.geometry import compose
-from detectors.logs import Mount, Odometry, PlaneLandmarks, PointClouds, ReferencePoses, SensorLog, SensorModel, seconds_to_stamp, wrap_angle
+from detectors.sensor_log import Mount, Odometry, PlaneLandmarks, PointClouds, ReferencePoses, SensorLog, SensorModel, seconds_to_stamp, wrap_angle
 from detectors.raytrace3d import BeamGrid, Scene, cast, hdl64_elevations
 from profiles.errors import DataError
+from profiles.parameters import check_order
 from profiles.schema import LidarGeometry
 
 #: odometry ticks a simulated run may hold at most (as calib.sim.park's)
@@ -555,67 +556,21 @@ def street_summary(sim: StreetSimulation) -> dict:
     }
 
 
-def write_street_simulation(cfg: StreetConfig, seed: int, out, *, overwrite: bool = False) -> dict:
-    """The run folder: log.dlog (clouds, odometry, true poses, plane truth, sensor model), world.yaml,
-    labels.npy (the primitive id of every return), config.yaml, summary.yaml, overview.png."""
+def _run(cfg: StreetConfig, seed: int, progress=None) -> Simulated:
     import io
 
     from calib.config import dump_yaml
-    from calib.io.atomic import atomic_output
-    from calib.io.native import write_native
-    from calib.progress import progress
 
     sim = simulate_street(cfg, seed, progress=progress)
-    summary = street_summary(sim)
-    with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
-        tmp.mkdir()
-        write_native(sim.log, tmp / "log.dlog")
-        (tmp / "world.yaml").write_text(dump_yaml(sim.world.to_dict()))
-        buf = io.BytesIO()
-        np.lib.format.write_array(buf, sim.labels, allow_pickle=False)
-        (tmp / "labels.npy").write_bytes(buf.getvalue())
-        (tmp / "config.yaml").write_text(dump_yaml({"seed": seed, "street": cfg.model_dump(mode="json")}))
-        (tmp / "summary.yaml").write_text(dump_yaml(summary))
-        plot_street(sim, tmp / "overview.png")
-    return summary
+    buf = io.BytesIO()
+    np.lib.format.write_array(buf, sim.labels, allow_pickle=False)
+    files = {"world.yaml": dump_yaml(sim.world.to_dict()), "labels.npy": buf.getvalue()}
+    return Simulated(sim.log, street_summary(sim), files, sim)
 
 
-def plot_street(sim: StreetSimulation, path) -> None:
-    """Top view of the world, the path, and one frame's cloud coloured by height."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Circle
-
-    w, log = sim.world, sim.log
-    fig, ax = plt.subplots(figsize=(10, 9), dpi=100)
-    colours = {"facade": "k", "wall": "tab:brown", "board": "tab:red", "car": "tab:blue"}
-    for p, k in zip(w.polygons, w.poly_kind, strict=True):
-        if k in colours:
-            ax.plot(p[:, 0], p[:, 1], "-", color=colours[k], lw=1.0)
-    for c, k in zip(w.cyl, w.cyl_kind, strict=True):
-        ax.add_patch(Circle(c[:2], max(c[2], 0.3), color="saddlebrown" if k == "trunk" else "0.3"))
-    for s, k in zip(w.sph, w.sph_kind, strict=True):
-        ax.add_patch(Circle(s[:2], s[3], color="tab:green", alpha=0.25 if k == "crown" else 0.5, lw=0))
-    k = len(log.clouds) // 2
-    cloud = log.clouds.frame(k).astype(np.float64)
-    li = sim.config.lidar
-    sp = compose(sim.frame_poses[k], np.array([li.mount.x, li.mount.y, li.mount.theta]))
-    c, s = np.cos(sp[2]), np.sin(sp[2])
-    sel = cloud[::3]
-    ax.scatter(sp[0] + c * sel[:, 0] - s * sel[:, 1], sp[1] + s * sel[:, 0] + c * sel[:, 1], s=0.2, c=sel[:, 2], cmap="viridis", alpha=0.6)
-    gt = log.reference["ground_truth"].poses
-    ax.plot(gt[:, 0], gt[:, 1], "m-", lw=1.5, label="true path")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_title(
-        f"simulated street, seed {sim.seed}: {len(log.planes)} planes, {len(w.cyl)} cylinders, {len(w.sph)} spheres; "
-        f"cloud of frame {k} ({cloud.shape[0]:,} returns)",
-        fontsize=9,
-    )
-    ax.legend(loc="upper left")
-    fig.tight_layout()
-    fig.savefig(path, metadata={"Software": None})
-    plt.close(fig)
+SIMULATORS.add("street", Simulator(
+    StreetConfig, "street",
+    "Simulate a 3D street (buildings, walls, boards, poles, cars, trees, bushes) swept by an HDL-64E-like lidar on a vehicle "
+    "on an Extended Constant Turn path; writes the log with plane truth and the world.",
+    "simulated street", _run, Option("frames", int, "Only the first N lidar frames (default: the whole route, about 340)."),
+))  # fmt: skip

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from detectors.logs import Detections, Landmarks, ReferencePoses, SensorLog, SensorModel
+from detectors.sensor_log import Detections, Landmarks, ReferencePoses, SensorLog, SensorModel
 
 PERIOD = 0.25
 FOV = np.deg2rad(60)

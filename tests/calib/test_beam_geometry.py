@@ -17,7 +17,7 @@ from calib.io.carmen import read_carmen
 from calib.io.native import read_native, write_native
 from calib.io.registry import read_log, write_log
 from detectors.circle import detect_circles
-from detectors.logs import BeamGeometry, ScanBatch, SensorLog
+from detectors.sensor_log import BeamGeometry, ScanBatch, SensorLog
 from detectors.raytrace import count_unoccluded, expected_unoccluded
 from profiles.errors import DataError
 from tests.calib.io.test_carmen import odom, write

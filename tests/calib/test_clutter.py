@@ -6,7 +6,7 @@ from scipy.stats import poisson
 
 from calib.clutter import ClutterModelConfig, batch_means_ci, dispersion_test, fit_density, fit_negative_binomial, nb_pmf_sf, pearson
 from calib.fits import fit_clutter
-from detectors.logs import SensorModel
+from detectors.sensor_log import SensorModel
 from detectors.model import DetectionModel
 from profiles.schema import ClutterParams, PdTable
 

@@ -10,7 +10,7 @@ from calib.io.native import write_native
 from profiles.errors import UsageError
 from tests.calib.camera import camera_log
 from tests.calib.test_calibrate import park
-from tests.calib.test_cli import assert_one_line_error, run
+from tests.detcal.cli.test_cli import assert_one_line_error, run
 
 
 def test_halves_split_frames_and_odometry():

@@ -10,6 +10,7 @@ from profiles.errors import DataError, UsageError
 from profiles.profile import DetectorProfile
 from tests.calib.camera import FOV, PERIOD, camera_log, pd_edges, pd_range
 from tests.conftest import shared
+from profiles.override import updated
 
 
 @pytest.fixture(scope="module")
@@ -155,7 +156,7 @@ def test_validation_errors(plain):
 
     with pytest.raises(UsageError, match="has an n_p P_D table; a detection-level log needs a range or range_bearing table"):
         validate_detections(make_profile(), [camera_log(3, n=500)])
-    no_fov = plain.profile.model_copy(update={"sensor": plain.profile.sensor.model_copy(update={"fov": None})})
+    no_fov = updated(plain.profile, {"sensor.fov": None})
     with pytest.raises(DataError, match="the sensor has no fov or range_max"):
         validate_detections(no_fov, [camera_log(3, n=500)])
 

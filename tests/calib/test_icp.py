@@ -4,7 +4,7 @@ import pytest
 from calib.icp import icp_ground_truth, odometry_poses, relation_errors, rigid_align
 from calib.sim.park import simulate_park
 from detectors.geometry import compose, interpolate_poses, relative
-from detectors.logs import Odometry
+from detectors.sensor_log import Odometry
 from tests.conftest import small_park_config
 
 
@@ -51,7 +51,7 @@ def test_relation_errors_are_zero_for_the_truth_and_see_an_offset():
 
 
 def test_velocity_odometry_integrates():
-    from detectors.logs import ScanBatch, SensorLog, SensorModel
+    from detectors.sensor_log import ScanBatch, SensorLog, SensorModel
 
     stamp = np.arange(101) * 100_000_000
     log = SensorLog(

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from detectors.logs import Odometry, ReferencePoses, SensorLog
+from detectors.sensor_log import Odometry, ReferencePoses, SensorLog
 from profiles.errors import DataError
 
 
@@ -63,7 +63,7 @@ def test_calibrate_writes_the_motion_settings_it_measured(tmp_path, capsys):
     from calib.io.registry import read_log
     from calib.odometry import fit_velocity_odometry
     from slam_runtime.config import SlamConfig
-    from tests.calib.test_cli import run
+    from tests.detcal.cli.test_cli import run
     from tests.conftest import VENDORED
 
     src = VENDORED / "utias_dataset1"

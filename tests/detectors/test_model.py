@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from detectors.logs import SensorModel
+from detectors.sensor_log import SensorModel
 from detectors.model import DetectionModel, fov_volume
 from profiles.errors import DataError
 from profiles.schema import ClutterParams, HotellingParams, PdTable
@@ -195,20 +195,20 @@ def test_an_infinite_occlusion_tolerance_turns_the_test_off():
 
 def test_the_occlusion_tolerance_defaults_per_filter(small_sim):
     """With no detection.occlusion_sigmas, RB-PHD takes the profile's tolerance and the labelled filters none
-    (config.OCCLUSION_DEFAULT); 'profile' and a number are taken as given by every filter. Checked on the model the
+    (MapFilter.occlusion_default); 'profile' and a number are taken as given by every filter. Checked on the model the
     run's factory (slam_runtime.run.build) gives each filter for a park log."""
     import pydantic
     import yaml
 
     from profiles.store import resolve
-    from slam_runtime.config import DetectionOptions, SlamConfig, override
+    from slam_runtime.config import DetectionOptions, SlamConfig, with_settings
     from slam_runtime.run import build
 
     prof = resolve("sim-park-laser@1.0.0")
     got = {}
     for kind in ("rbphd", "lmb", "glmb"):
         for occ in (None, "profile", 6.0):
-            cfg = override(SlamConfig(), filter={"kind": kind}).model_copy(update={"detection": DetectionOptions(occlusion_sigmas=occ)})
+            cfg = with_settings(SlamConfig(), {"filter.kind": kind, "detection.occlusion_sigmas": occ})
             got[kind, occ] = build(small_sim.log, prof, cfg).mapfilter.detection.k_sigma
     assert got["rbphd", None] == got["rbphd", "profile"] == got["lmb", "profile"] == got["glmb", "profile"] == prof.detector.k_sigma == 3.0
     assert got["lmb", None] == got["glmb", None] == np.inf

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from detectors.logs import SensorModel
+from detectors.sensor_log import SensorModel
 from detectors.model import DetectionModel, _wrap
 from detectors.occlusion import occlusion_flags
 from profiles.schema import ClutterParams, PdTable

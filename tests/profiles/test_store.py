@@ -11,6 +11,7 @@ import yaml
 from profiles.errors import DataError, UsageError
 from profiles.profile import DetectorProfile
 from profiles.store import diff_profiles, dump_profile, load_profile_file, profile_path, registry, resolve, save_profile
+from profiles.override import updated
 
 
 def make_profile(version="1.0.0", rate=5.5, **kw) -> DetectorProfile:
@@ -93,13 +94,13 @@ def test_a_rerun_that_rounds_differently_is_the_same_profile_not_a_conflict(tmp_
     path, _ = save_profile(p, tmp_path)
     before = path.read_bytes()
     cov = [[np.nextafter(0.2, 1.0), 0.01], [0.01, np.nextafter(0.03, 0.0)]]
-    rerun = p.model_copy(update={"hotelling": p.hotelling.model_copy(update={"covariance": cov})})
+    rerun = updated(p, {"hotelling.covariance": cov})
     assert rerun != p and same_content(rerun, p)
     assert save_profile(rerun, tmp_path) == (path, "unchanged") and path.read_bytes() == before
     for other in (
-        p.model_copy(update={"clutter": p.clutter.model_copy(update={"rate": 5.5 * (1 + 10 * SAME_REL_TOL)})}),
-        p.model_copy(update={"pd": p.pd.model_copy(update={"counts": [10, 20, 30, 41]})}),
-        p.model_copy(update={"hotelling": p.hotelling.model_copy(update={"names": ["log_radius", "convexity"]})}),
+        updated(p, {"clutter.rate": 5.5 * (1 + 10 * SAME_REL_TOL), "clutter.kappa": None}),
+        updated(p, {"pd.counts": [10, 20, 30, 41]}),
+        updated(p, {"hotelling.names": ["log_radius", "convexity"]}),
     ):
         assert not same_content(other, p)
         with pytest.raises(UsageError, match="exists with other content"):
@@ -120,7 +121,7 @@ def test_registry_resolves_newest_and_exact_versions(tmp_path, monkeypatch):
     # the file a reference names, by name or by path: what --force must not replace while it is an input
     assert profile_path("test-laser") == tmp_path / "test-laser@1.10.0.yaml"
     assert profile_path("test-laser@1.0.0") == profile_path(str(tmp_path / "test-laser@1.0.0.yaml"))
-    from calib.cli.common import fresh
+    from detcal.cli.common import fresh
     from profiles.store import looks_like_profile
 
     with pytest.raises(UsageError, match="test-laser@1.0.0.yaml: is the input, which --force would delete"):
@@ -265,3 +266,26 @@ def test_table_lookups_refuse_the_wrong_covariates():
         p.pd.lookup(np.array([1.0]))
     with pytest.raises(ValueError, match="a n_p table cannot be looked up by range and bearing"):
         make_profile().pd.lookup_rb(np.array([1.0]), np.array([0.0]))
+
+
+def test_recorded_parameters_are_checked_the_same_without_calib(tmp_path):
+    """A program that imports only ``profiles`` (a robot running slam_runtime) refuses a misspelt key of the
+    recorded calibration parameters as ``detcal profile validate`` does, and never imports calib for it."""
+    d = make_profile().model_dump(mode="json")
+    d["provenance"]["parameters"] = {"pd": {"min_cont": 3}}  # CalibrateConfig's pd has min_count
+    f = tmp_path / "p.yaml"
+    f.write_text(yaml.safe_dump(d))
+    code = textwrap.dedent(
+        f"""
+        import sys
+        from profiles.errors import DataError
+        from profiles.store import load_profile_file
+        try:
+            load_profile_file({str(f)!r})
+        except DataError as exc:
+            print(exc)
+        print(sorted(m for m in sys.modules if m.split(".")[0] in ("calib", "detcal", "slam_runtime")))
+        """
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert res.stdout.splitlines() == [f"{f}: provenance.parameters.pd.min_cont: unknown key", "[]"]

@@ -11,8 +11,11 @@ from scipy.stats import multivariate_normal
 from detectors.model import DetectionModel
 from profiles.schema import ClutterParams, PdTable, SensorModel
 from slam_runtime.features import RangeBearing
-from slam_runtime.gibbs import argsort_stable, hungarian, joint_update, reduce_hypotheses
-from slam_runtime.glmb import GLMB, Births, GLMBConfig, GLMBMaps, Tracks
+from slam_runtime.gibbs import joint_update
+from slam_runtime.hypotheses import reduce_hypotheses
+from slam_runtime.kernels import argsort_stable, hungarian
+from slam_runtime.glmb import GLMB, GLMBConfig, GLMBMaps
+from slam_runtime.labelled import Births, Tracks
 from slam_runtime.lmb import LMB, LMBConfig, LMBMaps
 from slam_runtime.mapfilter import Measurements
 

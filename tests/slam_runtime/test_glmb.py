@@ -13,12 +13,14 @@ from profiles.errors import UsageError
 from profiles.schema import ClutterParams, MeasurementNoise, PdTable, SensorModel
 from slam_runtime.config import SlamConfig, override
 from slam_runtime.features import RangeBearing, lookup
-from slam_runtime.glmb import GLMB, Births, GLMBConfig, GLMBMaps, Tracks, _Slots, label_parts
+from slam_runtime.glmb import GLMB, GLMBConfig, GLMBMaps
+from slam_runtime.labelled import Births, Tracks, _Slots, label_parts
 from slam_runtime.labels import labelled_hooks
 from slam_runtime.lmb import LMB, LMBConfig, LMBMaps
 from slam_runtime.mapfilter import Measurements
 from slam_runtime.plane_features import PlaneFeature
 from slam_runtime.run import LogEvidence, evaluate, run_slam
+from profiles.override import updated
 
 SENSOR = SensorModel(kind="camera", fov=np.pi, range_max=20.0)
 FILTERS = [(GLMB, GLMBConfig), (LMB, LMBConfig)]
@@ -462,7 +464,7 @@ def test_seen_mean_places_each_label_at_the_particles_mean_of_its_last_step_in_v
         order = np.argsort(lab)
         np.testing.assert_allclose(x[order], want[np.argsort(lab0)], atol=1e-9)
     # best: each particle's own states, which differ from the mean by the particle's offset
-    mf.cfg = mf.cfg.model_copy(update={"map_estimate": "best"})
+    mf.cfg = updated(mf.cfg, {"map_estimate": "best"})
     t, _ = mf._map_tracks(maps)
     for i in range(3):
         lab, x, _ = mf.labels(maps, i)
@@ -548,7 +550,7 @@ def test_seen_mean_is_a_filtering_estimate_best_a_smoothing_draw():
             last = _Last()
             res = run_slam(log, prof, cfg, seed=seed, hooks=(last,))
             mf = last.slam.mf
-            mf.cfg = mf.cfg.model_copy(update={"map_estimate": "best"})
+            mf.cfg = updated(mf.cfg, {"map_estimate": "best"})
             d.append(ospa(res.map_xy, log.landmarks.xy, 0.5, 1.0) - ospa(last.slam.map_estimate()[0], log.landmarks.xy, 0.5, 1.0))
         gap[world] = float(np.mean(d))
     assert gap[1] <= -0.015 and gap[4] >= 0.03, gap
@@ -602,7 +604,7 @@ def test_islands_pair_one_landmarks_labels_by_position_under_clutter():
     sim = GlmbPaperConfig(clutter=15.0)
     log, prof = simulate_glmb_paper(sim, 2), truth_profile(sim)
     base = _bench_config("glmb_paper_islands")
-    cfg = override(base, particles=150, islands=3).model_copy(update={"island_match": None})  # by label only
+    cfg = updated(base, {"particles": 150, "islands": 3, "island_match": None})  # by label only
     last = _Last()
     res = run_slam(log, prof, cfg, seed=0, hooks=(last,))
     s = last.slam

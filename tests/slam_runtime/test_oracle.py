@@ -9,12 +9,8 @@ from calib.sim.glmb_paper import GlmbPaperConfig, simulate_glmb_paper
 from calib.sim.rfs import RfsSimConfig, simulate_rfs
 from profiles.errors import DataError, UsageError
 from slam_runtime.oracle import (
-    _ackermann_factors,
-    _Blocks,
-    _increment_factors,
     _Mixture,
     _problem,
-    _range_bearing_factors,
     batch_oracle,
     clutter_information_ratio,
     clutter_oracle,
@@ -23,6 +19,7 @@ from slam_runtime.oracle import (
     posterior_samples,
     rb_map_samples,
 )
+from slam_runtime.oracle_factors import Blocks, ackermann_factors, increment_factors, range_bearing_factors
 
 
 def _rfs_oracle(cfg: RfsSimConfig, seed: int, odometry_sigma: float | None = None):
@@ -69,10 +66,10 @@ def test_the_factors_jacobians_match_finite_differences():
 
     def residuals(v, with_jac=False):
         xx, cc, ll = v[:nx].reshape(n, 3), v[nx : nx + nc].reshape(-1, 2), v[nx + nc :].reshape(nl, 2)
-        b = _Blocks()
-        _increment_factors(b, xx, odo, np.array([0.1, 0.2, 0.05]))
-        _ackermann_factors(b, xx, cc, odo[:-1, :2], dts, 2.5, np.array([0.1, 0.03]), nx)
-        _range_bearing_factors(b, xx, ll, k_of, lj, zr, zb, 0.2, 0.02, nx + nc)
+        b = Blocks()
+        increment_factors(b, xx, odo, np.array([0.1, 0.2, 0.05]))
+        ackermann_factors(b, xx, cc, odo[:-1, :2], dts, 2.5, np.array([0.1, 0.03]), nx)
+        range_bearing_factors(b, xx, ll, k_of, lj, zr, zb, 0.2, 0.02, nx + nc)
         jac, res = b.build(v.size)
         return (jac.toarray(), res) if with_jac else res
 

@@ -5,6 +5,7 @@ import pytest
 
 from profiles.errors import UsageError
 from slam_runtime.features import RangeBearing
+from slam_runtime.mapfilter import MapFilter
 from slam_runtime.particles import RESAMPLERS, ParticleHistory, ess, normalise_log, systematic
 from slam_runtime.plane_features import PlaneFeature
 from slam_runtime.slam import RBSlam, average_states, match_labels
@@ -75,13 +76,14 @@ def test_ancestry_rebuilds_every_trajectory_through_resampling():
     assert hist.states.shape == (steps, p, 1) and hist.parents.shape == (steps, p)
 
 
-class _ScoredMaps:
+class _ScoredMaps(MapFilter):
     """A map filter whose map is a score per particle; the log-likelihood of a step is the score (a particle's
     map says how well it explains the data), so which particle is heaviest is known."""
 
     name = "scored"
 
     def __init__(self, scores: np.ndarray) -> None:
+        super().__init__(None, None)
         self.scores = scores
 
     def empty(self, n: int) -> np.ndarray:
@@ -138,12 +140,13 @@ def test_islands_are_independent_filters():
         RBSlam(OdometryIncrement(), _ScoredMaps(scores), 8, np.zeros(3), np.random.default_rng(0), islands=3)
 
 
-class _GivenLikelihoods:
+class _GivenLikelihoods(MapFilter):
     """A map filter whose map is the particle's index and whose step log-likelihoods are given, one row per step."""
 
     name = "given"
 
     def __init__(self, rows: list) -> None:
+        super().__init__(None, None)
         self.rows = iter(rows)
 
     def empty(self, n: int) -> np.ndarray:
@@ -255,6 +258,8 @@ def test_each_island_counts_its_own_updates_since_it_resampled():
 
 class _ProposingMaps(_ScoredMaps):
     """As _ScoredMaps, offering a pose proposal five metres from the motion's mean (a draw no placed pose is near)."""
+
+    proposes_poses = True
 
     def pose_proposal(self, maps, xbar, q, meas):
         return xbar + 5.0, q + np.eye(3) * 0.01, None

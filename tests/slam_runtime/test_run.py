@@ -4,7 +4,7 @@ continuous stream, whatever the frame rate."""
 import numpy as np
 import pytest
 
-from detectors.logs import Odometry, SensorLog, Vehicle
+from detectors.sensor_log import Odometry, SensorLog, Vehicle
 from slam_runtime.run import dead_reckoning
 
 
@@ -93,7 +93,7 @@ def _gps_log_and_truth(point):
 
     from calib.sim.rfs import RfsSimConfig, simulate_rfs
     from detectors.geometry import interpolate_poses
-    from detectors.logs import ReferencePoses
+    from detectors.sensor_log import ReferencePoses
 
     log = simulate_rfs(RfsSimConfig(steps=400), 2)
     gt = log.reference["ground_truth"]
@@ -105,7 +105,7 @@ def _gps_log_and_truth(point):
 
 
 def test_a_reference_point_moves_the_pose_by_the_lever_arm_turned_with_the_heading():
-    from detectors.logs import ReferencePoses
+    from detectors.sensor_log import ReferencePoses
     from profiles.errors import DataError
 
     ref = ReferencePoses("gps", np.array([0]), np.array([[0.0, 0.0, np.nan]]), point=(3.78, 0.5))
@@ -133,7 +133,7 @@ def test_gps_is_compared_at_the_point_it_locates():
     assert m["reference_point_gps_m"] == [3.78, 0.5]
     import dataclasses
 
-    from detectors.logs import ReferencePoses
+    from detectors.sensor_log import ReferencePoses
 
     g = log.reference["gps"]
     at_axle = dataclasses.replace(log, reference={"gps": ReferencePoses("gps", g.stamp, g.poses)})
@@ -175,7 +175,7 @@ def test_ground_truth_poses_are_the_truth_at_each_frame_and_refuse_what_they_can
     vehicle) cannot be put on planar poses."""
     from pydantic import ValidationError
 
-    from detectors.logs import ReferencePoses
+    from detectors.sensor_log import ReferencePoses
     from profiles.errors import DataError
     from slam_runtime.config import SlamConfig
     from slam_runtime.run import ground_truth_poses

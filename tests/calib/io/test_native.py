@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from calib.io.native import read_native, write_native
-from detectors.logs import (
+from detectors.sensor_log import (
     Detections,
     Landmarks,
     Mount,

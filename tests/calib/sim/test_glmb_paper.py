@@ -8,7 +8,7 @@ import yaml
 from calib.sim.glmb_paper import GlmbPaperConfig, simulate_glmb_paper, truth_profile
 from detectors.model import DetectionModel
 from profiles.errors import UsageError
-from tests.calib.test_cli import assert_one_line_error, run
+from tests.detcal.cli.test_cli import assert_one_line_error, run
 
 
 @pytest.fixture(scope="module")

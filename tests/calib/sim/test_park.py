@@ -4,7 +4,7 @@ import pytest
 from calib.config import load_yaml_model
 from calib.io.native import read_native
 from calib.sim.park import ParkConfig, World, cast_world, sensor_poses, simulate_park
-from calib.sim.run import load_world, write_simulation
+from detcal.reports.simulation import load_world, write_simulation_run
 from detectors.geometry import relative
 from profiles.errors import UsageError
 from tests.conftest import small_park_config
@@ -13,7 +13,7 @@ from tests.conftest import small_park_config
 def test_same_seed_same_bytes_different_seed_different_world(tmp_path):
     cfg = small_park_config()
     for name, seed in (("a", 5), ("b", 5), ("c", 6)):
-        write_simulation(simulate_park(cfg, seed), tmp_path / name)
+        write_simulation_run("park", cfg, seed, tmp_path / name)
     for f in ("log.dlog", "world.yaml", "config.yaml", "summary.yaml", "overview.png"):
         assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f
     assert (tmp_path / "a/world.yaml").read_bytes() != (tmp_path / "c/world.yaml").read_bytes()
@@ -29,7 +29,7 @@ def _recast(log, world):
 
 
 def test_scans_rederive_from_exported_world(tmp_path, small_sim):
-    write_simulation(small_sim, tmp_path / "run", figure=False)
+    write_simulation_run("park", small_sim.config, small_sim.seed, tmp_path / "run", figure=False)  # (small_sim again)
     log = read_native(tmp_path / "run/log.dlog")
     world = load_world(tmp_path / "run/world.yaml")
     truth = _recast(log, world)

@@ -97,9 +97,9 @@ def test_config_refuses_unknown_keys(tmp_path):
 
 
 def test_labels_file_matches_the_cloud(tmp_path):
-    from calib.sim.street import write_street_simulation
+    from detcal.reports.simulation import write_simulation_run
 
-    summary = write_street_simulation(small_street_config(2), 3, tmp_path / "run")
+    summary = write_simulation_run("street", small_street_config(2), 3, tmp_path / "run")
     labels = np.lib.format.read_array(io.BytesIO((tmp_path / "run" / "labels.npy").read_bytes()))
     log = read_native(tmp_path / "run" / "log.dlog")
     assert labels.size == log.clouds.points.shape[0] and summary["frames"] == 2

@@ -1,0 +1,5 @@
+"""``python -m detcal``: the command line."""
+
+from detcal.cli import run
+
+run()

@@ -1,0 +1,91 @@
+"""The ``detcal`` command line: the one composition root.
+
+Thin by design: parse, cross-check options, call one pipeline function, print
+a result table. One module per command group (``logs``, ``simulate``,
+``detect``, ``calibrate`` (with validate, selfcal and icp), ``profile``, ``slam``); the reader options are
+defined once (:mod:`detcal.cli.common`). Library errors
+(:class:`profiles.errors.DetcalError`) become one-line plain-text messages with
+exit code 1 (bad data) or 2 (usage); a user never sees a traceback for bad
+input.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Annotated
+
+import typer
+
+from detcal import __version__
+from detcal.cli import calibrate, detect, logs, profile, simulate, slam
+from detcal.cli.common import out
+from profiles.errors import DetcalError
+
+app = typer.Typer(
+    help="detcal: measure a feature detector's P_D and clutter statistics for RFS SLAM.",
+    no_args_is_help=True,
+    rich_markup_mode=None,  # plain help: option texts hold brackets such as [m]
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+app.add_typer(logs.app, name="log")
+app.add_typer(simulate.app, name="simulate")
+app.add_typer(profile.app, name="profile")
+app.add_typer(slam.app, name="slam")
+app.command("detect")(detect.detect_cmd)
+app.command("calibrate")(calibrate.calibrate_cmd)
+app.command("validate")(calibrate.validate_cmd)
+app.command("icp")(calibrate.icp_cmd)
+app.command("selfcal")(calibrate.selfcal_cmd)
+
+
+def _version(value: bool) -> None:
+    if value:
+        out.print(f"detcal {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")] = False,
+) -> None:
+    """detcal: measure a feature detector's P_D and clutter statistics for RFS SLAM."""
+
+
+def error_line(message: str) -> None:
+    """One plain-text line on stderr (never console markup: file names may hold brackets)."""
+    sys.stderr.write(f"detcal: error: {' '.join(str(message).split())}\n")
+    sys.stderr.flush()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: run the app, map DetcalError to a one-line message and its exit code.
+
+    Usage errors found by the option parser are reported by typer itself (exit 2).
+    """
+    from detcal.cli import common
+
+    common.ARGV = list(sys.argv[1:] if argv is None else argv)
+    try:
+        app(args=argv, prog_name="detcal")
+    except SystemExit as exc:
+        code = exc.code
+        if code == 130:  # typer turns a Ctrl-C into exit 130 itself
+            sys.stderr.write("detcal: interrupted\n")
+        return code if isinstance(code, int) else (0 if code is None else 1)
+    except DetcalError as exc:
+        error_line(str(exc))
+        return exc.exit_code
+    except OSError as exc:  # the system refused a read or write (permissions, a full disk): not a bug of ours
+        where = f"{exc.filename}: " if exc.filename else ""
+        error_line(f"{where}{exc.strerror or exc}")
+        return 1
+    except KeyboardInterrupt:
+        sys.stderr.write("detcal: interrupted\n")
+        return 130
+    return 0
+
+
+def run() -> None:
+    """Console-script entry point."""
+    sys.exit(main())

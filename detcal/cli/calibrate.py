@@ -1,0 +1,300 @@
+"""``detcal calibrate``, ``detcal validate``, ``detcal selfcal`` and ``detcal icp``: parse, check, call one pipeline, print."""
+
+from __future__ import annotations
+
+import math
+import os
+import shlex
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from detcal.cli.common import ReaderArgs, fresh, input_refs, out, reader_options, summary_table, warn
+from profiles.errors import UsageError
+
+POSE_SOURCES = ("auto", "reference", "icp")
+
+RobotsOpt = Annotated[list[int] | None, typer.Option("--robot", help="UTIAS: robots to read from a dataset folder (repeat the option).")]
+
+
+def check_poses(poses: str | None) -> None:
+    if poses is not None and poses not in POSE_SOURCES:
+        raise UsageError(f"--poses: expected {', '.join(POSE_SOURCES)}, got {poses!r}")
+
+
+#: Options that say where the work runs, not what it computes: not part of the command a profile records.
+EXECUTION_OPTIONS = ("--workers", "--scheduler")
+
+
+def typed_command(name: str) -> str:
+    """The command as typed; absolute paths lose their folders (a profile names inputs by file name and hash);
+    ``--workers`` and ``--scheduler`` are left out, so a profile is the same bytes wherever it was computed."""
+    from detcal.cli.common import ARGV
+
+    words, skip = [], False
+    for a in ARGV[1:]:
+        if skip:
+            skip = False
+        elif a in EXECUTION_OPTIONS:
+            skip = True
+        elif not a.startswith(tuple(f"{o}=" for o in EXECUTION_OPTIONS)):
+            words.append(Path(a).name if os.path.isabs(a) else a)
+    return " ".join([f"detcal {name}", *(shlex.quote(w) for w in words)])
+
+
+@reader_options("fmt", "max_backstep", "laser", "range_max", "range_sigma", "scan_topic", "truth_topic")
+def calibrate_cmd(
+    reader: ReaderArgs,
+    logs: Annotated[list[Path] | None, typer.Argument(metavar="[LOG]...", help="Logs with truth; none: the embedded default park log.")] = None,
+    name: Annotated[str | None, typer.Option(help="Profile name (default: sim-park-laser for the default log, else the first log's name).")] = None,
+    version: Annotated[str, typer.Option("--version", help="Profile version MAJOR.MINOR.PATCH; an existing one is never replaced silently.")] = "1.0.0",
+    description: Annotated[str, typer.Option(help="Free text stored in the profile.")] = "",
+    config: Annotated[Path | None, typer.Option(help="YAML calibration config (detector, descriptors, confidence, gate, pd, ...).")] = None,
+    landmarks: Annotated[
+        Path | None, typer.Option(help="Landmark truth: a CSV (id, x, y, radius; world frame) or `cloud` (recurring circles of the registered scans).")
+    ] = None,
+    poses: Annotated[str | None, typer.Option(help="Scan poses from: auto (truth if the log has it, else ICP), reference, icp.")] = None,
+    out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/calibrate_<name>@<version>).")] = None,
+    profiles_dir: Annotated[Path | None, typer.Option(help="Where to save the profile (default: the user profile folder).")] = None,
+    force: Annotated[bool, typer.Option(help="Replace an existing run folder and profile version.")] = False,
+    robot: RobotsOpt = None,
+    per_sensor: Annotated[
+        bool, typer.Option(help="Detection-level logs of several sensors: also write one partially pooled profile per sensor (<name>-<sensor>).")
+    ] = False,
+    workers: Annotated[
+        int | None,
+        typer.Option(
+            help="Laser logs: Dask worker processes for the per-log work (default: the CPU count when there are several logs); 0 = in this process."
+        ),
+    ] = None,
+    scheduler: Annotated[str | None, typer.Option(help="Address of an existing Dask scheduler (e.g. tcp://10.0.0.5:8786) for the per-log work.")] = None,
+) -> None:
+    """Calibrate a detector on logs with truth -> a profile and a report.
+
+    Laser logs: the circle detector, P_D against n_p, Hotelling ellipsoid, Poisson clutter;
+    sigma_r from the log, --range-sigma, or estimated from the registered scans.
+    Detection-level logs (UTIAS): P_D against range, clutter from non-landmark detections.
+    Several laser logs: detection, ground truth and labelling of each log on Dask workers, the fits here.
+    3D lidar logs with plane truth (detcal simulate street): the plane detector, P_D against the
+    ray-traced visible points and incidence angle, clutter planes (profile kind lidar3d-planes).
+    """
+    from detcal.engine import check_options
+    from detcal.pipelines.calibrate import CalibrationJob, ProfileTarget, check_name, run_calibration
+
+    check_poses(poses)
+    check_name(name, version)
+    check_options(workers, scheduler)
+    landmark_ref = landmark_input(landmarks)
+    if logs:
+        loaded, paths = reader.read_many(logs, robot)
+        prof_name = name or loaded[0].name.lower().replace("_", "-")
+        fmt = reader.fmt
+    else:
+        from detcal.default_log import DEFAULT_PROFILE_NAME, default_log
+
+        log, path = default_log()
+        loaded, paths, prof_name, fmt = [log], [path], name or DEFAULT_PROFILE_NAME, "native"
+    if out_dir is not None and force:  # (without --force the run folder of the same request is reused: the pipeline checks)
+        fresh(out_dir, force, inputs=[*paths, config, landmarks])
+    refs = unique_refs([r for p, lg in zip(paths, loaded, strict=True) for r in input_refs(p, lg)] + landmark_ref)
+    sources = [(p, fmt, reader.options_of(lg)) for p, lg in zip(paths, loaded, strict=True)]
+    job = CalibrationJob(
+        logs=loaded, inputs=refs, config=config, landmarks=landmarks, poses=poses, command=typed_command("calibrate"),
+        target=ProfileTarget(name=prof_name, version=version, description=description, profiles_dir=profiles_dir, out=out_dir, force=force),
+        range_sigma_given=reader.options.range_sigma is not None, per_sensor=per_sensor, sources=sources, workers=workers, scheduler=scheduler,
+    )  # fmt: skip
+    done = run_calibration(job)
+    for note in done.notes:
+        warn(note)
+    p = done.profile
+    rows = {
+        "profile": f"{p.ref} ({done.profile_status}: {done.profile_path})",
+        "run folder": f"{done.run_folder} ({done.run_status}" + (f", {len(done.figures)} figures)" if done.figures else ")"),
+        **({"per-sensor profiles": ", ".join(f"{path.stem} ({st})" for path, st in done.members)} if done.members else {}),
+        **({"per-log work": done.engine} if len(done.summary["logs"]) > 1 else {}),
+        **{k: v for k, v in done.summary.items() if k not in ("logs", "range_noise")},
+    }
+    if not p.pd.two_d:
+        rows["P_D table"] = ", ".join(f"{int(e) if float(e).is_integer() else e}:{v:.2f}" for e, v in zip(p.pd.edges[:-1], p.pd.pd, strict=True))
+    out.print(summary_table(f"calibration of {', '.join(done.summary['logs'])}", rows))
+
+
+def landmark_input(landmarks: Path | None) -> list:
+    """A landmark CSV is an input of the profile (name and sha256); ``cloud`` is not a file."""
+    if landmarks is None or str(landmarks) == "cloud":
+        return []
+    from calib.calibrate import read_landmarks_csv
+    from calib.io.common import file_digest
+    from profiles.profile import InputRef
+
+    if not landmarks.is_file():
+        raise UsageError(f"--landmarks: {landmarks}: no such file (give a CSV of id, x, y, radius, or `cloud`)")
+    read_landmarks_csv(landmarks)  # a bad file is refused before any work
+    return [InputRef(name=landmarks.name, sha256=file_digest(landmarks))]
+
+
+def unique_refs(refs: list) -> list:
+    """Each input once (a dataset folder read for several robots hashes the same files)."""
+    seen, outl = set(), []
+    for r in refs:
+        if (r.name, r.sha256) not in seen:
+            seen.add((r.name, r.sha256))
+            outl.append(r)
+    return outl
+
+
+@reader_options("fmt", "max_backstep", "laser", "range_max", "scan_topic", "truth_topic")
+def validate_cmd(
+    args: Annotated[
+        list[str] | None, typer.Argument(metavar="[PROFILE] LOG...", help="A profile (name, name@version or file) and held-out logs; with --cv only logs.")
+    ] = None,
+    *,
+    reader: ReaderArgs,
+    cv: Annotated[str | None, typer.Option("--cv", help="Cross-validate the calibration instead: robots (leave one sensor out) or time (first half / second half).")] = None,
+    config: Annotated[Path | None, typer.Option(help="--cv: the calibration config (as for calibrate).")] = None,
+    adapt: Annotated[float | None, typer.Option(help="--cv robots on detection-level logs: seconds of the held-out sensor used for its own partially pooled profile.")] = None,
+    landmarks: Annotated[Path | None, typer.Option(help="Landmark truth: a CSV (id, x, y, radius) or `cloud`.")] = None,
+    poses: Annotated[str, typer.Option(help="Scan poses from: auto, reference, icp.")] = "auto",
+    out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/validate_<profile>_<log> or runs/cv_<kind>_<log>).")] = None,
+    force: Annotated[bool, typer.Option(help="Replace the run folder if it exists.")] = False,
+    robot: RobotsOpt = None,
+) -> None:
+    """Check a profile on held-out logs, or cross-validate a calibration (--cv robots|time).
+
+    Reports P_D reliability (ECE over informative pairs with bin counts, Brier, log-likelihood),
+    false alarms per frame with a 95 % interval, the clutter tests on the held-out frames,
+    Hotelling coverage against the nominal confidence, and the held-out frames' period.
+    """
+    check_poses(poses)
+    args = args or []
+    if cv is not None:
+        _cross_validate(args, reader, cv, config, adapt, landmarks, poses, out_dir, force, robot)
+        return
+    if config is not None or adapt is not None:
+        raise UsageError("--config and --adapt go with --cv")
+    if len(args) < 2:
+        raise UsageError("validate needs a PROFILE and at least one LOG (or --cv robots|time with logs)")
+    from detcal.pipelines.calibrate import run_validation
+    from profiles.store import resolve
+
+    landmark_input(landmarks)
+    prof = resolve(args[0])
+    loaded, _ = reader.read_many([Path(a) for a in args[1:]], robot)
+    target = out_dir or Path("runs") / f"validate_{prof.ref}_{loaded[0].name}"
+    fresh(target, force, inputs=[*args, landmarks])
+    v, notes = run_validation(prof, loaded, landmarks=landmarks, poses=poses, out=target, force=force)
+    for note in notes:
+        warn(note)
+    out.print(summary_table(f"validation of {prof.ref} on {', '.join(lg.name for lg in loaded)} -> {target}", v.summary))
+    if len(loaded) > 1:
+        out.print(scores_table("per held-out log (ECE noise: what a calibrated model would show)", v.per_log, ("log",)))
+
+
+def scores_table(title: str, t, first: tuple[str, ...]) -> Table:
+    """Rows of validation scores (fold rows or per-log rows) in columns narrow enough for a terminal."""
+    tab = Table(title=title)
+    cover = "hotelling_coverage" in t and t["hotelling_coverage"].notna().any()
+    for c in (*first, "ECE (noise)", "Brier", "loglik", "FA error [95 % CI]", *(["coverage"] if cover else [])):
+        tab.add_column(c, overflow="fold", justify="left" if c in first else "right")
+    for r in t.to_dict("records"):
+        row = [str(r[c]) for c in first] + [
+            f"{r['ece']:.3f} ({r['ece_if_calibrated_blocks']:.3f})",
+            f"{r['brier']:.3f}",
+            f"{r['loglik_per_pair']:.3f}",
+            f"{100 * r['false_alarm_relative_error']:+.0f} [{100 * r['false_alarm_relative_error_ci95_low']:+.0f}, "
+            f"{100 * r['false_alarm_relative_error_ci95_high']:+.0f}] %",
+        ]
+        if cover:
+            n = r.get("true_detections")
+            row.append(f"{r['hotelling_coverage']:.4f}" + (f" of {int(n)}" if n is not None and not math.isnan(n) else ""))
+        tab.add_row(*row)
+    return tab
+
+
+def _cross_validate(args, reader, cv, config, adapt, landmarks, poses, out_dir, force, robot) -> None:
+    from calib.config import load_yaml_model
+    from calib.crossval import cross_validate, write_cv_run
+
+    if cv not in ("robots", "time"):
+        raise UsageError(f"--cv: expected robots or time, got {cv!r}")
+    if not args:
+        raise UsageError("--cv needs the logs to cross-validate")
+    if adapt is not None and not 0 < adapt < float("inf"):
+        raise UsageError(f"--adapt: expected a positive number of seconds, got {adapt:g}")
+    loaded, _ = reader.read_many([Path(a) for a in args], robot)
+    target = out_dir or Path("runs") / f"cv_{cv}_{loaded[0].name}"
+    fresh(target, force, inputs=[*args, config, landmarks])
+    from detcal.pipelines.calibrate import METHODS
+
+    detection = METHODS.get("external").takes(loaded)  # cross-validation knows detection-level and laser calibrations
+    cfg = load_yaml_model(METHODS.get("external" if detection else "circle2d").config(), config)
+    res = cross_validate(loaded, cv, config=cfg, adapt=adapt, landmarks_csv=landmarks, poses=poses)
+    figures = write_cv_run(res, target, overwrite=force)
+    out.print(scores_table(f"cross-validation ({cv}) -> {target} ({len(figures)} figures)", res.table, ("fold", "test", "profile")))
+    for prof, s in res.summary.items():
+        if isinstance(s, dict):
+            out.print(summary_table(f"{prof} profile over the folds", s))
+
+
+@reader_options("fmt", "max_backstep", "laser", "range_max", "scan_topic")
+def icp_cmd(
+    log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A log with laser scans and odometry.")],
+    reader: ReaderArgs,
+    out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/icp_<log name>).")] = None,
+    relations: Annotated[Path | None, typer.Option(help="Benchmark relations (t1 t2 x y z roll pitch yaw) to score the poses against.")] = None,
+    force: Annotated[bool, typer.Option(help="Replace the run folder if it exists.")] = False,
+) -> None:
+    """Ground truth from the scans: sequential point-to-line ICP, loop closures, pose graph."""
+    from calib.groundtruth import write_icp_run
+
+    log = reader.read(log_path)
+    target = out_dir or Path("runs") / f"icp_{log.name}"
+    fresh(target, force, inputs=[log_path, relations])
+    summary = write_icp_run(log, target, relations=relations, overwrite=force)
+    out.print(summary_table(f"ICP ground truth of {log.name} -> {target}", summary))
+
+
+@reader_options()
+def selfcal_cmd(
+    log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A detection-level log with odometry (no landmark truth needed).")],
+    reader: ReaderArgs,
+    profile_ref: Annotated[str, typer.Option("--profile", help="The starting profile (e.g. a nominal one): name@version or a file.")],
+    config: Annotated[Path | None, typer.Option(help="YAML SLAM settings (see detcal slam run).")] = None,
+    filter_: Annotated[
+        str | None,
+        typer.Option(
+            "--filter", help="Map filter of the SLAM runs: rbphd, lmb or glmb (default: the config's); the profile is measured against its map."
+        ),
+    ] = None,
+    iterations: Annotated[int, typer.Option(help="SLAM runs at most.")] = 5,
+    tolerance: Annotated[float, typer.Option(help="Stop when P_D (absolute) and noise and clutter (relative) change by less than this.")] = 0.02,
+    average_from: Annotated[
+        int | None,
+        typer.Option(
+            help="Average the measurements of the runs from this iteration on (0 = the first) and run on their average: "
+            "each run's map is a random draw, so the plain iteration scatters about its fixed point and only the average settles."
+        ),
+    ] = None,
+    seed: Annotated[int, typer.Option(help="Filter seed of every run.")] = 0,
+    particles: Annotated[int | None, typer.Option(help="Particles (default: the config's).")] = None,
+    name: Annotated[str | None, typer.Option(help="Name of the measured profile (default: <log name>-selfcal).")] = None,
+    version: Annotated[str, typer.Option("--version", help="Its version MAJOR.MINOR.PATCH.")] = "1.0.0",
+    out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/selfcal_<name>@<version>).")] = None,
+    profiles_dir: Annotated[Path | None, typer.Option(help="Where to save the profile (default: the user profile folder).")] = None,
+    force: Annotated[bool, typer.Option(help="Replace an existing run folder and profile version.")] = False,
+) -> None:
+    """Self-calibration: run SLAM, measure P_D against range (unoccluded map features), clutter, noise and the
+    odometry's steering offset against the run's own map and trajectory, run again, until nothing changes."""
+    from calib.progress import progress
+    from detcal.pipelines.self_calibration import SelfCalibrationRequest
+    from detcal.pipelines.slam_run import SettingsRequest
+
+    request = SelfCalibrationRequest(
+        log_path=log_path, read=reader.read, profile=profile_ref, settings=SettingsRequest(config, filter_, particles),
+        iterations=iterations, tolerance=tolerance, average_from=average_from, seed=seed, name=name, version=version,
+        out=out_dir, profiles_dir=profiles_dir, force=force, command=typed_command("selfcal"), inputs=input_refs,
+    )  # fmt: skip
+    rows = request.run(progress, fresh)
+    out.print(summary_table(f"self-calibration of {rows.pop('log')}", rows))

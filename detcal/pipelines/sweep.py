@@ -1,0 +1,350 @@
+"""Monte Carlo sweeps: many SLAM runs over logs x profiles x settings x seeds, resumable, on any engine.
+
+:class:`SweepRequest` is ``detcal slam sweep``: it checks every setting and
+profile before any log is read, reads the logs once to check them and leaves
+handles (:class:`detcal.engine.LogSource`) in the jobs, so each run reads its
+log where it runs. Each job is one complete run (:func:`run_job`: filter,
+evaluation, the run folder of :func:`detcal.reports.slam_run.write_slam_run`
+rendered where the job runs and handed back as bytes). :func:`run_sweep` hands
+the jobs to an engine (in turn in this process by default, or on Dask workers),
+moves each run folder into the sweep folder as soon as its job completes, and
+tabulates the runs once all are done (the folder and its tables:
+:mod:`detcal.reports.sweep`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import os
+import shutil
+import tempfile
+import traceback
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from detcal.pipelines.slam_run import SettingsRequest, check_option, own_option, read_value, run_and_evaluate, run_record
+from detcal.reports.slam_run import write_slam_run
+from detcal.reports.sweep import (
+    SETTING,
+    check_run_names,
+    install_run,
+    is_number,
+    make_plan,
+    open_sweep,
+    write_failed,
+    write_tables,
+)
+from detectors.sensor_log import SensorLog
+from profiles.atomic import MARKER
+from profiles.errors import DataError, DetcalError, UsageError
+from slam_runtime.config import SlamConfig
+
+#: the settings that have their own option in the sweep: --vary refuses them
+OWN_OPTIONS = {"--filter": "filter.kind", "--particles": "particles", "--pd-mode": "detection.pd_mode"}
+
+
+@dataclass
+class SweepJob:
+    name: str  # the run folder's name inside the sweep folder
+    log: object  # a SensorLog, or a handle whose load() returns it where the job runs
+    profile: object  # profiles.profile.DetectorProfile
+    config: SlamConfig
+    seed: int
+    labels: dict  # what varies: log, profile, filter, pd_mode, particles, variant, seed
+    max_frames: int | None = None
+    inputs: list[dict] = field(default_factory=list)  # the log's input files with their sha256 (recorded in config.yaml)
+
+    def run_config(self) -> dict:
+        """The run folder's config.yaml: what the run was (the same whoever runs it)."""
+        return run_record(self.labels.get("log"), self.inputs, self.profile, self.seed, self.max_frames, self.config)
+
+
+def _log_of(job: SweepJob) -> SensorLog:
+    return job.log.load() if hasattr(job.log, "load") else job.log
+
+
+def run_job(job: SweepJob) -> dict[str, bytes]:
+    """One run where it is called: filter, evaluation and the run folder's files ({relative path: bytes})."""
+    log = _log_of(job)
+    res, labels = run_and_evaluate(log, job.profile, job.config, job.seed, frames=job.max_frames)
+    with tempfile.TemporaryDirectory(prefix="detcal-run-") as tmp:
+        out = Path(tmp) / job.name
+        write_slam_run(log, res, out, job.run_config(), labels=labels)
+        return {p.relative_to(out).as_posix(): p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file() and p.name != MARKER}
+
+
+class InTurn:
+    """The default engine: every job in this process, in order (``detcal.engine`` offers Dask ones)."""
+
+    workers = 0
+    label = "in this process"
+
+    def map_unordered(self, fn: Callable, args: list[tuple], keys: list[str]) -> Iterator[tuple[int, bool, object, dict]]:
+        import time
+
+        for i, a in enumerate(args):
+            t0, c0 = time.perf_counter(), time.process_time()
+            try:
+                value = fn(*a)
+            except KeyboardInterrupt:
+                raise
+            except Exception as exc:  # a failed run is recorded, the others go on  # noqa: BLE001
+                yield i, False, exc, {}
+            else:
+                yield i, True, value, {"wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0}
+
+
+@dataclass
+class Failure:
+    job: SweepJob
+    error: str
+    trace: str | None = None  # the traceback of an error that is not a detcal error (a bug), for failed.yaml
+
+    def line(self) -> str:
+        lb = self.job.labels
+        var = f", {lb['variant']}" if lb.get("variant") else ""
+        return (
+            f"{self.job.name} (log {lb.get('log')}, profile {lb.get('profile')}, {lb.get('filter')}, {lb.get('pd_mode')}, "
+            f"{lb.get('particles')} particles{var}, seed {lb.get('seed')}): {self.error}"
+        )
+
+
+@dataclass
+class SweepOutcome:
+    folder: Path
+    runs: int
+    skipped: int  # done before this attempt
+    ran: int  # done in this attempt
+    failed: list[Failure]
+    rows: list[dict] = field(default_factory=list)  # runs.csv (empty unless every run is done)
+    summary: list[dict] = field(default_factory=list)
+    paired: list[dict] = field(default_factory=list)  # paired.csv (:func:`paired`)
+    timings: list[dict] = field(default_factory=list)
+
+    @property
+    def complete(self) -> bool:
+        return not self.failed
+
+
+def _failure(job: SweepJob, exc: BaseException) -> Failure:
+    if isinstance(exc, DetcalError):
+        return Failure(job, " ".join(str(exc).split()))
+    return Failure(job, " ".join(f"{type(exc).__name__}: {exc}".split()), "".join(traceback.format_exception(exc)))
+
+
+def run_sweep(
+    jobs: list[SweepJob],
+    folder: Path,
+    engine=None,
+    *,
+    plan: dict | None = None,
+    force: bool = False,
+    done: set[str] | None = None,
+    by: tuple[str, ...] = SETTING,
+    progress=None,
+) -> SweepOutcome:
+    """Run the jobs not done yet on ``engine``, each run folder moved in as its job completes; the tables once all are done.
+
+    engine: an object with ``map_unordered(fn, args, keys)`` yielding ``(index, ok,
+    result or exception, stats)`` as jobs complete (default :class:`InTurn`; :mod:`detcal.engine` offers Dask ones).
+    A failed job is recorded (failed.yaml, :attr:`SweepOutcome.failed`) and the
+    others go on; running the sweep again does only what is missing. ``done``:
+    what :func:`open_sweep` returned when the caller opened the folder itself
+    (to check it before starting an engine).
+    """
+    folder = Path(folder)
+    names = [j.name for j in jobs]  # (checked distinct by open_sweep, which opened the folder)
+    if done is None:
+        done = open_sweep(folder, plan if plan is not None else make_plan(jobs, {}, []), jobs, force=force)
+    todo = [j for j in jobs if j.name not in done]
+    engine = engine or InTurn()
+    failures: list[Failure] = []
+    if todo:
+        it = engine.map_unordered(run_job, [(j,) for j in todo], [f"run-{j.name}" for j in todo])
+        if progress is not None:
+            it = progress(it, len(todo), f"sweep {engine.label}")
+        for i, ok, value, stats in it:
+            if ok:
+                install_run(folder, todo[i], value, stats)
+            else:
+                failures.append(_failure(todo[i], value))
+    outcome = SweepOutcome(folder, len(jobs), len(done), len(todo) - len(failures), sorted(failures, key=lambda f: names.index(f.job.name)))
+    write_failed(folder, outcome.failed)
+    if not outcome.failed:
+        outcome.rows, outcome.summary, outcome.paired, outcome.timings = write_tables(folder, jobs, by)
+    return outcome
+
+
+def variants(specs: list[str] | None) -> list[tuple[str | None, dict]]:
+    """The --vary options as [(label, {dotted key: value})], every combination of their values (one (None, {})
+    without the option). A value is read as YAML; the label keeps it as written (``filter.survival=0.99``)."""
+    import yaml
+
+    if not specs:
+        return [(None, {})]
+    axes: list[list[tuple[str, str, object]]] = []
+    seen: set[str] = set()
+    for spec in specs:
+        key, sep, text = spec.partition("=")
+        key = key.strip()
+        tokens = [t.strip() for t in text.split(",")]
+        if not sep or not key or not all(tokens):
+            raise UsageError(f"--vary: expected KEY=V1,V2,... (e.g. filter.noise_inflation=1,2), got {spec!r}")
+        own_option(key, "--vary", OWN_OPTIONS, verb="vary")
+        for other in seen:
+            if other.startswith(key + ".") or key.startswith(other + "."):
+                raise UsageError(f"--vary {key}: overlaps --vary {other} (vary single settings, not a group and a setting in it)")
+        if key in seen:
+            raise UsageError(f"--vary {key}: given twice (list its values in one option: {key}=V1,V2)")
+        seen.add(key)
+        axis, same = [], set()
+        for t in tokens:
+            try:
+                v = read_value(t)
+            except yaml.YAMLError:
+                raise UsageError(f"--vary {key}: cannot read the value {t!r}") from None
+            if isinstance(v, dict | list):
+                raise UsageError(f"--vary {key}: {t!r} is not a single value (vary one setting at a time)")
+            ident = ("number", v) if is_number(v) else (type(v).__name__, v)  # (1 and 1.0 are one value; true is not 1)
+            if ident not in same:
+                same.add(ident)
+                axis.append((key, t, v))
+        axes.append(axis)
+    return [(", ".join(f"{k}={t}" for k, t, _ in combo), {k: v for k, _, v in combo}) for combo in itertools.product(*axes)]
+
+
+@dataclass
+class SweepRequest:
+    """``detcal slam sweep``: what to cross (logs, profiles, filters, P_D modes, particle counts, varied settings,
+    seeds), the shared settings, where the runs go and where they run."""
+
+    logs: list[Path]
+    read: Callable[[Path], SensorLog]  # reads a log as the command's reader options say (refusing an empty one)
+    fmt: str | None  # the reader options again, for the handles the runs read their logs with
+    read_options: object
+    profiles: list[str]
+    settings: SettingsRequest  # --config and --poses, and the first --particles (the islands check)
+    seeds: list[int]
+    out: Path
+    filters: list[str] | None = None
+    pd_modes: list[str] | None = None
+    particles: list[int] | None = None
+    vary: list[str] | None = None
+    frames: int | None = None
+    workers: int | None = None
+    scheduler: str | None = None
+    force: bool = False
+    inputs: Callable[[Path, SensorLog], list] = field(default=lambda p, lg: [])  # a log's input files with their sha256
+    jobs: list[SweepJob] = field(default_factory=list, init=False)
+    plan: dict = field(default_factory=dict, init=False)
+    varied: list = field(default_factory=list, init=False)
+
+    def prepare(self) -> None:
+        """Check everything and make the jobs and the plan; no run starts and nothing is written."""
+        from detcal.engine import LogSource, check_options
+        from profiles.store import resolve
+        from slam_runtime.config import override, with_filter, with_settings
+        from slam_runtime.run import check_features, check_inputs, check_poses
+
+        modes = list(dict.fromkeys(self.pd_modes or ["profile", "constant"]))
+        for m in modes:
+            check_option("--pd-mode", m)
+        base, _ = self.settings.settings()
+        kinds = list(dict.fromkeys(self.filters or [base.filter.kind]))
+        for f in kinds:
+            check_option("--filter", f)
+        counts = list(dict.fromkeys(self.particles or [base.particles]))
+        if min(counts) < 1:
+            raise UsageError(f"--particles: expected positive integers, got {counts}")
+        self.varied = variants(self.vary)
+        configs = {}  # (filter, variant) -> its settings, each checked before any log is read
+        for f in kinds:
+            fcfg = with_filter(base, f)
+            plain = fcfg.model_dump()
+            for key in self.varied[0][1]:  # (every variant has the same keys) a group's whole value would replace the settings
+                node = plain  # in it, which other labels name
+                for part in key.split("."):
+                    node = node.get(part) if isinstance(node, dict) else None
+                if isinstance(node, dict):
+                    raise UsageError(f"--vary {key}: a group of settings; vary the single settings in it (e.g. {key}.{next(iter(node))})")
+            for label, changes in self.varied:
+                try:
+                    configs[f, label] = with_settings(fcfg, changes)
+                except UsageError as exc:
+                    raise UsageError(f"--vary {label}, for filter {f}: {exc}") from None
+        checked = {c.poses: c for c in configs.values()}  # (a varied setting may put the runs on the truth's poses)
+        if self.frames is not None and self.frames < 1:
+            raise UsageError(f"--frames: expected a positive integer, got {self.frames}")
+        check_options(self.workers, self.scheduler)
+        profs = [resolve(r) for r in dict.fromkeys(self.profiles)]
+        for (_, label), c in configs.items():  # every run's features against every profile, before any log is read
+            for prof in profs:
+                try:
+                    check_features(prof, c, planes="features: planes (in --config or --vary)")
+                except UsageError as exc:
+                    raise UsageError(f"--vary {label}: {exc}" if label is not None else str(exc)) from None
+        sources, described = [], []
+        for p in self.logs:
+            log = self.read(p)
+            for prof in profs:
+                check_inputs(log, prof)
+            for c in checked.values():  # a log the runs could not be put on the truth of is refused before any run
+                check_poses(log, c, self.frames)
+            src = LogSource.of(log, p, self.fmt, self.read_options)
+            refs = [r.model_dump() for r in self.inputs(p, log)]
+            sources.append((src, refs))
+            described.append({"name": log.name, "file": p.name, "inputs": refs, "fingerprint": src.fingerprint})
+            del log  # the runs read it where they run
+        self.jobs = []
+        for i, (src, refs) in enumerate(sources):
+            for prof, f, m, n, (v, (label, _)) in itertools.product(profs, kinds, modes, counts, enumerate(self.varied)):
+                cfg = override(configs[f, label], particles=n, **{"detection.pd_mode": m})
+                tag = f"_v{v}" if self.vary else ""
+                for sd in self.seeds:
+                    name = f"{i:02d}_{src.name}_{prof.ref}_{f}_{m}_p{n}{tag}_s{sd}"
+                    labels = {"log": src.name, "profile": prof.ref, "filter": f, "pd_mode": m, "particles": n, "variant": label, "seed": sd}
+                    self.jobs.append(SweepJob(name, src, prof, cfg, sd, labels, self.frames, refs))
+        # the plan records the config's own particle count, as before --particles met the islands check: each run holds
+        # its own, and a sweep then resumes whatever order --particles comes in
+        from calib.config import read_yaml_mapping
+
+        own = SlamConfig.model_fields["particles"].default
+        if self.settings.config is not None:
+            own = int(read_yaml_mapping(self.settings.config).get("particles", own))
+        self.plan = make_plan(self.jobs, {**base.model_dump(mode="json"), "particles": own}, described)
+
+    def run(self, progress=None) -> tuple[SweepOutcome, str]:
+        """Open (or resume) the sweep folder, run what is missing on the engine; (outcome, where it ran)."""
+        from detcal.engine import InProcess, open_engine
+
+        if self.force:  # checked before any worker starts; the old sweep is replaced only once the engine is up
+            check_run_names(self.jobs)
+            made, done = False, None
+        else:
+            made = not os.path.lexists(self.out)
+            done = open_sweep(self.out, self.plan, self.jobs)  # checked (and created) before any worker starts
+        todo = len(self.jobs) - len(done or ())
+        engine_cm = open_engine(self.workers, self.scheduler, todo) if todo else contextlib.nullcontext(InProcess())
+        with contextlib.ExitStack() as stack:
+            try:
+                engine = stack.enter_context(engine_cm)
+            except BaseException:
+                if made:  # the cluster refused before any run: leave no empty sweep folder behind
+                    shutil.rmtree(self.out, ignore_errors=True)
+                raise
+            if done is None:
+                done = open_sweep(self.out, self.plan, self.jobs, force=True)
+            res = run_sweep(self.jobs, self.out, engine, done=done, progress=progress)
+            return res, engine.label
+
+    @staticmethod
+    def refuse_failures(res: SweepOutcome) -> None:
+        """A DataError naming the failed runs and where the others are (the command's exit code 1)."""
+        if res.failed:
+            raise DataError(
+                f"{len(res.failed)} of {res.runs} runs failed ({', '.join(f.job.name for f in res.failed)}; listed in "
+                f"{res.folder / 'failed.yaml'}); the {res.skipped + res.ran} others are in {res.folder}: run the same command again "
+                "to complete only the missing ones"
+            )

@@ -1,0 +1,3 @@
+"""The version of detcal: recorded in every profile it makes (``provenance.detcal_version``)."""
+
+__version__ = "0.1.0"
