@@ -108,6 +108,11 @@ class DriftConfig(BaseModel):
     min_pairs: int = Field(
         default=30, ge=1, description="fewest pairs a P_D bin needs to be tested (a few pairs of one landmark's pass are one observation)"
     )
+    min_landmarks: int = Field(
+        default=12, ge=2, description="fewest landmarks with true detections the noise and coverage tests need (a cluster-robust "
+        "variance from fewer is too small, and a few landmarks' geometry is not the profile's mix)",
+    )
+    batch_frames: int = Field(default=5, ge=1, description="fewest frames per batch the clutter test needs (the counts' correlation over time)")
 
 
 # ------------------------------------------------------------------------------------------ results
@@ -140,10 +145,19 @@ class Part:
     needed: int | None = None  # n for detectable <= tolerance (None: enough; -1: the profile's own uncertainty is the limit)
     verdict: str = ""
     where: list[str] = field(default_factory=list)
+    # the score a user reads (``score_name``, in its own units) and the 95 % of it a right profile would give on
+    # this log's own opportunities (the sampling floor: the bootstrap's, or the test's null distribution). P_D: the
+    # largest |signed-root deviance| of a tested bin in its null standard deviations (max-T); clutter: false alarms
+    # per frame; noise: the laser's circle-fit residual relative to the profile's, or the largest |z| of the
+    # detections' range and bearing bias and spread; coverage: the share of true detections outside the gate
+    score_name: str = ""
+    score: float = float("nan")
+    floor: tuple[float, float] = (float("nan"), float("nan"))
 
     def to_dict(self) -> dict:
         return {
             "verdict": self.verdict,
+            "score": {"name": self.score_name, "observed": self.score, "right_profile_95": list(self.floor)},
             "p_value": self.p_value,
             "p_adjusted": self.p_adjusted,
             "effect": self.text,
@@ -215,6 +229,37 @@ class DriftReport:
                 row[LABELS[k]] = f"{p.verdict} (p {p.p_adjusted:.2g}): {p.text}" if p else "not tested"
             out.append(row)
         return pd.DataFrame(out)
+
+    def headline_all(self) -> str:
+        """The overall verdict and the rows and parts behind it, e.g. ``drifted: robot4 (P_D, clutter)``: the rows of
+        single logs that have the overall verdict (or the pooled row when none of them has it)."""
+        if len(self.rows) == 1:
+            return self.rows[0].headline
+        if self.verdict == "consistent":
+            return "consistent"
+        worst = [r for r in self.rows if r.name != "all" and r.verdict == self.verdict] or [r for r in self.rows if r.verdict == self.verdict]
+        return f"{self.verdict}: " + ", ".join(
+            f"{r.name} ({', '.join(LABELS[p.part] for p in r.parts.values() if p.verdict == self.verdict)})" for r in worst
+        )
+
+    def parts(self) -> pd.DataFrame:
+        """One row per (row, part): the score a user reads beside the 95 % a right profile would give on the row's
+        own opportunities (its sampling floor), the p-values, the verdict, where P_D changed and, with too little
+        data, how much would do; untested parts with the reason."""
+        out = []
+        for r in self.rows:
+            for k in PARTS:
+                p = r.parts.get(k)
+                if p is None:
+                    out.append({"log": r.name, "part": LABELS[k], "verdict": "not tested", "score": "", "change": r.missing.get(k, ""), "where": "", "needed": ""})
+                    continue
+                out.append({
+                    "log": r.name, "part": LABELS[k], "verdict": p.verdict, "score": p.score_name, "observed": p.score,
+                    "right_low": p.floor[0], "right_high": p.floor[1], "p_value": p.p_value, "p_adjusted": p.p_adjusted,
+                    "change": p.text, "where": "; ".join(p.where),
+                    "needed": _needed_text(p) if p.verdict == "too little data" else "",
+                })  # fmt: skip
+        return pd.DataFrame(out, columns=["log", "part", "verdict", "score", "observed", "right_low", "right_high", "p_value", "p_adjusted", "change", "where", "needed"])
 
     def summary(self) -> dict:
         return {
@@ -547,6 +592,7 @@ def pd_drift(pairs: pd.DataFrame, table: PdTable, rng: np.random.Generator, cfg:
         cfg.pd_tolerance, n, "pairs", f"{effect:+.3f} overall ({y.mean():.3f} observed, {mu.mean():.3f} predicted)", notes,
         {"pairs_predicted_zero": int((pr <= 0).sum()), "detections_where_zero_predicted": int(pairs["observed"].to_numpy(bool)[pr <= 0].sum()),
          "landmark_correlation": round(rho, 4)},
+        score_name="largest bin |z|", score=t_obs, floor=(0.0, c95),
     )
     return part, bins, ""
 
@@ -568,8 +614,8 @@ def clutter_drift(counts: np.ndarray, clutter: ClutterParams, rng: np.random.Gen
     """(part, count histogram with the model's bootstrap band, why not tested) of false alarms per frame (F,)."""
     c = np.asarray(counts, dtype=np.int64)
     f = c.size
-    if f < 2 * 4:
-        return None, None, f"{f} frames: too few for batch means"
+    if f < cfg.batches * cfg.batch_frames:
+        return None, None, f"{f} frames: too few to measure the counts' correlation over time (needs {cfg.batches * cfg.batch_frames})"
     lam = float(clutter.rate)
     se_p = float(clutter.rate_se) if clutter.rate_se is not None else 0.0
     notes = [] if clutter.rate_se is not None else ["the profile states no standard error of its rate: taken as exact"]
@@ -582,6 +628,7 @@ def clutter_drift(counts: np.ndarray, clutter: ClutterParams, rng: np.random.Gen
     k_hist = int(max(c.max(), np.ceil(lam + 6 * np.sqrt(clutter.count_variance + 1e-12)))) + 2
     hist = np.empty((reps, k_hist), dtype=np.int32)
     t_star = np.empty(reps)
+    means = np.full(reps, 0.0)
     denom = lambda se: np.sqrt(se**2 + se_p**2)  # noqa: E731
     stat = (m - lam) / denom(se_h) if denom(se_h) > 0 else (0.0 if m == lam else np.inf)
     if lam > 0:
@@ -601,7 +648,8 @@ def clutter_drift(counts: np.ndarray, clutter: ClutterParams, rng: np.random.Gen
             sim = np.searchsorted(flat, (u + np.arange(n)[:, None] * 2.0).ravel(), side="right").reshape(n, f) - np.arange(n)[:, None] * (kmax + 1)
             sim = np.minimum(sim, kmax)
             se_r = batch_se(sim.astype(np.float64), cfg.batches)
-            t_star[s : s + n] = (sim.mean(axis=1) - lam) / denom(se_r)
+            means[s : s + n] = sim.mean(axis=1)
+            t_star[s : s + n] = (means[s : s + n] - lam) / denom(se_r)
             capped = np.minimum(sim, k_hist - 1) + np.arange(n)[:, None] * k_hist
             hist[s : s + n] = np.bincount(capped.ravel(), minlength=n * k_hist).reshape(n, k_hist)
         p_value = float((1 + (np.abs(t_star) >= abs(stat) - 1e-12).sum()) / (reps + 1))
@@ -621,6 +669,7 @@ def clutter_drift(counts: np.ndarray, clutter: ClutterParams, rng: np.random.Gen
         "clutter", float(stat), p_value, float(rel), se_h / lam if lam > 0 else 0.0, se_p / lam if lam > 0 else 0.0, cfg.clutter_tolerance,
         f, "frames", f"{100 * rel:+.0f} % ({m:.3g} per frame observed, {lam:.3g} predicted)", notes,
         {"observed_per_frame": m, "predicted_per_frame": lam, "se_log": se_h, "se_profile": se_p, "autocorrelation_time_frames": round(tau, 2)},
+        score_name="false alarms per frame", score=m, floor=(float(np.quantile(means, 0.025)), float(np.quantile(means, 0.975))),
     )
     return part, table, ""
 
@@ -635,6 +684,12 @@ def _two_sided(z: float, clusters: int) -> float:
     return float(2 * student_t.sf(abs(z), max(clusters - 1, 1)))
 
 
+def _t95(clusters: int, tests: int = 1) -> float:
+    """|z| a right profile stays under with probability 0.95 (two-sided; Bonferroni over ``tests``), against
+    Student's t with (clusters - 1) degrees of freedom."""
+    return float(student_t.ppf(1 - 0.025 / tests, max(clusters - 1, 1)))
+
+
 def noise_drift_laser(log_mse: np.ndarray, cluster: np.ndarray, hot: HotellingParams | None, samples: int | None, cfg: DriftConfig) -> tuple[Part | None, str]:
     """The true detections' mean log mean-square residual (N,) against the profile's Hotelling mean of ``log_mse``."""
     if hot is None or "log_mse" not in hot.names:
@@ -644,6 +699,8 @@ def noise_drift_laser(log_mse: np.ndarray, cluster: np.ndarray, hot: HotellingPa
     x, cluster = x[ok], np.asarray(cluster)[ok]
     if x.size < 10:
         return None, f"{x.size} true detections: too few"
+    if (k := np.unique(cluster).size) < cfg.min_landmarks:
+        return None, f"true detections of {k} landmarks: too few (needs {cfg.min_landmarks})"
     j = hot.names.index("log_mse")
     mu_p, v_p = float(hot.mean[j]), float(hot.covariance[j][j])
     d = design_effect(x, cluster)
@@ -652,13 +709,14 @@ def noise_drift_laser(log_mse: np.ndarray, cluster: np.ndarray, hot: HotellingPa
     notes = [] if samples else ["the profile states no sample size of its gate: its mean taken as exact"]
     diff = float(x.mean()) - mu_p
     z = diff / np.sqrt(var_h + var_p)
-    k = np.unique(cluster).size
     # log_mse is 2 log sigma plus a geometry term: half the difference is the change of log sigma
     eff = diff / 2
     return Part(
         "noise", float(z), _two_sided(z, k), eff, float(np.sqrt(var_h)) / 2, float(np.sqrt(var_p)) / 2, float(np.log1p(cfg.noise_tolerance)),
         int(x.size), "true detections", f"circle-fit residual {100 * np.expm1(eff):+.0f} %", notes,
         {"log_mse_observed": float(x.mean()), "log_mse_profile": mu_p, "design_effect": round(d, 3)},
+        score_name="fit residual change", score=float(np.expm1(eff)),
+        floor=tuple(float(np.expm1(sg * _t95(k) * np.sqrt(var_h + var_p) / 2)) for sg in (-1, 1)),
     ), ""
 
 
@@ -671,6 +729,8 @@ def noise_drift_detections(res: pd.DataFrame, noise: MeasurementNoise | None, cf
         return None, f"{len(res)} true detections: too few"
     cl = res["cluster"].to_numpy()
     k = np.unique(cl).size
+    if k < cfg.min_landmarks:
+        return None, f"true detections of {k} landmarks: too few (needs {cfg.min_landmarks})"
     n = len(res)
     n_p = noise.samples or None
     zs, comp, worst = {}, {}, None
@@ -699,6 +759,7 @@ def noise_drift_detections(res: pd.DataFrame, noise: MeasurementNoise | None, cf
     return Part(
         "noise", float(zs[worst]), min(1.0, 4 * ps[worst]), float(eff_s[i]), float(max(sd_h_s)), float(max(sd_p_s)), float(np.log1p(cfg.noise_tolerance)),
         n, "true detections", txt, notes, {**comp, **{f"p_{kk}": v for kk, v in ps.items()}},
+        score_name="largest residual |z|", score=abs(float(zs[worst])), floor=(0.0, _t95(k, 4)),
     ), ""
 
 
@@ -711,6 +772,8 @@ def coverage_drift(inside: np.ndarray, cluster: np.ndarray, hot: HotellingParams
     n = inside.size
     if n < 10:
         return None, f"{n} true detections: too few"
+    if (k := np.unique(np.asarray(cluster)).size) < cfg.min_landmarks:
+        return None, f"true detections of {k} landmarks: too few (needs {cfg.min_landmarks})"
     miss_p = 1.0 - (coverage if coverage is not None else hot.confidence)
     n_p = samples if coverage is not None and samples else None
     notes = [] if n_p else ["against the nominal confidence (the profile states no measured coverage)"]
@@ -720,11 +783,12 @@ def coverage_drift(inside: np.ndarray, cluster: np.ndarray, hot: HotellingParams
     v_unit = max(pooled * (1 - pooled), 0.25 / n**2) * d  # never 0: one miss in n is no certainty
     var = v_unit * (1 / n + (1 / n_p if n_p else 0.0))
     z = (miss - miss_p) / np.sqrt(var)
-    k = np.unique(cluster).size
     return Part(
         "coverage", float(z), _two_sided(z, k), miss - miss_p, float(np.sqrt(v_unit / n)), float(np.sqrt(v_unit / n_p)) if n_p else 0.0,
         cfg.coverage_tolerance, n, "true detections", f"outside the gate {miss:.4f} vs {miss_p:.4f}",
         notes, {"outside_observed": miss, "outside_profile": miss_p, "design_effect": round(d, 3)},
+        score_name="share outside the gate", score=miss,
+        floor=(max(0.0, miss_p - _t95(k) * float(np.sqrt(var))), miss_p + _t95(k) * float(np.sqrt(var))),
     ), ""
 
 

@@ -360,7 +360,7 @@ def plot_reliability(v: Validation, path: Path, title: str | None = None, row: i
 
 def write_validation_run(v: Validation, out: Path, *, overwrite: bool = False) -> list[str]:
     """The validation run folder: summary.yaml (with every drift test), logs.csv (one row per log and one for
-    all, with the verdicts), reliability.csv, pairs.csv.gz, drift_bins.csv and clutter_counts.csv (the bootstrap
+    all, with the verdicts), parts.csv (each part's score beside its sampling floor, p-values and verdict, per row), reliability.csv, pairs.csv.gz, drift_bins.csv and clutter_counts.csv (the bootstrap
     bands), reliability.png (all logs together, or the one log) and with several logs one figure per log;
     returns the figure names."""
     with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
@@ -384,6 +384,7 @@ def fill_validation_run(v: Validation, tmp: Path) -> list[str]:
             pd.concat(bins, ignore_index=True).to_csv(tmp / "drift_bins.csv", index=False, float_format="%.9g")
         if hists:
             pd.concat(hists, ignore_index=True).to_csv(tmp / "clutter_counts.csv", index=False, float_format="%.9g")
+        v.drift.parts().to_csv(tmp / "parts.csv", index=False, float_format="%.9g")
         if len(rows) > 1:
             for k, r in enumerate(rows[1:], start=1):
                 name = f"reliability_{_safe(r.name)}.png"

@@ -2,7 +2,7 @@
 
 Thin by design: parse, cross-check options, call one pipeline function, print
 a result table. One module per command group (``logs``, ``simulate``,
-``detect``, ``calibrate`` (with validate, selfcal and icp), ``profile``, ``slam``); the reader options are
+``detect``, ``calibrate`` (with selfcal and icp), ``validate``, ``profile``, ``slam``); the reader options are
 defined once (:mod:`detcal.cli.common`). Library errors
 (:class:`profiles.errors.DetcalError`) become one-line plain-text messages with
 exit code 1 (bad data) or 2 (usage); a user never sees a traceback for bad
@@ -17,7 +17,7 @@ from typing import Annotated
 import typer
 
 from detcal import __version__
-from detcal.cli import calibrate, detect, logs, profile, simulate, slam
+from detcal.cli import calibrate, detect, logs, profile, simulate, slam, validate
 from detcal.cli.common import out
 from profiles.errors import DetcalError
 
@@ -34,7 +34,7 @@ app.add_typer(profile.app, name="profile")
 app.add_typer(slam.app, name="slam")
 app.command("detect")(detect.detect_cmd)
 app.command("calibrate")(calibrate.calibrate_cmd)
-app.command("validate")(calibrate.validate_cmd)
+app.command("validate")(validate.validate_cmd)
 app.command("icp")(calibrate.icp_cmd)
 app.command("selfcal")(calibrate.selfcal_cmd)
 
