@@ -161,7 +161,8 @@ def scores_table(title: str, t, first: tuple[str, ...]) -> Table:
     """Rows of validation scores (fold rows or per-log rows) in columns narrow enough for a terminal."""
     tab = Table(title=title)
     cover = "hotelling_coverage" in t and t["hotelling_coverage"].notna().any()
-    for c in (*first, "ECE (noise)", "Brier", "loglik", "FA error [95 % CI]", *(["coverage"] if cover else [])):
+    verdict = "verdict" in t
+    for c in (*first, "ECE (noise)", "Brier", "loglik", "FA error [95 % CI]", *(["coverage"] if cover else []), *(["verdict"] if verdict else [])):
         tab.add_column(c, overflow="fold", justify="left" if c in first else "right")
     for r in t.to_dict("records"):
         row = [str(r[c]) for c in first] + [
@@ -174,6 +175,8 @@ def scores_table(title: str, t, first: tuple[str, ...]) -> Table:
         if cover:
             n = r.get("true_detections")
             row.append(f"{r['hotelling_coverage']:.4f}" + (f" of {int(n)}" if n is not None and not math.isnan(n) else ""))
+        if verdict:
+            row.append(str(r["verdict"]))
         tab.add_row(*row)
     return tab
 
