@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 DEMO   := runs/demo
 
-.PHONY: demo test bench clean builtin-profile lock
+.PHONY: demo test test-busy bench clean builtin-profile lock
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -22,6 +22,10 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -n 2 -q
+
+# The suite beside two CPU-burning processes, three times in a row (CI on a shared machine): prints wall and CPU time.
+test-busy: $(STAMP)
+	$(BIN)/python -m tests.beside_busy --busy 2 --repeat 3 -- -n 2 -q
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_readers.py

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field, replace
 from math import gamma as gamma_fn
 from math import pi
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import pandas as pd
@@ -45,6 +46,7 @@ from calib.fits import (
 from calib.label import Labelled, label_log
 from calib.landmarks import CloudLandmarkConfig
 from calib.rangenoise import RangeNoise, RangeNoiseConfig, pool_range_noise, range_residuals
+from calib.sufficiency import check_counts
 from detectors.circle import descriptor_matrix
 from detectors.geometry import compose, interpolate_poses
 from detectors.sensor_log import SensorLog
@@ -68,6 +70,8 @@ class Calibration:
     gated: np.ndarray  # (D,) detection passes the Hotelling gate
     summary: dict = field(default_factory=dict)
     range_noise: RangeNoise | None = None  # when sigma_r was estimated from the scans
+    ground_truth: list = field(default_factory=list)  # per log: calib.gtquality.QualityReport of ICP poses, None for reference poses
+    data: object | None = None  # calib.checks.Verdict of calib.sufficiency on the counts
 
 
 def created_now() -> str:
@@ -87,14 +91,26 @@ def pose_source(log: SensorLog, source: str) -> str:
 
 def scan_sensor_poses(log: SensorLog, source: str) -> tuple[np.ndarray, str]:
     """(S, 3) sensor poses in the world frame for every scan, and where they came from."""
+    sp, src, _ = ground_truth_of(log, source)
+    return sp, src
+
+
+def ground_truth_of(log: SensorLog, source: str):
+    """(sensor poses (S, 3) world frame, their source, the quality report of ICP poses or None for reference poses).
+
+    ICP poses are assessed (:func:`calib.gtquality.assess`: fitness, loops, map consistency, and the error
+    against the log's reference poses when it has them).
+    """
     if pose_source(log, source) == "reference":
         ref = log.reference["ground_truth"]
         if log.scans.stamp[0] < ref.stamp[0] or log.scans.stamp[-1] > ref.stamp[-1]:
             raise DataError(f"log {log.name!r}: scans extend beyond the ground-truth poses")
         veh = interpolate_poses(ref.stamp, ref.poses, log.scans.stamp)
-        src = "reference"
+        src, quality = "reference", None
     else:
+        from calib.gtquality import assess
         from calib.icp import icp_ground_truth
+        from calib.progress import progress
 
         # ICP poses live in the frame of the first scan; a log with reference poses anchors
         # that frame at its first one so the log's landmark truth applies
@@ -102,10 +118,11 @@ def scan_sensor_poses(log: SensorLog, source: str) -> tuple[np.ndarray, str]:
         if "ground_truth" in log.reference:
             ref = log.reference["ground_truth"]
             origin = interpolate_poses(ref.stamp, ref.poses, log.scans.stamp[:1])[0]
-        veh = icp_ground_truth(log, origin=origin).poses
-        src = "icp"
+        res = icp_ground_truth(log, origin=origin, progress=progress)  # bars on a terminal, quiet on workers
+        veh, src = res.poses, "icp"
+        quality = assess(log, veh, res.details)
     m = log.sensor.mount
-    return compose(veh, np.array([m.x, m.y, m.theta])), src
+    return compose(veh, np.array([m.x, m.y, m.theta])), src, quality
 
 
 def landmark_source(landmarks_csv: Path | str | None) -> str:
@@ -122,16 +139,21 @@ def range_sigma_source(logs: list[SensorLog], given: bool) -> str:
     return "log" if all(lg.sensor is not None and lg.sensor.range_sigma is not None for lg in logs) else "estimated"
 
 
-def parameters(logs: list[SensorLog], cfg: CalibrateConfig, landmarks_csv: Path | str | None, range_sigma_given: bool = False) -> dict:
+def parameters(
+    logs: list[SensorLog], cfg: CalibrateConfig, landmarks_csv: Path | str | None, range_sigma_given: bool = False, accept_poor: bool = False
+) -> dict:
     """The provenance parameters of a laser calibration: the config and every choice the data made.
 
     Known before the work (the request a rerun is compared by, see ``profiles.store.check_save``).
+    ``accept_poor_ground_truth: true`` is recorded only when the quality gate was told to let a poor
+    ground truth or thin data through (``--accept-poor-ground-truth``).
     """
     return {
         **cfg.model_dump(mode="json"),
         "pose_source": [pose_source(lg, cfg.poses) for lg in logs],
         "landmarks": landmark_source(landmarks_csv),
         "range_sigma_source": range_sigma_source(logs, range_sigma_given),
+        **({"accept_poor_ground_truth": True} if accept_poor else {}),
     }
 
 
@@ -140,6 +162,18 @@ def with_range_sigma(log: SensorLog, sigma: float) -> SensorLog:
     import dataclasses
 
     return dataclasses.replace(log, sensor=type(log.sensor).model_validate({**log.sensor.model_dump(), "range_sigma": sigma}))
+
+
+def check_landmark_source(logs: list[SensorLog], landmarks_csv: Path | str | None) -> None:
+    """Refuse, before any registration, logs whose landmark truth is nowhere: no landmarks of their own and
+    neither a CSV nor ``cloud`` (the mistake used to be reported after the whole ICP)."""
+    if landmarks_csv is not None:
+        return
+    for lg in logs:
+        if lg.landmarks is None:
+            raise UsageError(f"log {lg.name!r} has no landmark truth; pass --landmarks FILE.csv (id, x, y, radius) or --landmarks cloud")
+        if np.isnan(lg.landmarks.radius).any():
+            raise DataError(f"log {lg.name!r}: landmark radii are unknown; the n_p ray tracer needs them (--landmarks)")
 
 
 def log_landmarks(
@@ -218,10 +252,11 @@ def _in_turn(fn: Callable, args: list[tuple]) -> list:
     return [fn(*a) for a in args]
 
 
-def place_log(log: SensorLog, poses: str, noise: RangeNoiseConfig | None = None) -> tuple[np.ndarray, str, tuple | None]:
-    """Per-log step 1: (sensor poses (S, 3) world frame, their source, range residuals for sigma_r or None)."""
-    sp, src = scan_sensor_poses(log, poses)
-    return sp, src, (range_residuals(log, sp, noise) if noise is not None else None)
+def place_log(log: SensorLog, poses: str, noise: RangeNoiseConfig | None = None) -> tuple:
+    """Per-log step 1: (sensor poses (S, 3) world frame, their source, range residuals for sigma_r or None,
+    the ground truth's quality report or None)."""
+    sp, src, quality = ground_truth_of(log, poses)
+    return sp, src, (range_residuals(log, sp, noise) if noise is not None else None), quality
 
 
 def label_placed(
@@ -235,9 +270,10 @@ def label_placed(
 
 
 def place_and_label(log: SensorLog, cfg: CalibrateConfig, landmarks_csv: Path | str | None) -> tuple:
-    """Both per-log steps in one (when sigma_r is known and nothing is pooled between them): (poses, source, landmarks, labelled)."""
-    sp, src, _ = place_log(log, cfg.poses)
-    return (sp, src, *label_placed(log, sp, cfg, landmarks_csv))
+    """Both per-log steps in one (when sigma_r is known and nothing is pooled between them):
+    (poses, source, quality report or None, landmarks, labelled)."""
+    sp, src, _, quality = place_log(log, cfg.poses)
+    return (sp, src, quality, *label_placed(log, sp, cfg, landmarks_csv))
 
 
 def calibrate(
@@ -252,8 +288,16 @@ def calibrate(
     command: str = "",
     range_sigma_given: bool = False,
     per_log: PerLog | None = None,
+    quality_gate: Literal["off", "refuse", "accept"] = "off",
 ) -> Calibration:
     """Calibrate the circle detector on laser logs with truth (steps in the module docstring).
+
+    quality_gate: what a poor ground truth (:mod:`calib.gtquality`, ICP poses only) or data too thin for
+    the fits (:mod:`calib.sufficiency`) do. ``refuse``: a ``DataError`` naming the log, the failed figure
+    and its threshold, raised as soon as it is known (the ground truth before labelling when sigma_r is
+    estimated, after it otherwise; the counts after the fits), so no profile is made; ``accept``: the
+    calibration goes on, the failures are listed in the summary (``accepted_poor``) and the profile's
+    parameters record ``accept_poor_ground_truth: true``; ``off``: verdicts in the summary only.
 
     sigma_r: the logs' own (or ``--range-sigma``, set on the logs by the reader,
     ``range_sigma_given``); when they state none it is estimated from the
@@ -274,22 +318,27 @@ def calibrate(
     sensor = _check_same_sensor(logs)
     if sensor.range_max is None:
         raise DataError("the sensor model has no range_max")
-    params = parameters(logs, cfg, landmarks_csv, range_sigma_given)
+    check_landmark_source(logs, landmarks_csv)
+    params = parameters(logs, cfg, landmarks_csv, range_sigma_given, accept_poor=quality_gate == "accept")
     each = per_log or _in_turn
     noise = None
+    accepted: list[str] = []
     if params["range_sigma_source"] == "estimated":
         # sigma_r pools every log's residuals, and labelling needs it: two rounds over the logs
         placed = each(place_log, [(lg, cfg.poses, cfg.range_noise) for lg in logs])
-        noise = pool_range_noise([part for _, _, part in placed], cfg.range_noise)
-        labelled = each(label_placed, [(lg, sp, cfg, landmarks_csv, noise.range_sigma) for lg, (sp, _, _) in zip(logs, placed, strict=True)])
-        done = [(sp, src, *lab) for (sp, src, _), lab in zip(placed, labelled, strict=True)]
+        accepted += _gate([(lg.name, q.verdict) for lg, (_, _, _, q) in zip(logs, placed, strict=True) if q is not None], quality_gate)
+        noise = pool_range_noise([part for _, _, part, _ in placed], cfg.range_noise)
+        labelled = each(label_placed, [(lg, sp, cfg, landmarks_csv, noise.range_sigma) for lg, (sp, _, _, _) in zip(logs, placed, strict=True)])
+        done = [(sp, src, q, *lab) for (sp, src, _, q), lab in zip(placed, labelled, strict=True)]
         logs = [with_range_sigma(lg, noise.range_sigma) for lg in logs]
         sensor = logs[0].sensor
     else:
         done = each(place_and_label, [(lg, cfg, landmarks_csv) for lg in logs])
+        accepted += _gate([(lg.name, d[2].verdict) for lg, d in zip(logs, done, strict=True) if d[2] is not None], quality_gate)
+    qualities = [d[2] for d in done]
     det_tables, pair_tables, poses, lms, sources = [], [], [], [], []
     offset = 0
-    for k, (sp, src, lm, lab) in enumerate(done):
+    for k, (sp, src, _, lm, lab) in enumerate(done):
         d = lab.detections.assign(log=k)
         p = lab.pairs.assign(log=k)
         p["det"] = np.where(p["det"] >= 0, p["det"] + offset, -1)
@@ -365,7 +414,14 @@ def calibrate(
     summary = _summary(logs, sources, lms, sensor, params, dets, true, gated, fa, pairs, rc, clut, density, hot, cfg)
     if noise is not None:
         summary["range_noise"] = noise.summary()
-    return Calibration(profile, cfg, Labelled(dets, pairs), hot, rc, clut, logs, poses, lms, gated, summary, noise)
+    if any(q is not None for q in qualities):
+        summary["ground_truth"] = {lg.name: _verdict_line(q.verdict) for lg, q in zip(logs, qualities, strict=True) if q is not None}
+    data = check_counts(summary["landmarks"], summary["true_detections"], pd_table.counts, pd_table.detections, cfg.pd.min_count)
+    summary["data_sufficiency"] = _verdict_line(data)
+    accepted += _gate([(", ".join(lg.name for lg in logs), data)], quality_gate)
+    if accepted:
+        summary["accepted_poor"] = accepted
+    return Calibration(profile, cfg, Labelled(dets, pairs), hot, rc, clut, logs, poses, lms, gated, summary, noise, qualities, data)
 
 
 def _clutter_density(fa: pd.DataFrame, logs: list[SensorLog], sensor: SensorModel, cfg: CalibrateConfig):
@@ -414,3 +470,16 @@ def _summary(logs, sources, lms, sensor, params, dets, true, gated, fa, pairs, r
         "hotelling_gamma": hot.gamma,
         "hotelling_gamma_method": cfg.gamma,
     }
+
+
+def _verdict_line(v) -> str:
+    """'passes: <every figure and its threshold>' or 'fails: <the failed ones>' (calib.checks.Check.describe)."""
+    return ("passes: " if v.passed else "fails: ") + "; ".join(c.describe() for c in (v.checks if v.passed else v.failures))
+
+
+def _gate(verdicts: list[tuple[str, object]], policy: str) -> list[str]:
+    """The failed verdicts' one-line messages; under ``refuse`` the first one is raised (a ``DataError``)."""
+    failed = [v.message(subject) for subject, v in verdicts if not v.passed]
+    if failed and policy == "refuse":
+        raise DataError(f"{failed[0]}; no profile written (--accept-poor-ground-truth writes it anyway and records that it did)")
+    return failed if policy == "accept" else []

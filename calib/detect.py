@@ -30,14 +30,14 @@ class DetectConfig(BaseModel):
     k_sigma: float = Field(default=3.0, gt=0.0, description="occlusion tolerance of the ray tracer, in sigma_r")
 
 
-def run_detector(log: SensorLog, cfg: DetectConfig, *, show_progress: bool = True) -> CircleDetections:
-    """Detections of every scan of ``log`` (chunked so memory stays flat)."""
+def run_detector(log: SensorLog, cfg: DetectConfig, *, show_progress: bool = True, label: str = "detecting") -> CircleDetections:
+    """Detections of every scan of ``log`` (chunked so memory stays flat; a bar named ``label`` on a terminal)."""
     if log.scans is None or log.sensor is None:
         raise DataError(f"log {log.name!r} has no laser scans to detect circles in")
     n = len(log.scans)
     parts = []
     chunks = range(0, n, CHUNK)
-    it = progress(chunks, len(chunks), "detecting") if show_progress else chunks
+    it = progress(chunks, len(chunks), label) if show_progress else chunks
     for a in it:
         rows = slice(a, a + CHUNK)
         d = detect_circles(log.scans.ranges[rows], log.scan_angles(rows), cfg.detector, cfg.hotelling, log.sensor.range_sigma)

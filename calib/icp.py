@@ -1,18 +1,16 @@
-"""Ground truth from the scans themselves: 2D point-to-line ICP and a pose graph (thesis sec. 5.3.3).
+"""Point-to-line ICP in 2D, dead reckoning, and benchmark relations (thesis sec. 5.3.3).
 
-1. **Dead reckoning** gives every scan an initial pose (:func:`odometry_poses`).
-2. **Sequential registration**: each scan is aligned to a local map made of
-   the last ``window`` registered keyframes, by point-to-line ICP (nearest map
-   point by ``scipy.spatial.cKDTree``, residual along the map point's normal,
-   Cauchy-weighted Gauss-Newton on (x, y, theta)), started from the previous
-   registered pose composed with the odometry increment.
-3. **Loop closures**: every ``loop_every`` keyframes, the keyframe nearest in
-   space among those at least ``loop_gap`` keyframes older is looked up; the
-   scan is aligned to that older neighbourhood and the match is accepted when
-   enough points agree closely.
-4. **Pose graph**: keyframe poses are optimised over sequential and loop edges
-   with ``scipy.optimize.least_squares`` (sparse Jacobian); the scans between
-   keyframes follow their keyframe.
+- :func:`odometry_poses`: dead-reckoning vehicle poses at the scan stamps, the start of every registration.
+- :func:`scan_points`: a scan's returns and their normals in the sensor frame.
+- :func:`align`: point-to-line ICP of a scan to a map (nearest map point by
+  ``scipy.spatial.cKDTree``, residual along the map point's normal,
+  Cauchy-weighted Gauss-Newton on (x, y, theta) with a prior on the start pose),
+  the refinement step after every correlative match (:mod:`calib.raster`).
+- :func:`icp_ground_truth`: the ground truth of a log, built by
+  :mod:`calib.mapping` (scan-to-map front end, verified loop closures, robust
+  pose graph).
+- :func:`read_relations`, :func:`relation_errors`: the benchmark relations of
+  Kümmerle et al. 2009 and the error of a trajectory against them.
 
 Poses are in the frame of the first scan's vehicle pose (the origin, heading 0)
 unless an ``origin`` is given.
@@ -24,8 +22,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
-from scipy.optimize import least_squares
-from scipy.sparse import lil_matrix
 from scipy.spatial import cKDTree
 
 from detectors.geometry import compose, interpolate_poses, relative, rigid_align  # noqa: F401  (re-exported)
@@ -34,31 +30,29 @@ from profiles.errors import DataError
 
 
 class IcpConfig(BaseModel):
+    """Point-to-line ICP, the refinement step of every registration (sequential and loop closures)."""
+
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    max_corr: float = Field(default=1.0, gt=0.0, description="largest point-map distance used at the first iteration [m]")
-    min_corr: float = Field(default=0.3, gt=0.0, description="the distance it shrinks to [m]")
-    cauchy: float = Field(default=0.05, gt=0.0, description="scale of the Cauchy weights [m]")
-    iterations: int = Field(default=25, ge=1)
-    window: int = Field(default=80, ge=1, description="keyframes in the local map")
-    keyframe_dist: float = Field(default=1.0, ge=0.0, description="travel [m] (or 0.1 rad of turn) that makes a new keyframe")
+    max_corr: float = Field(default=0.5, gt=0.0, description="largest point-map distance used at the first iteration [m]")
+    min_corr: float = Field(default=0.2, gt=0.0, description="the distance it shrinks to [m]")
+    cauchy: float = Field(default=0.03, gt=0.0, description="scale of the Cauchy weights, about the laser's range noise [m]")
+    iterations: int = Field(default=30, ge=1)
     normal_gap: float = Field(default=0.5, gt=0.0, description="neighbouring returns farther apart give no normal [m]")
-    max_range: float | None = Field(default=None, gt=0.0, description="ignore returns beyond this [m]")
-    loop_radius: float = Field(default=4.0, gt=0.0, description="search radius for loop closures [m]")
-    loop_gap: int = Field(default=50, ge=1, description="keyframes between the two ends of a loop, at least")
-    loop_every: int = Field(default=3, ge=1)
-    loop_max_corr: float = Field(default=2.0, gt=0.0, description="first correspondence distance of a loop alignment [m]")
-    loop_headings: list[float] = Field(default=[0.0, -0.2, 0.2, -0.4, 0.4], description="heading offsets tried for a loop [rad]")
-    loop_min_overlap: float = Field(default=0.3, gt=0.0, le=1.0, description="share of the scan's points with a map point within max_corr")
-    loop_min_agreement: float = Field(default=0.8, gt=0.0, le=1.0, description="share of those within 3 x cauchy after alignment")
-    rounds: int = Field(default=2, ge=1, description="loop search + graph optimisation rounds")
+    prior_xy: float = Field(
+        default=0.1, gt=0.0, description="spread [m] of the prior on the start pose: it holds the directions a scan cannot fix (a corridor's axis)"
+    )
+    prior_theta: float = Field(default=0.05, gt=0.0, description="the same for the heading [rad]")
 
 
 @dataclass
 class IcpResult:
-    poses: np.ndarray  # (S, 3) vehicle poses per scan
-    keyframes: np.ndarray  # (K,) scan indices
-    loops: list[tuple[int, int]] = field(default_factory=list)  # keyframe index pairs
+    """Ground truth of one log: vehicle poses per scan and what the registration saw (:mod:`calib.mapping`)."""
+
+    poses: np.ndarray  # (S, 3) vehicle poses per scan, world frame
+    keyframes: np.ndarray  # (K,) scan indices of the keyframes (pose-graph nodes)
+    loops: list[tuple[int, int]] = field(default_factory=list)  # accepted loop closures, keyframe index pairs (older, newer)
     odometry: np.ndarray | None = None  # (S, 3) dead-reckoning poses
+    details: object | None = None  # calib.mapping.Registration: fitness, loop decisions, residuals (None for a bare result)
 
 
 def odometry_poses(log: SensorLog) -> np.ndarray:
@@ -124,23 +118,56 @@ def _to_world(pose: np.ndarray, p: np.ndarray, n: np.ndarray | None = None):
     return w if n is None else (w, n @ rot.T)
 
 
-def align(src: np.ndarray, tree: cKDTree, mp: np.ndarray, mn: np.ndarray, init: np.ndarray, cfg: IcpConfig):
-    """Point-to-line ICP of sensor-frame points ``src`` to a world map.
+@dataclass(frozen=True)
+class Fit:
+    """How well a scan sits on a map after ICP.
 
-    returns (pose, overlap, agreement, H): overlap is the share of points with a map
-    point within ``max_corr``, agreement the share of those within 3 x ``cauchy``.
+    overlap: share of the scan's points with a map point within ``max_corr``;
+    agreement: share of those within 3 x ``cauchy``; rms [m]: point-to-line residual of the agreeing points;
+    information: (3, 3) Gauss-Newton information of (x, y, theta), sum of w J^T J / cauchy^2 (no prior).
+    """
 
-    Residual r_i = n_q . (R p_i + t - q); Gauss-Newton on (x, y, theta) with Cauchy weights.
+    overlap: float
+    agreement: float
+    rms: float
+    information: np.ndarray
+
+    @property
+    def fitness(self) -> float:
+        """overlap x agreement, 0..1: the share of the scan that lies on the map."""
+        return self.overlap * self.agreement
+
+
+_NO_FIT = Fit(0.0, 0.0, float("inf"), np.zeros((3, 3)))
+
+
+def align(
+    src: np.ndarray,
+    tree: cKDTree,
+    mp: np.ndarray,
+    mn: np.ndarray,
+    init: np.ndarray,
+    cfg: IcpConfig,
+    prior: bool = True,
+    prior_at: np.ndarray | None = None,
+) -> tuple[np.ndarray, Fit]:
+    """Point-to-line ICP of vehicle-frame points ``src`` (N, 2) to a world map (points ``mp``, normals ``mn``, (M, 2)).
+
+    Residual r_i = n_q . (R p_i + t - q), nearest map point q; Gauss-Newton on (x, y, theta) with Cauchy
+    weights w_i = 1 / (1 + (r_i / c)^2), started at ``init``. With ``prior`` the pose ``prior_at`` (default
+    ``init``) is a Gaussian prior (``prior_xy``, ``prior_theta``): it decides the directions the scan leaves
+    free (a corridor's axis), where plain Gauss-Newton would wander. Returns (pose (3,), :class:`Fit`).
     """
     pose = init.astype(np.float64).copy()
-    h = np.zeros((3, 3))
+    centre = init if prior_at is None else np.asarray(prior_at, dtype=np.float64)
+    lam = np.diag([cfg.prior_xy**-2, cfg.prior_xy**-2, cfg.prior_theta**-2]) if prior else np.zeros((3, 3))
     corr = cfg.max_corr
     for it in range(cfg.iterations):
         w = _to_world(pose, src)
         d, idx = tree.query(w, distance_upper_bound=corr)
         ok = np.isfinite(d)
         if ok.sum() < 6:
-            return pose, 0.0, 0.0, h
+            return pose, _NO_FIT
         q, n, pw, ps = mp[idx[ok]], mn[idx[ok]], w[ok], src[ok]
         # map points without a normal (isolated far returns) act point-to-point: the
         # residual's own direction serves as the normal
@@ -150,159 +177,55 @@ def align(src: np.ndarray, tree: cKDTree, mp: np.ndarray, mn: np.ndarray, init: 
             n = n.copy()
             n[free] = diff[free] / np.maximum(np.hypot(diff[free, 0], diff[free, 1]), 1e-9)[:, None]
         r = np.einsum("ij,ij->i", diff, n)
-        wt = 1.0 / (1.0 + (r / cfg.cauchy) ** 2)
+        wt = 1.0 / (1.0 + (r / cfg.cauchy) ** 2) / cfg.cauchy**2
         c, s = np.cos(pose[2]), np.sin(pose[2])
         dth = np.column_stack([-s * ps[:, 0] - c * ps[:, 1], c * ps[:, 0] - s * ps[:, 1]])
         j = np.column_stack([n[:, 0], n[:, 1], np.einsum("ij,ij->i", n, dth)])
         h = (j * wt[:, None]).T @ j
-        g = (j * wt[:, None]).T @ r
+        off = pose - centre
+        off[2] = np.mod(off[2] + np.pi, 2 * np.pi) - np.pi
+        g = (j * wt[:, None]).T @ r + lam @ off
         try:
-            step = -np.linalg.solve(h + 1e-9 * np.eye(3), g)
+            step = -np.linalg.solve(h + lam + 1e-9 * np.eye(3), g)
         except np.linalg.LinAlgError:
-            return pose, 0.0, 0.0, h
+            return pose, _NO_FIT
         pose += step
         corr = max(cfg.min_corr, corr * 0.7)
-        if np.abs(step[:2]).max() < 1e-5 and abs(step[2]) < 1e-6 and it > 2:
+        if np.abs(step[:2]).max() < 1e-4 and abs(step[2]) < 1e-5 and corr <= cfg.min_corr:
             break
-    w = _to_world(pose, src)
-    d, _ = tree.query(w, distance_upper_bound=cfg.max_corr)
-    near = np.isfinite(d)
-    overlap = float(near.mean())
-    agreement = float(np.mean(d[near] < 3 * cfg.cauchy)) if near.any() else 0.0
     pose[2] = np.mod(pose[2] + np.pi, 2 * np.pi) - np.pi
-    return pose, overlap, agreement, h
+    return pose, fit_of(src, pose, tree, mp, mn, cfg)
 
 
-class _Map:
-    """World-frame points with normals of a set of keyframes."""
-
-    def __init__(self, pts: list[np.ndarray], nrm: list[np.ndarray]):
-        self.p = np.vstack(pts) if pts else np.zeros((0, 2))
-        self.n = np.vstack(nrm) if nrm else np.zeros((0, 2))
-        self.tree = cKDTree(self.p) if self.p.shape[0] else None
+def fit_of(src: np.ndarray, pose: np.ndarray, tree: cKDTree, mp: np.ndarray, mn: np.ndarray, cfg: IcpConfig) -> Fit:
+    """:class:`Fit` of vehicle-frame points ``src`` placed at ``pose`` on the map (``max_corr`` gate)."""
+    w = _to_world(pose, src)
+    d, idx = tree.query(w, distance_upper_bound=cfg.max_corr)
+    near = np.isfinite(d)
+    if near.sum() < 6:
+        return _NO_FIT
+    n = mn[idx[near]]
+    diff = w[near] - mp[idx[near]]
+    free = ~np.isfinite(n[:, 0])
+    n = np.where(free[:, None], diff / np.maximum(np.hypot(diff[:, 0], diff[:, 1]), 1e-9)[:, None], n)
+    r = np.abs(np.einsum("ij,ij->i", diff, n))
+    good = r < 3 * cfg.cauchy
+    ps = src[near]
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    dth = np.column_stack([-s * ps[:, 0] - c * ps[:, 1], c * ps[:, 0] - s * ps[:, 1]])
+    j = np.column_stack([n[:, 0], n[:, 1], np.einsum("ij,ij->i", n, dth)])[good]
+    info = j.T @ j / cfg.cauchy**2
+    return Fit(float(near.mean()), float(good.mean()), float(np.sqrt(np.mean(r[good] ** 2))) if good.any() else float("inf"), info)
 
 
 def icp_ground_truth(
-    log: SensorLog, cfg: IcpConfig | None = None, origin: np.ndarray | None = None, progress=None
+    log: SensorLog, cfg=None, origin: np.ndarray | None = None, progress=None
 ) -> IcpResult:
-    """Vehicle poses (S, 3) for every scan of ``log`` from sequential ICP, loop closures and a pose graph."""
-    cfg = cfg or IcpConfig()
-    if log.scans is None or log.sensor is None:
-        raise DataError(f"log {log.name!r} has no laser scans to align")
-    mount = np.array([log.sensor.mount.x, log.sensor.mount.y, log.sensor.mount.theta])
-    odo = odometry_poses(log)
-    n = len(log.scans)
-    pts, nrm = [], []
-    ang = log.scan_angles()  # (B,), or (S, B) for a laser of several beam layouts
-    for k in range(n):  # per-scan geometry, cheap; kept for the loop search
-        p, q = scan_points(log.scans.ranges[k], ang[k] if ang.ndim == 2 else ang, cfg.normal_gap, cfg.max_range)
-        # points and normals in the vehicle frame
-        pv = _to_world(mount, p, q)
-        pts.append(pv[0])
-        nrm.append(pv[1])
-    est = np.zeros((n, 3))
-    est[0] = odo[0]
-    keys: list[int] = [0]
-    edges: list[tuple[int, int, np.ndarray, np.ndarray]] = []  # (keyframe a, keyframe b, measured rel, information)
-    world_p = {0: _to_world(est[0], pts[0], nrm[0])}
-    loc = _Map([world_p[0][0]], [world_p[0][1]])
-    it = range(1, n) if progress is None else progress(range(1, n), n - 1, "aligning scans")
-    for k in it:
-        guess = compose(est[k - 1], relative(odo[k - 1], odo[k]))
-        if loc.tree is not None and pts[k].shape[0] >= 6:
-            pose, overlap, agree, h = align(pts[k], loc.tree, loc.p, loc.n, guess, cfg)
-            est[k] = pose if overlap * agree > 0.3 else guess
-        else:
-            est[k] = guess
-        last = keys[-1]
-        moved = relative(est[last], est[k])
-        if np.hypot(moved[0], moved[1]) >= cfg.keyframe_dist or abs(moved[2]) >= 0.1 or k == n - 1:
-            info = _information(h if loc.tree is not None else None, cfg.cauchy)
-            edges.append((len(keys) - 1, len(keys), moved, info))
-            keys.append(k)
-            world_p[k] = _to_world(est[k], pts[k], nrm[k])
-            recent = keys[-cfg.window :]
-            loc = _Map([world_p[j][0] for j in recent], [world_p[j][1] for j in recent])
-    kf = np.array(keys)
-    kpose = est[kf].copy()
-    loops: list[tuple[int, int]] = []
-    for _ in range(cfg.rounds):
-        new = _find_loops(kf, kpose, pts, nrm, cfg, {(a, b) for a, b in loops})
-        for a, b, rel_ab, info in new:
-            edges.append((a, b, rel_ab, info))
-            loops.append((a, b))
-        if not new:
-            break
-        kpose = _optimise(kpose, edges)
-    # scans between keyframes keep their pose relative to the previous keyframe
-    owner = np.searchsorted(kf, np.arange(n), side="right") - 1
-    poses = compose(kpose[owner], relative(est[kf][owner], est))
-    if origin is not None:
-        poses = compose(np.asarray(origin, dtype=np.float64), poses)
-    return IcpResult(poses, kf, loops, odo)
+    """Vehicle poses (S, 3) for every scan of ``log``: scan-to-map registration, verified loop closures and a
+    robust pose graph (:func:`calib.mapping.build_ground_truth`; ``cfg`` a :class:`calib.mapping.GroundTruthConfig`)."""
+    from calib.mapping import build_ground_truth
 
-
-def _information(h: np.ndarray | None, sigma: float) -> np.ndarray:
-    """Information of a registration, H / sigma^2 (Gauss-Newton, residual scale sigma).
-
-    Optimistic in absolute terms (map errors are correlated), but the same for
-    every edge, so the pose graph weighs sequential and loop edges consistently.
-    """
-    if h is None or not np.isfinite(h).all() or np.linalg.eigvalsh(h).min() <= 0:
-        return np.diag([1.0, 1.0, 10.0]) / sigma**2
-    return h / sigma**2
-
-
-def _find_loops(kf, kpose, pts, nrm, cfg: IcpConfig, known: set):
-    found = []
-    tree = cKDTree(kpose[:, :2])
-    for a in range(0, kf.size, cfg.loop_every):
-        cands = [b for b in tree.query_ball_point(kpose[a, :2], cfg.loop_radius) if a - b >= cfg.loop_gap]
-        if not cands:
-            continue
-        b = min(cands, key=lambda j: np.hypot(*(kpose[j, :2] - kpose[a, :2])))
-        if (b, a) in known:
-            continue
-        lo, hi = max(0, b - cfg.window // 2), min(kf.size, b + cfg.window // 2 + 1)
-        sub = [_to_world(kpose[j], pts[kf[j]], nrm[kf[j]]) for j in range(lo, hi)]
-        m = _Map([s[0] for s in sub], [s[1] for s in sub])
-        if m.tree is None or pts[kf[a]].shape[0] < 6:
-            continue
-        wide = cfg.model_copy(update={"max_corr": cfg.loop_max_corr})
-        best = None
-        for dth in cfg.loop_headings:  # drift may have turned the scan: try a few headings, keep the best fit
-            cand = align(pts[kf[a]], m.tree, m.p, m.n, kpose[a] + np.array([0.0, 0.0, dth]), wide)
-            if best is None or cand[1] * cand[2] > best[1] * best[2]:
-                best = cand
-        pose, overlap, agree, h = best
-        if overlap >= cfg.loop_min_overlap and agree >= cfg.loop_min_agreement:
-            found.append((b, a, relative(kpose[b], pose), _information(h, cfg.cauchy)))
-    return found
-
-
-def _optimise(x0: np.ndarray, edges) -> np.ndarray:
-    """Least-squares pose graph over keyframes; the first keyframe is held fixed."""
-    k = x0.shape[0]
-    a = np.array([e[0] for e in edges])
-    b = np.array([e[1] for e in edges])
-    z = np.array([e[2] for e in edges])
-    sq = np.array([np.linalg.cholesky(e[3] + 1e-9 * np.eye(3)).T for e in edges])  # L^T with L L^T = info
-
-    def resid(flat):
-        x = np.vstack([x0[:1], flat.reshape(-1, 3)])
-        e = relative(x[a], x[b]) - z
-        e[:, 2] = np.mod(e[:, 2] + np.pi, 2 * np.pi) - np.pi
-        return np.einsum("kij,kj->ki", sq, e).ravel()
-
-    sparsity = lil_matrix((3 * len(edges), 3 * (k - 1)), dtype=np.int8)
-    for r, (i, j) in enumerate(zip(a, b, strict=True)):  # the Jacobian's pattern: one 3x3 block per end
-        for node in (i, j):
-            if node > 0:
-                sparsity[3 * r : 3 * r + 3, 3 * (node - 1) : 3 * node] = 1
-    sol = least_squares(resid, x0[1:].ravel(), jac_sparsity=sparsity.tocsr(), method="trf", x_scale="jac", max_nfev=50)
-    x = np.vstack([x0[:1], sol.x.reshape(-1, 3)])
-    x[:, 2] = np.mod(x[:, 2] + np.pi, 2 * np.pi) - np.pi
-    return x
+    return build_ground_truth(log, cfg, origin=origin, progress=progress)
 
 
 def read_relations(path) -> np.ndarray:

@@ -18,8 +18,7 @@ import pandas as pd
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
-from calib.detect import detections_table
-from detectors.circle import detect_circles
+from calib.detect import DetectConfig, detections_table, run_detector
 from detectors.geometry import compose
 from detectors.sensor_log import SensorLog
 from detectors.raytrace import count_unoccluded
@@ -136,7 +135,7 @@ def label_log(
     if log.sensor.range_sigma is None:
         raise DataError(f"log {log.name!r}: the sensor model has no range_sigma; pass --range-sigma")
     ang = log.scan_angles()  # (B,), or (S, B) for a laser of several beam layouts
-    det = detect_circles(log.scans.ranges, ang, params, range_sigma=log.sensor.range_sigma)
+    det = run_detector(log, DetectConfig(detector=params), label="detecting circles")
     sp = sensor_poses[det.scan]
     world = compose(sp, np.column_stack([det.x, det.y, np.zeros(len(det))]))
     tol = k_sigma * log.sensor.range_sigma
@@ -153,9 +152,7 @@ def label_log(
         landmark_index=lm_of,
         distance=dist,
     )
-    n_p, n_exp = count_unoccluded(
-        sensor_poses, ang, log.scans.ranges, lm_xy, lm_r, range_sigma=log.sensor.range_sigma, k_sigma=k_sigma, range_max=log.sensor.range_max
-    )
+    n_p, n_exp = _ray_trace(log, sensor_poses, ang, lm_xy, lm_r, k_sigma)
     rel = lm_xy[None, :, :] - sensor_poses[:, None, :2]
     rng = np.hypot(rel[..., 0], rel[..., 1])
     reach = np.inf if log.sensor.range_max is None else log.sensor.range_max
@@ -177,3 +174,26 @@ def label_log(
         }
     )
     return Labelled(dets, pairs)
+
+
+def _ray_trace(log: SensorLog, sensor_poses: np.ndarray, ang: np.ndarray, lm_xy: np.ndarray, lm_r: np.ndarray, k_sigma: float):
+    """n_p and expected hits (S, L) of every (scan, landmark) pair (:func:`detectors.raytrace.count_unoccluded`), in
+    runs of scans so that a terminal shows a bar (each scan is traced on its own: the runs change nothing)."""
+    from calib.progress import progress
+
+    n = sensor_poses.shape[0]
+    runs = [slice(a, min(a + _TRACE_RUN, n)) for a in range(0, n, _TRACE_RUN)]
+    parts = [
+        count_unoccluded(
+            sensor_poses[r], ang[r] if ang.ndim == 2 else ang, log.scans.ranges[r], lm_xy, lm_r,
+            range_sigma=log.sensor.range_sigma, k_sigma=k_sigma, range_max=log.sensor.range_max,
+        )  # fmt: skip
+        for r in progress(runs, len(runs), "ray tracing")
+    ]
+    if not parts:
+        return count_unoccluded(sensor_poses, ang, log.scans.ranges, lm_xy, lm_r, range_sigma=log.sensor.range_sigma, k_sigma=k_sigma)
+    return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+
+
+#: scans traced per step of the ray tracer's progress bar
+_TRACE_RUN = 200

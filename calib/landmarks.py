@@ -21,7 +21,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from detectors.circle import detect_circles
+from calib.detect import DetectConfig, run_detector
 from detectors.geometry import compose
 from detectors.sensor_log import SensorLog
 from profiles.errors import DataError
@@ -34,7 +34,7 @@ def landmarks_from_cloud(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(ids (L,), xy (L, 2), radius (L,)) of the circles that recur across the scans."""
     cfg = cfg or CloudLandmarkConfig()
-    det = detect_circles(log.scans.ranges, log.scan_angles(), params, range_sigma=log.sensor.range_sigma)
+    det = run_detector(log, DetectConfig(detector=params), label="detecting circles for the cloud's landmarks")
     keep = (det.convexity > 0) & (det.radius >= cfg.min_radius) & (det.radius <= cfg.max_radius) & (det.n_points >= cfg.min_points)
     det = det.select(keep)
     if len(det) == 0:

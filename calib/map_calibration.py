@@ -37,6 +37,7 @@ from calib import __version__
 from calib.calibrate import created_now
 from calib.detlevel import fit_noise
 from calib.fits import ClutterFit, clutter_params, fit_clutter, fit_pd_table
+from calib.progress import progress
 from detectors.geometry import compose
 from detectors.sensor_log import SensorLog
 from profiles.errors import DataError
@@ -82,7 +83,7 @@ def measure(log: SensorLog, trajectory: np.ndarray, map_xy: np.ndarray, sensor: 
     off = d.frame_slices()
     rows = {"frame": [], "feature": [], "range": [], "bearing": []}
     det_feat = np.full(len(d), -1, dtype=np.int64)
-    for f in range(n_frames):
+    for f in progress(range(n_frames), n_frames, "matching detections to the map"):
         rel = map_xy - sp[f, :2]
         rr = np.hypot(rel[:, 0], rel[:, 1])
         bb = _wrap(np.arctan2(rel[:, 1], rel[:, 0]) - sp[f, 2])
@@ -116,7 +117,8 @@ def measure(log: SensorLog, trajectory: np.ndarray, map_xy: np.ndarray, sensor: 
     fr = pairs["frame"].to_numpy()
     starts = np.searchsorted(fr, np.arange(n_frames + 1))
     rng_all, brg_all, feat_all = pairs["range"].to_numpy(), pairs["bearing"].to_numpy(), pairs["feature"].to_numpy()
-    for f in range(n_frames if (diam is not None or cfg.radius is not None) else 0):  # point landmarks occlude nothing
+    traced = n_frames if (diam is not None or cfg.radius is not None) else 0  # point landmarks occlude nothing
+    for f in progress(range(traced), traced, "occlusion by the map's trees"):
         a, b = starts[f], starts[f + 1]
         if b - a < 2:
             continue

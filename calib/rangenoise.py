@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from calib.progress import progress
 from detectors.sensor_log import SensorLog
 from profiles.errors import DataError
 from profiles.parameters import RangeNoiseConfig
@@ -121,7 +122,8 @@ def range_residuals(log: SensorLog, sensor_poses: np.ndarray, cfg: RangeNoiseCon
     q_dir = np.column_stack([np.cos(a[qmask]), np.sin(a[qmask])])
     tree = cKDTree(cloud)
     ranges, resid = [], []
-    for lo_ in range(0, qp.shape[0], _CHUNK):  # chunks of returns: memory stays flat on long logs
+    chunks = range(0, qp.shape[0], _CHUNK)  # chunks of returns: memory stays flat on long logs
+    for lo_ in progress(chunks, len(chunks), "measuring range noise"):
         sl = slice(lo_, lo_ + _CHUNK)
         r_, e_ = _residuals(tree, cloud, scan_of, qp[sl], q_scan[sl], q_dir[sl], q_range[sl], cfg)
         ranges.append(r_)

@@ -448,8 +448,11 @@ def _probe(scheduler: str, timeout: float = 5.0) -> None:
 
     try:
         scheme, location = parse_address(scheduler)
-        if scheme != "tcp":
-            return  # tls, ucx, inproc: the Client checks them
+        if scheme != "tcp":  # http:// (a dashboard's address), tls://, ucx://: a Client would wait out its timeout
+            raise UsageError(
+                f"--scheduler {scheduler}: detcal reaches a Dask scheduler over tcp:// (e.g. tcp://10.0.0.5:8786), not {scheme}://"
+                + (" (an http:// address is the dashboard's; the scheduler's is printed as tcp://...)" if scheme in ("http", "https") else "")
+            )
         host, port = parse_host_port(location)
     except (ValueError, TypeError) as exc:
         raise UsageError(f"--scheduler {scheduler}: not a scheduler address ({' '.join(str(exc).split())}; e.g. tcp://10.0.0.5:8786)") from None

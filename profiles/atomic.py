@@ -27,6 +27,7 @@ completely before the first is moved into place (:func:`atomic_outputs`).
 from __future__ import annotations
 
 import contextlib
+import errno
 import ctypes
 import ctypes.util
 import os
@@ -190,6 +191,28 @@ class _Staged:
         _remove(self.holder)
 
 
+#: Free space [bytes] under which a file system counts as the full one when a write fails for want of space.
+_FULL_BYTES = 1 << 20
+
+
+def _failed_output(staged: list[_Staged], exc: OSError) -> Path:
+    """The output a failed write was for: the one whose temporary entry the error names; for a full disk or quota
+    without a file name (a write to an open file), the one whose file system has no room left; else the first."""
+    for s in staged:
+        for name in (exc.filename, exc.filename2):
+            if name is not None and (Path(name) == s.holder or s.holder in Path(name).parents):
+                return s.out.path
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
+        for s in staged:
+            try:
+                st = os.statvfs(s.holder.parent)
+            except OSError:
+                continue
+            if st.f_bavail * st.f_frsize < _FULL_BYTES:
+                return s.out.path
+    return staged[0].out.path
+
+
 @contextlib.contextmanager
 def atomic_outputs(outputs: list[Output]) -> Iterator[list[Path]]:
     """Yield one temporary path per output; move them all into place only if the block succeeds.
@@ -209,7 +232,7 @@ def atomic_outputs(outputs: list[Output]) -> Iterator[list[Path]]:
         try:
             yield [s.tmp for s in staged]
         except OSError as exc:
-            raise UsageError(f"{outputs[0].path}: cannot write ({exc.strerror or exc})") from None
+            raise UsageError(f"{_failed_output(staged, exc)}: cannot write ({exc.strerror or exc})") from None
         for s in staged:
             s.finish()
         for o in outputs:  # the targets may have appeared meanwhile

@@ -28,6 +28,8 @@ class LaserCalibrationParameters(CalibrateConfig):
     pose_source: list[Literal["reference", "icp"]] = Field(min_length=1)
     landmarks: Literal["log", "cloud", "csv"]
     range_sigma_source: Literal["log", "option", "estimated"]
+    # recorded (true) only when --accept-poor-ground-truth let a poor ground truth or thin data through
+    accept_poor_ground_truth: bool = False
 
 
 class DetectionCalibrationParameters(DetectionCalibConfig):

@@ -17,6 +17,7 @@ atomic writes every package uses.
 from __future__ import annotations
 
 import importlib
+import sys
 from collections.abc import Callable, Iterator
 from typing import Generic, TypeVar
 
@@ -38,6 +39,7 @@ class Registry(Generic[T]):
         self._builtins = builtins
         self._loaded = not builtins
         self._items: dict[str, T] = {}
+        self._origin: dict[str, str | None] = {}  # name -> the module that added it
         self._listeners: list[Callable[[], None]] = []
 
     def _load(self) -> None:
@@ -47,7 +49,7 @@ class Registry(Generic[T]):
                 importlib.import_module(module)
             # the built-ins in the order of their modules (one may import another first), then the others as added
             rank = {m: i for i, m in enumerate(self._builtins)}
-            order = sorted(self._items, key=lambda n: rank.get(getattr(self._items[n], "__module__", None), len(rank)))
+            order = sorted(self._items, key=lambda n: rank.get(self._origin.get(n), len(rank)))
             self._items = {n: self._items[n] for n in order}
 
     def add(self, name: str, obj: T, *, replace: bool = False) -> T:
@@ -55,6 +57,10 @@ class Registry(Generic[T]):
         if name in self._items and not replace and self._items[name] is not obj:
             raise ValueError(f"{self.what} {name!r} is registered already")
         self._items[name] = obj
+        frame = sys._getframe(1)  # the module that adds it (past the decorator form), whatever imported it first
+        while frame is not None and frame.f_globals.get("__name__") == __name__:
+            frame = frame.f_back
+        self._origin[name] = frame.f_globals.get("__name__") if frame is not None else None
         for listener in self._listeners:
             listener()
         return obj
@@ -71,6 +77,7 @@ class Registry(Generic[T]):
     def remove(self, name: str) -> None:
         """Take ``name`` out of the table (an implementation a test registered)."""
         self._items.pop(name, None)
+        self._origin.pop(name, None)
         for listener in self._listeners:
             listener()
 

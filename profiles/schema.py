@@ -57,13 +57,39 @@ class LidarGeometry(Strict):
     height: float = Field(default=0.0, description="sensor height above the vehicle frame origin [m]")
 
 
+#: Most beams a 2D laser scan may have: real scanners give a few thousand at most (a SICK LMS 361, a Hokuyo UTM 1081,
+#: 0.1-degree scanners 3600); a larger count is a damaged or mistyped file, and would be allocated per scan.
+MAX_BEAMS = 100_000
+
+#: Slack on a beam fan's full circle [rad] (the rounding of angle_increment over the beams).
+_TURN_SLACK = 1e-6
+
+
+def check_fan(n_beams: int | None, angle_min: float | None, angle_increment: float | None) -> None:
+    """Refuse a beam fan no laser has: a start beyond a full turn, no step between beams, beams over more than a turn."""
+    if angle_min is not None and abs(angle_min) > 2 * np.pi:
+        raise ValueError(f"angle_min ({angle_min:g} rad) is beyond a full turn (|angle_min| <= 2 pi)")
+    if angle_increment is None or n_beams is None or n_beams < 2:
+        return
+    if angle_increment == 0.0:
+        raise ValueError(f"angle_increment is 0: the {n_beams} beams would all point the same way")
+    span = abs(angle_increment) * (n_beams - 1)
+    if span > 2 * np.pi + _TURN_SLACK:
+        raise ValueError(f"{n_beams} beams every {angle_increment:g} rad span {span:.4g} rad, more than a full turn (2 pi)")
+
+
 class BeamGeometry(Strict):
     """One beam layout of a 2D laser: beam ``i`` points at ``angle_min + i * angle_increment`` (sensor frame, radians)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-    n_beams: int = Field(ge=1)
+    n_beams: int = Field(ge=1, le=MAX_BEAMS)
     angle_min: float = Field(allow_inf_nan=False)
     angle_increment: float = Field(allow_inf_nan=False)
+
+    @model_validator(mode="after")
+    def _fan(self) -> BeamGeometry:
+        check_fan(self.n_beams, self.angle_min, self.angle_increment)
+        return self
 
     def angles(self) -> np.ndarray:
         """(n_beams,) float64 radians, sensor frame."""
@@ -92,7 +118,7 @@ class SensorModel(Strict):
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     kind: Literal["laser2d", "lidar3d", "camera", "detector"] = "laser2d"
-    n_beams: int | None = Field(default=None, ge=1)
+    n_beams: int | None = Field(default=None, ge=1, le=MAX_BEAMS)
     angle_min: float | None = Field(default=None, allow_inf_nan=False)
     angle_increment: float | None = Field(default=None, allow_inf_nan=False)
     range_min: float = Field(default=0.0, ge=0.0, allow_inf_nan=False)
@@ -107,6 +133,9 @@ class SensorModel(Strict):
 
     @model_validator(mode="after")
     def _geometries(self) -> SensorModel:
+        if self.range_max is not None and self.range_min >= self.range_max:
+            raise ValueError(f"range_min ({self.range_min:g} m) must be below range_max ({self.range_max:g} m)")
+        check_fan(self.n_beams, self.angle_min, self.angle_increment)
         if self.geometries is None:
             return self
         if len(self.geometries) < 2:

@@ -23,6 +23,7 @@ from pathlib import Path
 import yaml
 from pydantic import ValidationError
 
+from profiles import strict_yaml
 from profiles.atomic import atomic_output
 from profiles.errors import DataError, DetcalError, UsageError
 from profiles.profile import DETECTOR_KINDS, LATER_OPTIONAL, SCHEMA_VERSION, SUPPORTED_SCHEMAS, V2_FIELDS, DetectorProfile, semver_key
@@ -46,7 +47,9 @@ def _field_path(loc: tuple) -> str:
 def _check_parameters(prof: DetectorProfile, where: str) -> None:
     """The recorded parameters must fit one of the models of the way this detcal makes such profiles
     (:mod:`profiles.provenance`); a profile written by hand (none recorded) or by another detcal version is kept as
-    recorded."""
+    recorded. So is one whose record only lacks keys this detcal records (written by an earlier build of the same
+    version, before those keys were recorded: its statistics are what they were, its record says less): a misspelt
+    key or a wrong value is refused, a missing one is not (a profile once written keeps loading)."""
     models = parameter_models(prof.detector.kind, prof.provenance.detcal_version)
     if not models or not prof.provenance.parameters:
         return
@@ -56,9 +59,11 @@ def _check_parameters(prof: DetectorProfile, where: str) -> None:
             model.model_validate(prof.provenance.parameters)
             return
         except ValidationError as exc:
+            if all(e["type"] == "missing" for e in exc.errors()):
+                return
             if closest is None or exc.error_count() < closest.error_count():
                 closest = exc
-    e = closest.errors()[0]
+    e = next(x for x in closest.errors() if x["type"] != "missing")  # what is wrong, rather than what is not recorded
     msg = "unknown key" if e["type"] == "extra_forbidden" else e["msg"]
     raise DataError(f"{where}: provenance.parameters.{_field_path(e['loc'])}: {msg}") from None
 
@@ -87,6 +92,8 @@ def parse_profile(data: object, where: str) -> DetectorProfile:
         errs = exc.errors()
         e = errs[0]
         msg = "unknown key" if e["type"] == "extra_forbidden" else e["msg"]
+        if e["type"] == "value_error" and "error" in e.get("ctx", {}):
+            msg = str(e["ctx"]["error"])  # a model's own check: its text names the fields, without pydantic's "Value error, "
         more = f" (and {len(errs) - 1} more)" if len(errs) > 1 else ""
         raise DataError(f"{where}: {_field_path(e['loc'])}: {msg}{more}") from None
     _check_parameters(prof, where)
@@ -109,13 +116,29 @@ def read_document(path: Path) -> object:
     except OSError as exc:
         raise DataError(f"{path}: cannot read ({exc.strerror or exc})") from None
     try:
-        return json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
+        return json.loads(text, object_pairs_hook=_unique_keys) if path.suffix == ".json" else strict_yaml.load(text)
     except (yaml.YAMLError, json.JSONDecodeError) as exc:
         mark = getattr(exc, "problem_mark", None)
         line = f":{mark.line + 1}" if mark is not None else (f":{exc.lineno}" if isinstance(exc, json.JSONDecodeError) else "")
         raise DataError(f"{path}{line}: not valid YAML/JSON ({getattr(exc, 'problem', None) or getattr(exc, 'msg', exc)})") from None
+    except _DuplicateKey as exc:
+        raise DataError(f"{path}: not valid JSON ({exc})") from None
     except (RecursionError, ValueError) as exc:
         raise DataError(f"{path}: not valid YAML/JSON ({type(exc).__name__})") from None
+
+
+class _DuplicateKey(ValueError):
+    pass
+
+
+def _unique_keys(pairs: list[tuple[str, object]]) -> dict:
+    """A JSON object refusing a key given twice (json keeps the last one without a word)."""
+    out: dict = {}
+    for k, v in pairs:
+        if k in out:
+            raise _DuplicateKey(f"key {k!r} is given twice in one object")
+        out[k] = v
+    return out
 
 
 def looks_like_profile(path: Path) -> bool:

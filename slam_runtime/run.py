@@ -125,10 +125,14 @@ def build(log: SensorLog, profile, cfg: SlamConfig) -> Built:
 
 
 def start_pose(log: SensorLog, stamp: int) -> np.ndarray:
-    """The true pose at ``stamp`` when the log has ground truth there, else the origin (GPS gives no heading)."""
+    """The true pose at ``stamp`` when the log has ground truth there; the first true pose when the first frame comes
+    before the ground truth starts (a UTIAS log whose camera starts before the motion capture: the origin would be a
+    pose the robot never had, and every error would be measured from it); else the origin (GPS gives no heading)."""
     ref = log.reference.get("ground_truth")
     if ref is not None and ref.stamp[0] <= stamp <= ref.stamp[-1]:
         return interpolate_poses(ref.stamp, ref.poses, np.array([stamp]))[0]
+    if ref is not None and stamp < ref.stamp[0] and np.isfinite(ref.poses[0]).all():
+        return ref.poses[0].astype(np.float64).copy()
     return np.zeros(3)
 
 

@@ -1,6 +1,6 @@
 """CARMEN log reader (``FLASER``, ``RLASER``, ``ROBOTLASER1``, ``ODOM``, ``TRUEPOS``).
 
-Plain, ``.gz`` or ``.bz2``. Line formats (``../shared/data/README.md``)::
+Plain, ``.gz``, ``.bz2`` or ``.xz``. Line formats (``../shared/data/README.md``)::
 
     FLASER n r1..rn x y theta odom_x odom_y odom_theta ipc_timestamp hostname logger_timestamp
     ODOM x y theta tv rv accel ipc_timestamp hostname logger_timestamp
@@ -36,7 +36,7 @@ _SATURATION_SHARE = 5e-4
 
 def looks_like_carmen(path: Path) -> bool:
     name = path.name.lower()
-    return any(name.endswith(s) for s in (".clf", ".clf.gz", ".clf.bz2", ".log", ".log.gz", ".log.bz2", ".carmen"))
+    return any(name.endswith(s + z) for s in (".clf", ".log", ".carmen") for z in ("", ".gz", ".bz2", ".xz"))
 
 
 def read_carmen(
@@ -58,6 +58,10 @@ def read_carmen(
     ODOM lines stamped 0 (written so by some SLAM tools) have no time: each
     is placed by its order in the file, its time interpolated by line number
     between the timed lines around it; ``source["untimed"]`` counts them.
+    A stream whose stamps collapse to few distinct values (a "corrected" log
+    stamped at the time of its rewrite) is reported in
+    ``source["collapsed_stamps"]`` (distinct values, records): its span is no
+    duration (:func:`collapsed_stamps`).
     """
     path = Path(path)
     if laser not in ("front", "rear"):
@@ -161,7 +165,31 @@ def read_carmen(
     source = {"reader": "carmen", "file": path.name, "sha256": file_digest(path), "laser": laser, "reordered": reordered}
     if any(untimed.values()):
         source["untimed"] = {k: v for k, v in untimed.items() if v}
+    collapsed = {
+        k: v
+        for k, v in (("scan", collapsed_stamps(scans.stamp if scans is not None else None)), ("odometry", collapsed_stamps(odometry.stamp if odometry else None)))
+        if v
+    }
+    if collapsed:
+        source["collapsed_stamps"] = collapsed
     return SensorLog(name=path.name.split(".")[0], sensor=sensor, scans=scans, odometry=odometry, reference=reference, source=source)
+
+
+#: A stream whose records share fewer distinct stamps than this share of their number has no usable time.
+COLLAPSED_SHARE = 0.1
+
+
+def collapsed_stamps(stamps: np.ndarray | None) -> dict | None:
+    """{distinct, records} when a stream's stamps collapse to few distinct values, else None.
+
+    Logs rewritten by SLAM tools ("corrected" logs) may stamp every line with the time of the rewrite or
+    with a handful of values: the span between the first and last value is then no duration, and nothing
+    that pairs records by time (benchmark relations, odometry interpolation) can hold.
+    """
+    if stamps is None or stamps.size < 10:
+        return None
+    distinct = int(np.unique(stamps).size)
+    return {"distinct": distinct, "records": int(stamps.size)} if distinct < COLLAPSED_SHARE * stamps.size else None
 
 
 def _sick_geometry(n: int) -> tuple[int, float, float]:

@@ -8,6 +8,7 @@ import hashlib
 import io
 import lzma
 import math
+import zlib
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
@@ -48,7 +49,7 @@ def iter_lines(path: Path) -> Iterator[tuple[int, str]]:
         with open_text(path) as fh:
             for lineno, line in enumerate(fh, start=1):  # noqa: B007
                 yield lineno, line.strip()
-    except (EOFError, OSError, ValueError, lzma.LZMAError) as exc:
+    except (EOFError, OSError, ValueError, lzma.LZMAError, zlib.error) as exc:
         raise DataError(f"{path}: compressed stream is truncated or corrupt after line {lineno} ({exc})") from None
 
 
@@ -114,7 +115,7 @@ def time_order(stamps: np.ndarray, lines: np.ndarray, path: Path, what: str, max
         back = int(np.maximum.accumulate(stamps)[first] - stamps[first])
         raise DataError(
             f"{path}:{int(lines[first])}: {what} time goes backwards by {back / 1e9:.6f} s "
-            f"(more than the tolerated {max_backstep:g} s)"
+            f"(more than the tolerated {max_backstep:g} s); --max-backstep SECONDS tolerates more, as logs rewritten by SLAM tools may need"
         )
     perm = np.argsort(stamps, kind="stable")
     return perm, int(np.count_nonzero(perm != np.arange(stamps.size)))
@@ -166,7 +167,7 @@ def read_table(path: Path, ncols: int, what: str) -> np.ndarray:
         return np.zeros((0, ncols))
     bad = np.flatnonzero(~np.isfinite(table).all(axis=1))
     if bad.size:
-        lineno = _data_line(path, int(bad[0]))
+        lineno = data_line(path, int(bad[0]))
         raise DataError(f"{path}:{lineno}: {what}: NaN or infinite value")
     return table
 
@@ -175,10 +176,11 @@ def require_rows(path: Path, table: np.ndarray, ok: np.ndarray, what: str, rule:
     """Refuse the first row of ``table`` (read by :func:`read_table`) where ``ok`` is False, naming its line."""
     bad = np.flatnonzero(~np.asarray(ok, dtype=bool))
     if bad.size:
-        raise DataError(f"{path}:{_data_line(path, int(bad[0]))}: {what}: {rule}")
+        raise DataError(f"{path}:{data_line(path, int(bad[0]))}: {what}: {rule}")
 
 
-def _data_line(path: Path, row: int) -> int:
+def data_line(path: Path, row: int) -> int:
+    """The 1-based line number of data row ``row`` (0-based, comments and blank lines skipped) of a table file."""
     k = -1
     for lineno, line in iter_lines(path):
         if line and not line.startswith("#"):
@@ -196,7 +198,7 @@ def table_time_order(stamps: np.ndarray, path: Path, what: str, max_backstep: fl
         row = _first_backstep(np.asarray(stamps, dtype=np.int64), max_backstep)
         back = int(np.maximum.accumulate(stamps)[row] - stamps[row])
         raise DataError(
-            f"{path}:{_data_line(path, row)}: {what} time goes backwards by {back / 1e9:.6f} s "
+            f"{path}:{data_line(path, row)}: {what} time goes backwards by {back / 1e9:.6f} s "
             f"(more than the tolerated {max_backstep:g} s)"
         ) from None
 
@@ -206,7 +208,7 @@ def table_stamps(seconds: np.ndarray, path: Path, what: str) -> np.ndarray:
     t = np.asarray(seconds, dtype=np.float64)
     bad = np.flatnonzero(~(np.abs(t) < MAX_SECONDS))
     if bad.size:
-        raise DataError(f"{path}:{_data_line(path, int(bad[0]))}: {what}: time {float(t[bad[0]])!r} s is out of range (at most {MAX_SECONDS:.3g} s)")
+        raise DataError(f"{path}:{data_line(path, int(bad[0]))}: {what}: time {float(t[bad[0]])!r} s is out of range (at most {MAX_SECONDS:.3g} s)")
     return seconds_to_stamp(t)
 
 

@@ -17,6 +17,10 @@ from profiles.errors import DataError, UsageError
 
 PERIOD_NS = 100_000_000
 
+#: Most points one frame may hold. A spinning lidar's frame holds far fewer (an HDL-64E at 10 Hz about 130 000, a
+#: 128-ring Ouster about 260 000); a larger file is not one lidar frame, and reading it would only fill the memory.
+MAX_POINTS = 4_000_000
+
 
 def looks_like_kitti(path: Path) -> bool:
     return path.suffix == ".bin" or (path.is_dir() and any(path.glob("*.bin")))
@@ -36,15 +40,30 @@ def read_kitti(path: str | Path) -> SensorLog:
             raise DataError(f"{f}: empty frame (no points)")
         if size % 16:
             raise DataError(f"{f}: size {size} bytes is not a multiple of 16 (4 float32 per point); truncated?")
-        pts = np.fromfile(f, dtype="<f4").reshape(-1, 4)
+        if size // 16 > MAX_POINTS:
+            raise DataError(
+                f"{f}: {size // 16} points in one frame ({size / 1e9:.3g} GB); a lidar frame holds far fewer "
+                f"(at most {MAX_POINTS} accepted; an HDL-64E frame about 130000): not one KITTI Velodyne frame"
+            )
+        try:
+            pts = np.fromfile(f, dtype="<f4").reshape(-1, 4)
+        except MemoryError:
+            read = sum(c.nbytes for c in clouds)
+            raise DataError(f"{path}: the frames need more than {(read + size) / 1e9:.3g} GB of memory, more than this machine can give; "
+                            "the log is too large for memory (not damaged): give fewer frames") from None
         bad = np.flatnonzero(~np.isfinite(pts).all(axis=1))
         if bad.size:
             raise DataError(f"{f}: point {int(bad[0])} has a NaN or infinite coordinate")
         clouds.append(pts)
     offsets = np.concatenate([[0], np.cumsum([c.shape[0] for c in clouds])]).astype(np.int64)
+    try:
+        points = np.concatenate(clouds)
+    except MemoryError:
+        raise DataError(f"{path}: {len(files)} frames of {int(offsets[-1])} points need {2 * offsets[-1] * 16 / 1e9:.3g} GB of memory, more "
+                        "than this machine can give; the log is too large for memory (not damaged): give fewer frames") from None
     return SensorLog(
         name=path.stem,
         sensor=SensorModel(kind="lidar3d", range_max=120.0),
-        clouds=PointClouds(np.arange(len(files), dtype=np.int64) * PERIOD_NS, offsets, np.concatenate(clouds)),
+        clouds=PointClouds(np.arange(len(files), dtype=np.int64) * PERIOD_NS, offsets, points),
         source={"reader": "kitti", "files": {f.name: file_digest(f) for f in files}, "stamps": "synthetic, 10 Hz by frame order"},
     )

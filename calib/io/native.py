@@ -205,8 +205,8 @@ def is_detcal_log(path: Path) -> bool:
     try:
         with zipfile.ZipFile(path) as zf:
             meta = json.loads(zf.read("meta.json"))
-    except (OSError, KeyError, ValueError, zipfile.BadZipFile, zlib.error):
-        return False
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile, zlib.error, RuntimeError, NotImplementedError):
+        return False  # unreadable (RuntimeError: encrypted; NotImplementedError: an unknown compression)
     return isinstance(meta, dict) and meta.get("format") == FORMAT
 
 
@@ -223,6 +223,7 @@ def content_digest(path: Path) -> str:
     h = hashlib.sha256()
     try:
         with zipfile.ZipFile(path) as zf:
+            _check_members(zf, path)
             for info in zf.infolist():
                 h.update(info.filename.encode() + b"\0")
                 with zf.open(info) as fh:
@@ -239,6 +240,23 @@ def _has_meta(path: Path) -> bool:
             return "meta.json" in zf.namelist()
     except (OSError, zipfile.BadZipFile):
         return False
+
+
+#: Zip compression methods detcal reads: stored and deflate (the writer uses deflate).
+_METHODS = {zipfile.ZIP_STORED: "stored", zipfile.ZIP_DEFLATED: "deflate"}
+
+
+def _check_members(zf: zipfile.ZipFile, path: Path) -> None:
+    """Refuse members that cannot be read without a password or with a compression detcal does not read, before
+    any is opened (zipfile raises RuntimeError or NotImplementedError for them, deep inside a read)."""
+    for info in zf.infolist():
+        if info.flag_bits & 0x1:
+            raise DataError(f"{path}: member {info.filename} is encrypted (zip flag bit 0); a detcal log is never encrypted")
+        if info.compress_type not in _METHODS:
+            raise DataError(
+                f"{path}: member {info.filename} uses zip compression method {info.compress_type}; "
+                f"a detcal log uses {' or '.join(_METHODS.values())} (damaged, or written by another tool)"
+            )
 
 
 def _where(exc: ValidationError) -> str:
@@ -267,12 +285,14 @@ def read_native(path: str | Path) -> SensorLog:
         raise DataError(f"{path}: not a detcal log or truncated ({exc})") from None
     with zf:
         names = set(zf.namelist())
+        _check_members(zf, path)
 
         def load(key: str, dtype: str | None = None) -> np.ndarray:
             member = f"{key}.npy"
             if member not in names:
                 raise DataError(f"{path}: member {member} is missing")
             want = dtype or DTYPES.get(key) or DTYPES.get("reference/" + key.rsplit("/", 1)[-1])
+            nbytes = zf.getinfo(member).file_size  # the claimed size once the header is read
             try:
                 info = zf.getinfo(member)
                 with zf.open(member) as fh:
@@ -290,6 +310,11 @@ def read_native(path: str | Path) -> SensorLog:
                 arr = np.lib.format.read_array(io.BytesIO(raw), allow_pickle=False)
             except DataError:
                 raise
+            except MemoryError:
+                raise DataError(
+                    f"{path}: member {member} needs {nbytes / 1e9:.3g} GB of memory, more than this machine can give; "
+                    "the log is too large for memory (not damaged)"
+                ) from None
             except Exception as exc:  # noqa: BLE001  (numpy's header parser raises SyntaxError, TokenError, ValueError...)
                 raise DataError(f"{path}: member {member} is truncated or corrupt ({type(exc).__name__}: {exc})") from None
             if want == "number":

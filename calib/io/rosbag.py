@@ -20,7 +20,10 @@ for bit, so the exact values travel beside them.
 
 from __future__ import annotations
 
+import dataclasses
+import errno
 import json
+import sqlite3
 from pathlib import Path
 
 import numpy as np
@@ -98,12 +101,22 @@ def read_rosbag(
         reader.open()
     except (AnyReaderError, Exception) as exc:  # rosbags raises several unrelated types for damaged bags
         raise DataError(f"{path}: not a readable ROS bag ({exc})") from None
+    reader.detcal_found = {}
     try:
         custom = _custom_data(path)
         conns = {c.topic: c.msgtype for c in reader.connections}
         if CUSTOM_KEY in custom and all(t is None for t in (scan_topic, odom_topic, truth_topic)):
-            return _read_detcal(reader, json.loads(custom[CUSTOM_KEY]), path)
-        return _read_foreign(reader, conns, path, scan_topic, odom_topic, truth_topic, max_backstep)
+            log = _read_detcal(reader, json.loads(custom[CUSTOM_KEY]), path)
+        else:
+            log = _read_foreign(reader, conns, path, scan_topic, odom_topic, truth_topic, max_backstep)
+        missing = _missing(reader)
+        if missing:  # said by the command (detcal.cli.common.warn_missing) and kept with the log
+            for topic, m in missing.items():
+                stream = log.scans if "scan" in topic else log.odometry if "odom" in topic else None
+                if stream is not None:
+                    m.update(_gap(stream.stamp))
+            log = dataclasses.replace(log, source={**log.source, "missing": missing})
+        return log
     except (DataError, UsageError):
         raise
     except Exception as exc:  # a damaged message deep in rosbags' deserialiser
@@ -124,10 +137,41 @@ def _custom_data(path: Path) -> dict:
     return (info.get("rosbag2_bagfile_information") or {}).get("custom_data") or {}
 
 
-def _messages(reader: AnyReader, topic: str):
+def _raw(reader: AnyReader, topic: str):
+    """(connection, bag time, raw bytes) of every message on ``topic``, counted in ``reader.detcal_found`` (see
+    :func:`_missing`)."""
     conns = [c for c in reader.connections if c.topic == topic]
-    for conn, _t, raw in reader.messages(connections=conns):
+    found = reader.detcal_found
+    found.setdefault(topic, 0)
+    for conn, t, raw in reader.messages(connections=conns):
+        found[topic] = found.get(topic, 0) + 1
+        yield conn, t, raw
+
+
+def _messages(reader: AnyReader, topic: str):
+    for conn, _t, raw in _raw(reader, topic):
         yield reader.deserialize(raw, conn.msgtype)
+
+
+def _missing(reader: AnyReader) -> dict[str, dict[str, int]]:
+    """Topics read that hold fewer messages than the bag's index declares (a message deleted from the database, a
+    damaged chunk): ``{topic: {"declared", "found"}}``; empty for a whole bag."""
+    declared: dict[str, int] = {}
+    for c in reader.connections:
+        declared[c.topic] = declared.get(c.topic, 0) + int(c.msgcount or 0)
+    return {
+        t: {"declared": declared[t], "found": n} for t, n in sorted(reader.detcal_found.items()) if declared.get(t, 0) > n
+    }
+
+
+def _gap(stamps: np.ndarray) -> dict[str, float]:
+    """The longest step between successive stamps [s], where it starts (s after the first) and the median step."""
+    st = np.sort(np.asarray(stamps, dtype=np.int64))
+    if st.size < 3:
+        return {}
+    d = np.diff(st)
+    k = int(np.argmax(d))
+    return {"longest_s": float(d[k]) / 1e9, "after_s": float(st[k] - st[0]) / 1e9, "median_s": float(np.median(d)) / 1e9}
 
 
 def _read_foreign(reader, conns, path, scan_topic, odom_topic, truth_topic, max_backstep) -> SensorLog:
@@ -287,59 +331,63 @@ def write_ros2(log: SensorLog, path: str | Path, *, overwrite: bool = False) -> 
         return T[ARRAY_TYPE](layout=T["std_msgs/msg/MultiArrayLayout"](dim=dims, data_offset=0), data=values.ravel())
 
     with atomic_output(path, overwrite=overwrite, directory=True) as tmp:
-        writer = Writer(tmp, version=9)
-        writer.set_custom_data(CUSTOM_KEY, json.dumps(meta, sort_keys=True))
-        with writer:
-            conn = {topic: writer.add_connection(topic, mt, typestore=ts) for topic, mt in _topics(log).items()}
+        try:
+            writer = Writer(tmp, version=9)
+            writer.set_custom_data(CUSTOM_KEY, json.dumps(meta, sort_keys=True))
+            with writer:
+                conn = {topic: writer.add_connection(topic, mt, typestore=ts) for topic, mt in _topics(log).items()}
 
-            def put(topic: str, stamp: int, msg) -> None:
-                writer.write(conn[topic], stamp, ts.serialize_cdr(msg, msg.__msgtype__))
+                def put(topic: str, stamp: int, msg) -> None:
+                    writer.write(conn[topic], stamp, ts.serialize_cdr(msg, msg.__msgtype__))
 
-            det_off = det.frame_slices() if det is not None else None
-            sensor = log.sensor
-            layouts = sensor.layouts() if sensor is not None else ()
-            for ev in log.events():
-                i = ev.index
-                if ev.stream == "scan":
-                    s = log.scans
-                    assert sensor is not None and s is not None
-                    ranges = s.ranges[i]
-                    g = layouts[0] if s.geometry is None else layouts[int(s.geometry[i])]  # each scan with its own beam layout
-                    put(
-                        "/scan",
-                        ev.stamp,
-                        T[SCAN_TYPE](
-                            header=header(ev.stamp, "laser"),
-                            angle_min=float(g.angle_min),
-                            angle_max=float(g.angle_min + g.angle_increment * (g.n_beams - 1)),
-                            angle_increment=float(g.angle_increment),
-                            time_increment=0.0,
-                            scan_time=0.0,
-                            range_min=float(sensor.range_min),
-                            range_max=float(sensor.range_max or np.inf),
-                            ranges=ranges[: g.n_beams],
-                            intensities=s.intensities[i, : g.n_beams] if s.intensities is not None else np.zeros(0, np.float32),
-                        ),
-                    )
-                    put("/detcal/scan/ranges", ev.stamp, array(ranges.astype(np.float64), ("scan", "beam")))
-                    if s.geometry is not None:
-                        put("/detcal/scan/geometry", ev.stamp, array(np.array([float(s.geometry[i])]), ("row", "layout")))
-                    if s.intensities is not None:
-                        put("/detcal/scan/intensities", ev.stamp, array(s.intensities[i].astype(np.float64), ("scan", "beam")))
-                    if s.odom_pose is not None:
-                        put("/detcal/scan/odom_pose", ev.stamp, array(s.odom_pose[i], ("row", "x_y_theta")))
-                elif ev.stream == "odometry":
-                    o = log.odometry
-                    put("/detcal/odometry", ev.stamp, array(o.values[i], ("row", "_".join(o.columns))))
-                    if "/odom" in conn:  # standard odometry for ROS tools (pose or velocity kinds, see _topics)
-                        put("/odom", ev.stamp, _odom_msg(T, header(ev.stamp, "odom"), o.values, o, i))
-                elif ev.stream.startswith("reference:"):
-                    k = ev.stream.split(":", 1)[1]
-                    put(f"/detcal/reference/{k}", ev.stamp, array(log.reference[k].poses[i], ("row", "x_y_theta")))
-                elif ev.stream == "detections":
-                    a, b = int(det_off[i]), int(det_off[i + 1])
-                    cols = [det.range[a:b], det.bearing[a:b]] + [det.descriptors[k][a:b].astype(np.float64) for k in sorted(det.descriptors)]
-                    put("/detcal/detections", ev.stamp, array(np.column_stack(cols).reshape(b - a, len(cols)), ("detection", "field")))
+                det_off = det.frame_slices() if det is not None else None
+                sensor = log.sensor
+                layouts = sensor.layouts() if sensor is not None else ()
+                for ev in log.events():
+                    i = ev.index
+                    if ev.stream == "scan":
+                        s = log.scans
+                        assert sensor is not None and s is not None
+                        ranges = s.ranges[i]
+                        g = layouts[0] if s.geometry is None else layouts[int(s.geometry[i])]  # each scan with its own beam layout
+                        put(
+                            "/scan",
+                            ev.stamp,
+                            T[SCAN_TYPE](
+                                header=header(ev.stamp, "laser"),
+                                angle_min=float(g.angle_min),
+                                angle_max=float(g.angle_min + g.angle_increment * (g.n_beams - 1)),
+                                angle_increment=float(g.angle_increment),
+                                time_increment=0.0,
+                                scan_time=0.0,
+                                range_min=float(sensor.range_min),
+                                range_max=float(sensor.range_max or np.inf),
+                                ranges=ranges[: g.n_beams],
+                                intensities=s.intensities[i, : g.n_beams] if s.intensities is not None else np.zeros(0, np.float32),
+                            ),
+                        )
+                        put("/detcal/scan/ranges", ev.stamp, array(ranges.astype(np.float64), ("scan", "beam")))
+                        if s.geometry is not None:
+                            put("/detcal/scan/geometry", ev.stamp, array(np.array([float(s.geometry[i])]), ("row", "layout")))
+                        if s.intensities is not None:
+                            put("/detcal/scan/intensities", ev.stamp, array(s.intensities[i].astype(np.float64), ("scan", "beam")))
+                        if s.odom_pose is not None:
+                            put("/detcal/scan/odom_pose", ev.stamp, array(s.odom_pose[i], ("row", "x_y_theta")))
+                    elif ev.stream == "odometry":
+                        o = log.odometry
+                        put("/detcal/odometry", ev.stamp, array(o.values[i], ("row", "_".join(o.columns))))
+                        if "/odom" in conn:  # standard odometry for ROS tools (pose or velocity kinds, see _topics)
+                            put("/odom", ev.stamp, _odom_msg(T, header(ev.stamp, "odom"), o.values, o, i))
+                    elif ev.stream.startswith("reference:"):
+                        k = ev.stream.split(":", 1)[1]
+                        put(f"/detcal/reference/{k}", ev.stamp, array(log.reference[k].poses[i], ("row", "x_y_theta")))
+                    elif ev.stream == "detections":
+                        a, b = int(det_off[i]), int(det_off[i + 1])
+                        cols = [det.range[a:b], det.bearing[a:b]] + [det.descriptors[k][a:b].astype(np.float64) for k in sorted(det.descriptors)]
+                        put("/detcal/detections", ev.stamp, array(np.column_stack(cols).reshape(b - a, len(cols)), ("detection", "field")))
+        except sqlite3.Error as exc:  # the bag's database refused a write: a full disk, a quota, a lost mount
+            full = "full" in str(exc).lower()
+            raise OSError(errno.ENOSPC if full else errno.EIO, f"the bag's sqlite3 database: {exc}") from None
     return path
 
 
@@ -379,8 +427,7 @@ def _read_detcal(reader: AnyReader, meta: dict, path: Path) -> SensorLog:
 
     def table(topic: str) -> tuple[np.ndarray, list[np.ndarray]]:
         stamps, rows = [], []
-        conns = [c for c in reader.connections if c.topic == topic]
-        for conn, t, raw in reader.messages(connections=conns):
+        for conn, t, raw in _raw(reader, topic):
             msg = reader.deserialize(raw, conn.msgtype)
             dims = msg.layout.dim
             rows.append(np.asarray(msg.data, dtype=np.float64).reshape(dims[0].size, dims[1].size))

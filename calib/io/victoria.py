@@ -32,6 +32,12 @@ FILES = ("measurements.dat", "inputs.dat", "gps.dat")
 WHEELBASE = 2.83
 ENCODER_OFFSET = 0.76
 LASER_MOUNT = Mount(x=3.78, y=0.50, theta=0.0)
+RANGE_MAX = 80.0  # m, the SICK LMS 200's range in this setting (the released ranges peak at 75.3 m)
+
+#: Bounds the vehicle cannot exceed (the logged speed peaks at 6.6 m/s, the steering at 0.59 rad; a car's wheels
+#: turn less than 1 rad): a row beyond them is damaged or mistyped, and would send the filter nowhere.
+MAX_SPEED = 40.0  # m/s
+MAX_STEERING = 1.0  # rad
 
 
 def looks_like_victoria(path: Path) -> bool:
@@ -48,6 +54,7 @@ def read_victoria(path: str | Path, *, max_backstep: float = DEFAULT_MAX_BACKSTE
     meas = read_table(path / "measurements.dat", 4, "t range bearing diameter")
     what = "t range bearing diameter"
     require_rows(path / "measurements.dat", meas, meas[:, 1] >= 0, what, "negative range")
+    require_rows(path / "measurements.dat", meas, meas[:, 1] <= RANGE_MAX, what, f"range beyond the laser's {RANGE_MAX:g} m")
     # the laser's bearings run from 0 to pi (0: to the right); a little slack for rounding
     require_rows(path / "measurements.dat", meas, np.abs(meas[:, 2] - np.pi / 2) <= np.pi / 2 + 1e-3, what, "bearing outside 0..pi rad")
     require_rows(path / "measurements.dat", meas, meas[:, 3] >= 0, what, "negative diameter")
@@ -59,6 +66,9 @@ def read_victoria(path: str | Path, *, max_backstep: float = DEFAULT_MAX_BACKSTE
         frame_stamp, frame, meas[:, 1], meas[:, 2] - np.pi / 2, {"diameter": meas[:, 3]}
     )
     inputs = read_table(path / "inputs.dat", 3, "t speed steering")
+    ok_speed, ok_steer = np.abs(inputs[:, 1]) <= MAX_SPEED, np.abs(inputs[:, 2]) <= MAX_STEERING
+    require_rows(path / "inputs.dat", inputs, ok_speed, "t speed steering", f"speed beyond {MAX_SPEED:g} m/s (the vehicle cannot drive so fast)")
+    require_rows(path / "inputs.dat", inputs, ok_steer, "t speed steering", f"steering beyond {MAX_STEERING:g} rad (the vehicle's wheels cannot turn so far)")
     istamp = table_stamps(inputs[:, 0], path / "inputs.dat", "t speed steering")
     perm, moved_i = table_time_order(istamp, path / "inputs.dat", "input", max_backstep)
     odometry = Odometry("ackermann", istamp[perm], inputs[perm, 1:])
@@ -71,7 +81,7 @@ def read_victoria(path: str | Path, *, max_backstep: float = DEFAULT_MAX_BACKSTE
         poses = np.column_stack([gps[perm, 1:], np.full(gps.shape[0], np.nan)])
         # the released GPS is compared with the laser's position (see the module docstring)
         reference["gps"] = ReferencePoses("gps", gstamp[perm], poses, point=(LASER_MOUNT.x, LASER_MOUNT.y))
-    sensor = SensorModel(kind="detector", range_min=0.0, range_max=80.0, fov=np.pi, mount=LASER_MOUNT)
+    sensor = SensorModel(kind="detector", range_min=0.0, range_max=RANGE_MAX, fov=np.pi, mount=LASER_MOUNT)
     return SensorLog(
         name="victoria_park",
         sensor=sensor,

@@ -11,15 +11,28 @@ input.
 
 from __future__ import annotations
 
+import os
 import sys
 from typing import Annotated
 
 import typer
 
 from detcal import __version__
-from detcal.cli import calibrate, detect, logs, profile, simulate, slam, validate
-from detcal.cli.common import out
+from detcal.environment import check_source_date_epoch, numba_cache
 from profiles.errors import DetcalError
+
+# Before the commands' modules are imported: numpy reads SOURCE_DATE_EPOCH as it imports f2py (a bad value is kept
+# out of its way and reported by main), and numba's kernels (cache=True) look for a cache folder at import.
+try:
+    check_source_date_epoch()
+    _ENV_ERROR: DetcalError | None = None
+except DetcalError as _exc:
+    _ENV_ERROR = _exc
+    os.environ.pop("SOURCE_DATE_EPOCH")
+_NUMBA_FALLBACK = numba_cache()
+
+from detcal.cli import calibrate, detect, logs, profile, simulate, slam, validate  # noqa: E402
+from detcal.cli.common import out, warn  # noqa: E402
 
 app = typer.Typer(
     help="detcal: measure a feature detector's P_D and clutter statistics for RFS SLAM.",
@@ -66,7 +79,12 @@ def main(argv: list[str] | None = None) -> int:
     from detcal.cli import common
 
     common.ARGV = list(sys.argv[1:] if argv is None else argv)
+    if _NUMBA_FALLBACK:
+        warn(f"numba cannot write its cache of compiled kernels beside detcal nor under the user's cache folder; using {_NUMBA_FALLBACK}")
     try:
+        if _ENV_ERROR is not None:
+            raise _ENV_ERROR
+        check_source_date_epoch()
         app(args=argv, prog_name="detcal")
     except SystemExit as exc:
         code = exc.code
@@ -79,6 +97,9 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as exc:  # the system refused a read or write (permissions, a full disk): not a bug of ours
         where = f"{exc.filename}: " if exc.filename else ""
         error_line(f"{where}{exc.strerror or exc}")
+        return 1
+    except MemoryError:  # a reader that could not check a size first: say what it is, not a traceback
+        error_line("out of memory: the input is too large for this machine's memory (it is not necessarily damaged)")
         return 1
     except KeyboardInterrupt:
         sys.stderr.write("detcal: interrupted\n")

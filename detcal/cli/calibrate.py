@@ -76,6 +76,14 @@ def calibrate_cmd(
         ),
     ] = None,
     scheduler: Annotated[str | None, typer.Option(help="Address of an existing Dask scheduler (e.g. tcp://10.0.0.5:8786) for the per-log work.")] = None,
+    accept_poor_ground_truth: Annotated[
+        bool,
+        typer.Option(
+            "--accept-poor-ground-truth",
+            help="Laser logs: write the profile even when the ground truth fails its quality checks or the data are too thin "
+            "for the fits (the profile records that it did; default: refused, nothing written).",
+        ),
+    ] = False,
 ) -> None:
     """Calibrate a detector on logs with truth -> a profile and a report.
 
@@ -83,6 +91,8 @@ def calibrate_cmd(
     sigma_r from the log, --range-sigma, or estimated from the registered scans.
     Detection-level logs (UTIAS): P_D against range, clutter from non-landmark detections.
     Several laser logs: detection, ground truth and labelling of each log on Dask workers, the fits here.
+    A laser log's ground truth (ICP poses) and the data behind the fits are checked: a calibration on a poor
+    ground truth or too few landmarks, true detections or populated P_D bins is refused (exit 1, nothing written).
     3D lidar logs with plane truth (detcal simulate street): the plane detector, P_D against the
     ray-traced visible points and incidence angle, clutter planes (profile kind lidar3d-planes).
     """
@@ -110,17 +120,23 @@ def calibrate_cmd(
         logs=loaded, inputs=refs, config=config, landmarks=landmarks, poses=poses, command=typed_command("calibrate"),
         target=ProfileTarget(name=prof_name, version=version, description=description, profiles_dir=profiles_dir, out=out_dir, force=force),
         range_sigma_given=reader.options.range_sigma is not None, per_sensor=per_sensor, sources=sources, workers=workers, scheduler=scheduler,
+        accept_poor_ground_truth=accept_poor_ground_truth,
     )  # fmt: skip
     done = run_calibration(job)
     for note in done.notes:
         warn(note)
+    for failure in done.summary.get("accepted_poor", []):
+        warn(f"written anyway (--accept-poor-ground-truth): {failure}")
     p = done.profile
+    hidden = ("logs", "range_noise", "ground_truth", "data_sufficiency", "accepted_poor", "exchangeability")
     rows = {
         "profile": f"{p.ref} ({done.profile_status}: {done.profile_path})",
         "run folder": f"{done.run_folder} ({done.run_status}" + (f", {len(done.figures)} figures)" if done.figures else ")"),
         **({"per-sensor profiles": ", ".join(f"{path.stem} ({st})" for path, st in done.members)} if done.members else {}),
         **({"per-log work": done.engine} if len(done.summary["logs"]) > 1 else {}),
-        **{k: v for k, v in done.summary.items() if k not in ("logs", "range_noise", "exchangeability")},
+        **{f"ground truth of {lg}": v for lg, v in done.summary.get("ground_truth", {}).items()},
+        **({"data sufficiency": done.summary["data_sufficiency"]} if "data_sufficiency" in done.summary else {}),
+        **{k: v for k, v in done.summary.items() if k not in hidden},
         **exchange_rows(done.summary.get("exchangeability")),
     }
     if not p.pd.two_d:
@@ -170,7 +186,8 @@ def icp_cmd(
     relations: Annotated[Path | None, typer.Option(help="Benchmark relations (t1 t2 x y z roll pitch yaw) to score the poses against.")] = None,
     force: Annotated[bool, typer.Option(help="Replace the run folder if it exists.")] = False,
 ) -> None:
-    """Ground truth from the scans: sequential point-to-line ICP, loop closures, pose graph."""
+    """Ground truth from the scans: correlative scan-to-map matching refined by ICP, verified loop closures, a robust
+    pose graph. Writes poses.csv, poses_tum.txt and poses_kitti.txt (for evo_ape / evo_rpe), quality.yaml, map.png."""
     from calib.groundtruth import write_icp_run
 
     log = reader.read(log_path)
@@ -178,6 +195,22 @@ def icp_cmd(
     fresh(target, force, inputs=[log_path, relations])
     summary = write_icp_run(log, target, relations=relations, overwrite=force)
     out.print(summary_table(f"ICP ground truth of {log.name} -> {target}", summary))
+    if relations is not None:
+        for name in ("icp", "odometry"):
+            out.print(relation_line(summary, name), soft_wrap=True)
+    if summary["ground_truth"] != "passes":
+        warn(f"{log.name}: ground truth fails: {'; '.join(summary['failed'])} (map.png marks where; quality.yaml has the figures)")
+
+
+def relation_line(summary: dict, name: str) -> str:
+    """The relation error of ``name``'s poses (icp, odometry) as Kuemmerle et al. (2009) report it: mean +- sd, max."""
+    keys = ("trans_error_mean_m", "trans_error_std_m", "trans_error_max_m", "rot_error_mean_deg", "rot_error_std_deg", "rot_error_max_deg")
+    v = {k: summary[f"{name}_{k}"] for k in keys}
+    return (
+        f"relation error of the {'ground truth' if name == 'icp' else name} ({summary[f'{name}_relations']} relations): "
+        f"{v['trans_error_mean_m']:.4f} +- {v['trans_error_std_m']:.4f} m (max {v['trans_error_max_m']:.3f}), "
+        f"{v['rot_error_mean_deg']:.3f} +- {v['rot_error_std_deg']:.3f} deg (max {v['rot_error_max_deg']:.2f})"
+    )
 
 
 @reader_options()

@@ -149,6 +149,7 @@ class ReaderArgs:
         if not empty_ok:
             refuse_empty(path, log)
         warn_untimed(path, log)
+        warn_missing(path, log)
         return log
 
     def options_of(self, log):
@@ -190,6 +191,15 @@ def warn_untimed(path: Path, log) -> None:
     """Say how many records of a log had no time and were placed by their order (CARMEN ODOM lines stamped 0)."""
     for stream, n in dict(log.source.get("untimed", {})).items():
         warn(f"{path}: {n} {stream} records are stamped 0 (no time); placed by their order in the file")
+
+
+def warn_missing(path: Path, log) -> None:
+    """Say which topics of a bag hold fewer messages than its index declares, with the longest gap they leave."""
+    for topic, m in dict(log.source.get("missing", {})).items():
+        gap = ""
+        if "longest_s" in m:
+            gap = f"; the longest gap is {m['longest_s']:.3g} s, {m['after_s']:.3g} s into the log (median step {m['median_s']:.3g} s)"
+        warn(f"{path}: topic {topic} holds {m['found']} of the {m['declared']} messages the bag's index lists{gap}")
 
 
 def fresh(target: Path, force: bool, *, directory: bool = True, owned=None, inputs=()) -> None:

@@ -75,18 +75,31 @@ def slam_run_cmd(
     out.print(summary_table(f"{res.filter}-SLAM{mode} on {log.name} with {prof.ref} -> {target}", shown))
 
 
+#: Most seeds one sweep takes (each seed is a run per log, profile and setting), and the largest seed (a seed is
+#: recorded as a signed 64-bit integer in the run tables).
+MAX_SEEDS = 10_000
+MAX_SEED = 2**63 - 1
+
+
 def seed_list(text: str) -> list[int]:
-    """`5` -> 0..4; `1,3,7` or `1-5` -> those seeds."""
+    """`5` -> 0..4; `1,3,7` or `1-5` -> those seeds. The count is checked before a list is built."""
     try:
         if "," in text:
             seeds = [int(x) for x in text.split(",")]
+            count = len(seeds)
         elif "-" in text:
             a, b = (int(x) for x in text.split("-", 1))
-            seeds = list(range(a, b + 1))
+            count, seeds = b - a + 1, None
         else:
-            seeds = list(range(int(text)))
+            a, count, seeds = 0, int(text), None
     except ValueError:
         raise UsageError(f"--seeds: expected a count (5), a list (1,3,7) or a range (1-5), got {text!r}") from None
+    if count > MAX_SEEDS:
+        raise UsageError(f"--seeds: {text!r} gives {count} seeds, more than one sweep runs (at most {MAX_SEEDS}); split the sweep")
+    if seeds is None:
+        seeds = list(range(a, a + max(count, 0)))
+    if seeds and max(seeds) > MAX_SEED:
+        raise UsageError(f"--seeds: a seed above {MAX_SEED} (2^63 - 1) in {text!r}")
     if not seeds:
         what = "a count of at least 1" if "-" not in text else "a range whose end is not below its start"
         raise UsageError(f"--seeds: expected {what} (a count of 3 is seeds 0-2; seed 0 alone is --seeds 0-0), got {text!r}")

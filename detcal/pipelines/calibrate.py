@@ -15,7 +15,11 @@
    name@version made from another request is refused at once (unless
    ``force``), a bundled one is never shadowed, and an identical request is
    no conflict (the creation time and the command line are not content).
-4. The calibration runs.
+4. The calibration runs. Laser logs pass a gate (:func:`calib.calibrate.calibrate`'s
+   ``quality_gate``): a ground truth failing its quality checks, or data too
+   thin for the fits, stops it with the log, the failed figure and its
+   threshold, before anything is written; ``accept_poor_ground_truth`` lets
+   them through and the profile records that it did.
 5. The run folder and the profile are prepared completely, then moved into
    place one after the other (:func:`profiles.atomic.atomic_outputs`): a
    profile in the store always has its run folder; a kill leaves only hidden
@@ -71,6 +75,9 @@ class CalibrationJob:
     sources: list[tuple] | None = None
     workers: int | None = None  # --workers: Dask worker processes for the per-log work (0: this process)
     scheduler: str | None = None  # --scheduler: an existing Dask cluster
+    # --accept-poor-ground-truth: laser logs whose ground truth fails its quality checks, or data too thin for the fits,
+    # are calibrated anyway and the profile records it (default: refused, nothing written)
+    accept_poor_ground_truth: bool = False
 
 
 @dataclass
@@ -130,12 +137,18 @@ class Method:
     distributed: bool = False
 
 
+def _no_gate(job: CalibrationJob, what: str) -> None:
+    if job.accept_poor_ground_truth:
+        raise UsageError(f"--accept-poor-ground-truth applies to laser logs (a ground truth registered from the scans); {what} carry theirs")
+
+
 # ---------------------------------------------------------------------------- planes in 3D clouds
 
 
 def _planes_plan(job: CalibrationJob, logs, cfg) -> Plan:
     if job.landmarks is not None:
         raise UsageError("--landmarks: lidar logs carry their plane truth")
+    _no_gate(job, "lidar logs with plane truth")
     if job.per_sensor:
         raise UsageError("--per-sensor applies to detection-level logs (lidar logs are pooled)")
     return Plan(cfg.model_dump(mode="json"), seed=_seed(logs))
@@ -170,6 +183,7 @@ def _detections_plan(job: CalibrationJob, logs, cfg) -> Plan:
 
     if job.landmarks is not None:
         raise UsageError("--landmarks: detection-level logs carry their landmark truth")
+    _no_gate(job, "detection-level logs")
     # the frame period and the identity audit follow from the inputs and the config: not part of the request
     derived = ("frame_period", "identity_remap")
     members = []
@@ -216,11 +230,12 @@ def _fill_detections(cal, folder):
 
 
 def _laser_plan(job: CalibrationJob, logs, cfg) -> Plan:
-    from calib.calibrate import parameters
+    from calib.calibrate import check_landmark_source, parameters
 
     if job.per_sensor:
         raise UsageError("--per-sensor applies to detection-level logs (laser logs are pooled)")
-    return Plan(parameters(logs, cfg, job.landmarks, job.range_sigma_given), seed=_seed(logs))
+    check_landmark_source(logs, job.landmarks)  # before any registration: the mistake costs nothing here
+    return Plan(parameters(logs, cfg, job.landmarks, job.range_sigma_given, accept_poor=job.accept_poor_ground_truth), seed=_seed(logs))
 
 
 def _laser_run(job: CalibrationJob, logs, cfg, notes):
@@ -231,6 +246,7 @@ def _laser_run(job: CalibrationJob, logs, cfg, notes):
         cal = calibrate(
             logs, cfg, name=t.name, version=t.version, description=t.description, landmarks_csv=job.landmarks,
             input_refs=list(job.inputs), command=job.command, range_sigma_given=job.range_sigma_given, per_log=per_log,
+            quality_gate="accept" if job.accept_poor_ground_truth else "refuse",
         )  # fmt: skip
     return cal, where
 

@@ -21,6 +21,7 @@ import numpy as np
 from detcal.pipelines.slam_run import SettingsRequest
 from detectors.sensor_log import SensorLog
 from profiles.errors import UsageError
+from profiles.override import updated
 from profiles.profile import NAME_RE, SEMVER_RE
 from slam_runtime.config import SlamConfig, with_settings
 from slam_runtime.run import SlamResult, build, evaluate, run_slam
@@ -177,16 +178,21 @@ class SelfCalibrationRequest:
         refs = self.inputs(self.log_path, log)
         scfg, cals, k0 = SelfCalConfig(), [], self.average_from
 
+        def recorded(p):
+            # what rebuilds it: the profile the loop started from (each iteration's prior has the output's own
+            # name@version) and the filter's seed (--seed 0 included)
+            return updated(p, {"provenance.parameters.prior": start.ref, "provenance.seed": self.seed})
+
         def measure(lg, traj, map_xy, map_w, prior, k):
             c = self_calibrate(
                 lg, traj, map_xy, map_w, prior, scfg, name=name, version=self.version, run=f"iteration {k} of this self-calibration",
                 iteration=k, input_refs=refs, command=self.command, mount_yaw=cfg.mount_yaw,
             )  # fmt: skip
             if k0 is None or k < k0:
-                return c.profile, c.summary
+                return recorded(c.profile), c.summary
             cals.append(c)  # only the runs that are averaged are kept (their pairs and detections)
             pooled = pool_self_calibrations(cals, scfg, iterations=list(range(k0, k + 1)))
-            return pooled, {**c.summary, "averaged_runs": k + 1 - k0, "averaged_false_alarms_per_frame": pooled.clutter.rate}
+            return recorded(pooled), {**c.summary, "averaged_runs": k + 1 - k0, "averaged_false_alarms_per_frame": pooled.clutter.rate}
 
         history = self_calibration(
             log, start, cfg, self.seed, measure, profile_change, iterations=self.iterations, tolerance=self.tolerance, average_from=k0, progress=progress

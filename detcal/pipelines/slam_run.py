@@ -59,9 +59,9 @@ def check_option(flag: str, value) -> None:
 
 def read_value(text: str):
     """A setting's value as written on the command line, read as YAML (``1e-3`` as a number, ``.inf``, ``true``)."""
-    import yaml
+    from profiles import strict_yaml
 
-    v = yaml.safe_load(text)
+    v = strict_yaml.load(text)
     if isinstance(v, str):  # (YAML 1.1 reads 1e-3 as text)
         with contextlib.suppress(ValueError):
             v = float(v)

@@ -247,7 +247,8 @@ def plot_descriptors(cal: Calibration, path: Path, max_points: int = 4000) -> No
 
 
 def plot_map(cal: Calibration, path: Path, k: int = 0, every: int = 10) -> None:
-    """The registered point cloud of log k with the sensor trajectory and the landmarks."""
+    """The registered point cloud of log k with the sensor trajectory and the landmarks; an ICP ground truth's
+    failing stretches (:attr:`calib.gtquality.QualityReport.failing`) in magenta and its verdict in the title."""
     lg, sp = cal.logs[k], cal.poses[k]
     rows = np.arange(0, len(lg.scans), every)
     ang = lg.scan_angles(rows)
@@ -262,11 +263,18 @@ def plot_map(cal: Calibration, path: Path, k: int = 0, every: int = 10) -> None:
     for c, rr in zip(xy, rad, strict=True):
         ax.add_patch(Circle(c, max(rr, 0.3), fill=False, color="tab:green", lw=0.8))
     ax.plot(sp[:, 0], sp[:, 1], "b-", lw=1, label=f"sensor trajectory ({cal.summary['pose_source'][k]})")
+    quality = cal.ground_truth[k] if k < len(cal.ground_truth) else None
+    verdict = ""
+    if quality is not None:
+        if quality.failing.any():
+            p = np.where(quality.failing[:, None], sp[:, :2], np.nan)
+            ax.plot(p[:, 0], p[:, 1], "-", color="m", lw=3, alpha=0.8, label=f"ground truth failing here ({len(quality.stretches)} stretches)")
+        verdict = "\nground truth passes its checks" if quality.verdict.passed else "\nground truth FAILS: " + quality.verdict.failures[0].describe()
     ax.plot([], [], "o", mfc="none", color="tab:green", label="landmarks")
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.set_title(f"{lg.name}: registered scans (every {every}th) and landmarks")
+    ax.set_title(f"{lg.name}: registered scans (every {every}th) and landmarks{verdict}", fontsize=10)
     ax.legend(loc="upper right")
     _save(fig, path)
 
@@ -288,14 +296,34 @@ def write_report(cal: Calibration, folder: Path) -> list[str]:
 
 
 def fill_calibration_run(cal: Calibration, folder: Path) -> list[str]:
-    """Create ``folder`` with profile.yaml, config.yaml, summary.yaml, detections.csv.gz, pairs.csv.gz,
+    """Create ``folder`` with profile.yaml, config.yaml, summary.yaml, quality.yaml (the checks behind the gate),
+    ground_truth/<log>/ (an ICP ground truth's keyframes.csv and loops.csv), detections.csv.gz, pairs.csv.gz,
     range_noise.csv (when sigma_r was estimated) and the report figures; returns the figure names."""
     folder.mkdir()
     (folder / "profile.yaml").write_text(dump_profile(cal.profile))
     (folder / "config.yaml").write_text(dump_yaml(cal.config.model_dump(mode="json")))
     (folder / "summary.yaml").write_text(dump_yaml(cal.summary))
+    write_checks(cal, folder)
     cal.labelled.detections.to_csv(folder / "detections.csv.gz", index=False, float_format="%.9g", compression=GZ)
     cal.labelled.pairs.to_csv(folder / "pairs.csv.gz", index=False, float_format="%.9g", compression=GZ)
     if cal.range_noise is not None:
         pd.DataFrame(cal.range_noise.summary()["bands"]).to_csv(folder / "range_noise.csv", index=False, float_format="%.6g")
     return write_report(cal, folder)
+
+
+def write_checks(cal: Calibration, folder: Path) -> None:
+    """quality.yaml: the data sufficiency verdict and, per log, its pose source and an ICP ground truth's quality
+    report (figures, thresholds, failing stretches); ground_truth/<log>/ holds that report's tables."""
+    from calib.groundtruth import write_quality_tables
+
+    logs = {}
+    for lg, src, q in zip(cal.logs, cal.summary["pose_source"], cal.ground_truth or [None] * len(cal.logs), strict=True):
+        logs[lg.name] = {"pose_source": src, **({"ground_truth": q.as_dict()} if q is not None else {})}
+        if q is not None:
+            sub = folder / "ground_truth" / lg.name
+            sub.mkdir(parents=True)
+            write_quality_tables(sub, q)
+    doc = {**({"data_sufficiency": cal.data.as_dict()} if cal.data is not None else {}), "logs": logs}
+    if cal.summary.get("accepted_poor"):
+        doc["accepted_poor"] = cal.summary["accepted_poor"]
+    (folder / "quality.yaml").write_text(dump_yaml(doc))

@@ -25,6 +25,7 @@ from calib.sim.park import Simulation, World, sensor_poses
 from calib.sim.street import StreetSimulation
 from detectors.geometry import compose
 from detectors.sensor_log import SensorLog
+from profiles import strict_yaml
 from profiles.errors import DataError
 
 
@@ -52,7 +53,7 @@ def write_simulation_run(name: str, cfg, seed: int, out: Path, *, overwrite: boo
 
 def load_world(path: Path) -> World:
     try:
-        return World.from_dict(yaml.safe_load(path.read_text()), str(path))
+        return World.from_dict(strict_yaml.load(path.read_text()), str(path))
     except (OSError, yaml.YAMLError) as exc:
         raise DataError(f"{path}: cannot read the world ({exc})") from None
 

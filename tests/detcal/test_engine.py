@@ -73,9 +73,13 @@ def serial(park_log, tmp_path_factory) -> Path:
     return out
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture
 def cluster():
-    """A 2-worker local Dask cluster of the test's own (commands reach it with --scheduler), loopback only."""
+    """A 2-worker local Dask cluster of the test's own (commands reach it with --scheduler), loopback only.
+
+    One per test: a test that kills a worker leaves its cluster a worker short until the nanny has started another,
+    which on a busy machine may take longer than the next test waits; a fresh cluster has both workers when it is
+    handed over (LocalCluster waits for them)."""
     import dask
     from distributed import Client
 
@@ -91,28 +95,47 @@ def cluster():
 
 
 def arm_kill(client, run_name: str, flag: Path) -> None:
-    """In every worker process: the first attempt at ``run_name`` (anywhere: ``flag`` says) SIGKILLs its worker."""
+    """In every worker process, present or yet to start: the first attempt at ``run_name`` (anywhere: ``flag`` says)
+    SIGKILLs its worker.
 
-    def arm(run_name=run_name, flag=str(flag)):
-        import os
-        import signal
+    A worker plugin rather than a one-off ``Client.run``: a worker that starts later (a nanny's restart) is armed as
+    it comes up, whenever that is on a busy machine, so the armed run cannot slip onto an unarmed worker. Both
+    workers are there first (Dask's own wait; a fresh cluster has them already).
+    """
+    from distributed.diagnostics.plugin import WorkerPlugin
 
-        import detcal.pipelines.sweep as sw
+    class Arm(WorkerPlugin):  # defined here: pickled by value, the workers need not import the tests
+        def setup(self, worker, run_name=run_name, flag=str(flag)):
+            import os
+            import signal
 
-        original = sw.run_job
+            import detcal.pipelines.sweep as sw
 
-        def run_job(job):
-            if job.name == run_name:
-                try:
-                    os.close(os.open(flag, os.O_CREAT | os.O_EXCL))
-                except FileExistsError:
-                    return original(job)
-                os.kill(os.getpid(), signal.SIGKILL)
-            return original(job)
+            original = sw.run_job
 
-        sw.run_job = run_job
+            def run_job(job):
+                if job.name == run_name:
+                    try:
+                        os.close(os.open(flag, os.O_CREAT | os.O_EXCL))
+                    except FileExistsError:
+                        return original(job)
+                    os.kill(os.getpid(), signal.SIGKILL)
+                return original(job)
 
-    client.run(arm)
+            sw.run_job = run_job
+
+    client.wait_for_workers(2, timeout=600)
+    client.register_plugin(Arm(), name=f"arm-{run_name}")
+
+
+def refusing_address() -> tuple[str, object]:
+    """A loopback address where nothing listens, held by this test: a socket bound to a port the system chose but
+    never listening, so a connection is refused at once and no other program can take the port meanwhile."""
+    import socket
+
+    s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    s.bind(("127.0.0.1", 0))
+    return f"tcp://127.0.0.1:{s.getsockname()[1]}", s
 
 
 def test_sweep_on_two_local_workers_gives_the_serial_bytes(tmp_path, capsys, park_log, serial):
@@ -209,10 +232,11 @@ def test_execution_options_are_checked_before_any_work(tmp_path, capsys, park_lo
     import distributed  # noqa: F401  (before dask.config.set: see below)
 
     base = ["slam", "sweep", str(park_log), *SWEEP, "--out", str(tmp_path / "sw")]
+    nobody, held = refusing_address()
     code, _, err = run(capsys, *base, "--workers", "-1")
     assert code == 2
     assert_one_line_error(err, "--workers: expected 0 (this process) or a positive number of worker processes, got -1")
-    code, _, err = run(capsys, *base, "--workers", "2", "--scheduler", "tcp://127.0.0.1:1")
+    code, _, err = run(capsys, *base, "--workers", "2", "--scheduler", nobody)
     assert code == 2
     assert_one_line_error(err, "--workers: the cluster at --scheduler has its own workers")
     assert not (tmp_path / "sw").exists()
@@ -220,9 +244,10 @@ def test_execution_options_are_checked_before_any_work(tmp_path, capsys, park_lo
     # inside this block, leaving the block would delete the whole "distributed" key that the block created, defaults
     # and all, and every later cluster in this test process would fail (KeyError: 'require-encryption').
     with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):
-        code, _, err = run(capsys, *base, "--scheduler", "tcp://127.0.0.1:1")
+        code, _, err = run(capsys, *base, "--scheduler", nobody)
+    held.close()
     assert code == 2
-    assert_one_line_error(err, "--scheduler tcp://127.0.0.1:1: no Dask scheduler answered")
+    assert_one_line_error(err, f"--scheduler {nobody}: no Dask scheduler answered")
     code, _, err = run(capsys, *base, "--scheduler", "notanaddress")
     assert code == 2
     assert_one_line_error(err, "--scheduler notanaddress: not a scheduler address (missing port number")

@@ -200,3 +200,16 @@ def test_ground_truth_poses_are_the_truth_at_each_frame_and_refuse_what_they_can
         ground_truth_poses(gps, st)
     with pytest.raises(ValidationError, match="the planes' vehicle model has six states"):
         SlamConfig(features="planes", poses="ground_truth")
+
+
+def test_a_run_whose_first_frame_precedes_the_ground_truth_starts_at_the_first_true_pose():
+    """Camera frames before the motion capture starts (a UTIAS log cut so): the filter starts where the robot was
+    first seen, not at the origin, a pose it never had (the RMSE was then measured from a wrong start)."""
+    from detectors.sensor_log import ReferencePoses, SensorLog
+    from slam_runtime.run import start_pose
+
+    truth = ReferencePoses("ground_truth", np.array([10, 20, 30], dtype=np.int64) * 10**9, np.array([[3.0, 4.0, 0.5], [3.1, 4.0, 0.5], [3.2, 4.0, 0.5]]))
+    log = SensorLog(name="cut", reference={"ground_truth": truth})
+    assert start_pose(log, 5 * 10**9).tolist() == [3.0, 4.0, 0.5]  # before the truth: its first pose
+    assert start_pose(log, 15 * 10**9) == pytest.approx([3.05, 4.0, 0.5])  # inside: interpolated, as before
+    assert start_pose(SensorLog(name="none"), 5 * 10**9).tolist() == [0.0, 0.0, 0.0]  # no truth: the origin

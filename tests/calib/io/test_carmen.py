@@ -1,5 +1,6 @@
 import bz2
 import gzip
+import lzma
 
 import numpy as np
 import pytest
@@ -26,6 +27,8 @@ def write(tmp_path, lines, name="t.clf"):
         p.write_bytes(gzip.compress(text.encode()))
     elif name.endswith(".bz2"):
         p.write_bytes(bz2.compress(text.encode()))
+    elif name.endswith(".xz"):
+        p.write_bytes(lzma.compress(text.encode()))
     else:
         p.write_text(text)
     return p
@@ -34,7 +37,7 @@ def write(tmp_path, lines, name="t.clf"):
 BASE = [odom(1.0), flaser(1.05, [1.0, 2.0, 81.83, 3.0]), odom(1.1, 0.1), flaser(1.15, [1.5, 81.83, 2.5, 3.5])]
 
 
-@pytest.mark.parametrize("name", ["t.clf", "t.clf.gz", "t.clf.bz2"])
+@pytest.mark.parametrize("name", ["t.clf", "t.clf.gz", "t.clf.bz2", "t.clf.xz", "t.log.xz"])
 def test_reads_plain_and_compressed(tmp_path, name):
     log = read_carmen(write(tmp_path, BASE, name), range_max=80.0)
     assert len(log.scans) == 2 and log.scans.n_beams == 4 and len(log.odometry) == 2
@@ -72,8 +75,16 @@ def test_small_backsteps_are_resorted_and_strict_mode_refuses(tmp_path):
     p = write(tmp_path, [*BASE, flaser(1.12, [1.0, 2.0, 3.0, 4.0])])
     log = read_carmen(p)
     assert np.all(np.diff(log.scans.stamp) >= 0) and log.source["reordered"]["scan"] == 2
-    with pytest.raises(DataError, match=r"t.clf:7: FLASER time goes backwards by 0.030000 s \(more than the tolerated 0 s\)"):
+    with pytest.raises(DataError, match=r"t.clf:7: FLASER time goes backwards by 0.030000 s \(more than the tolerated 0 s\); --max-backstep"):
         read_carmen(p, max_backstep=0.0)
+
+
+def test_stamps_collapsed_to_few_values_are_reported(tmp_path):
+    # a "corrected" log rewritten by a SLAM tool: 40 scans sharing two stamps, 10,000 s apart
+    lines = [flaser(1000.0 if k < 20 else 11000.0, [1.0, 2.0, 3.0, 4.0]) for k in range(40)]
+    log = read_carmen(write(tmp_path, lines))
+    assert log.source["collapsed_stamps"] == {"scan": {"distinct": 2, "records": 40}}
+    assert "collapsed_stamps" not in read_carmen(write(tmp_path, BASE * 5, "u.clf")).source  # distinct stamps: nothing to say
 
 
 def test_truncated_compressed_log(tmp_path):
@@ -139,3 +150,13 @@ def test_timestamps_out_of_range(tmp_path, stamp, match):
     line = flaser(1.2, [1.0] * 4).replace("1.200000", stamp, 1)
     with pytest.raises(DataError, match=match):
         read_carmen(write(tmp_path, [*BASE, line]))
+
+
+@pytest.mark.parametrize("name", ["t.clf.xz", "t.log.gz", "t.carmen.bz2"])
+def test_compressed_logs_are_recognised_without_format(tmp_path, name):
+    """The format comes from the name for every compression the reader opens (a .clf.xz was refused without --format)."""
+    from calib.io.registry import detect_format, read_log
+
+    p = write(tmp_path, BASE, name)
+    assert detect_format(p) == "carmen"
+    assert len(read_log(p).scans) == 2

@@ -164,3 +164,31 @@ def test_real_victoria_park_through_ros2(tmp_path):
     log = read_log(shared("victoria_park"))
     write_log(log, tmp_path / "vp")
     assert_logs_equal(log, read_log(tmp_path / "vp"))
+
+
+def test_a_message_deleted_from_a_bag_is_counted_with_its_gap(tmp_path, capsys):
+    """A scan row deleted from a ROS 2 bag's database: the index still lists it; the reader keeps the rest, records
+    what is missing and the command warns with the gap it leaves (it was read as one scan fewer, silently)."""
+    import sqlite3
+
+    from detcal.cli import main
+
+    stamps = tuple(k * 10**8 for k in range(1, 11))  # 10 Hz
+    bag = write_bag(tmp_path / "b", False, scans=[[1.0] * 5] * 10, stamps=stamps)
+    db = next(bag.glob("*.db3"))
+    with sqlite3.connect(db) as c:
+        tid = c.execute("SELECT id FROM topics WHERE name = '/front/scan'").fetchone()[0]
+        c.execute("DELETE FROM messages WHERE topic_id = ? AND timestamp = (SELECT timestamp FROM messages WHERE topic_id = ? "
+                  "ORDER BY timestamp LIMIT 1 OFFSET 4)", (tid, tid))  # fmt: skip
+    log = read_rosbag(bag)
+    assert len(log.scans) == 9
+    missing = log.source["missing"]["/front/scan"]
+    # stamps 0.1 .. 1.0 s without 0.5 s: the longest step 0.2 s, from 0.4 s (0.3 s after the first), median 0.1 s
+    assert (missing["declared"], missing["found"]) == (10, 9)
+    assert missing["longest_s"] == pytest.approx(0.2) and missing["after_s"] == pytest.approx(0.3) and missing["median_s"] == pytest.approx(0.1)
+    assert main(["log", "info", str(bag)]) == 0
+    err = capsys.readouterr().err
+    assert "topic /front/scan holds 9 of the 10 messages the bag's index lists; the longest gap is 0.2 s, 0.3 s into the log" in err
+    # a whole bag says nothing of the kind
+    whole = read_rosbag(write_bag(tmp_path / "w", False))
+    assert "missing" not in whole.source

@@ -10,7 +10,9 @@ from __future__ import annotations
 import bz2
 import io
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -112,6 +114,143 @@ def _edit_row(name: str, row: int, column: int, value: str):
         p.write_text("\n".join(lines) + "\n")
 
     return edit
+
+
+class Case(NamedTuple):
+    """A case whose command runs in an environment of its own: ``env`` variables set (None: removed), ``patch(mp)``
+    a deterministic fault put in place with pytest's monkeypatch (a full disk, say), undone after the case."""
+
+    argv: list[str]
+    env: dict[str, str | None] | None = None
+    patch: Callable | None = None
+
+
+def zip_flag(tmp: Path, name: str, *, encrypted: bool = False, method: int | None = None) -> str:
+    """A copy of :func:`small_log` whose every member says it is encrypted (flag bit 0) or uses compression ``method``,
+    as one flipped bit in each local and central header would."""
+    import struct
+
+    data = bytearray(Path(small_log(tmp)).read_bytes())
+    for sig, flag_at, method_at in ((b"PK\x03\x04", 6, 8), (b"PK\x01\x02", 8, 10)):
+        i = data.find(sig)
+        while i >= 0:
+            if encrypted:
+                data[i + flag_at] |= 1
+            if method is not None:
+                data[i + method_at : i + method_at + 2] = struct.pack("<H", method)
+            i = data.find(sig, i + 4)
+    return text(tmp, name, bytes(data))
+
+
+def damaged_gzip(tmp: Path) -> str:
+    """A gzip CARMEN log with one byte of its deflate stream changed so that zlib refuses it (invalid distance);
+    deterministic: the same bytes are compressed (mtime 0) and the first such byte is changed."""
+    import gzip
+    import zlib
+
+    body = "\n".join(["# header", *BASE, *(odom(2.0 + 0.1 * k, 0.01 * k) for k in range(2000))]) + "\n"
+    data = gzip.compress(body.encode(), mtime=0)
+    for k in range(20, len(data) - 8):
+        d = bytearray(data)
+        d[k] ^= 0x55
+        try:
+            gzip.decompress(bytes(d))
+        except zlib.error:
+            return text(tmp, "d.clf.gz", bytes(d))
+        except Exception:  # noqa: BLE001,S112  (other damage: try the next byte)
+            continue
+    raise AssertionError("no byte gave a zlib error")
+
+
+def _folder(tmp: Path, name: str) -> Path:
+    (tmp / name).mkdir(exist_ok=True)
+    return tmp / name
+
+
+def sparse(tmp: Path, name: str, size: int) -> str:
+    """A file of ``size`` bytes of zeros that takes no room on disk (a hole)."""
+    p = tmp / name
+    with open(p, "wb") as fh:
+        fh.truncate(size)
+    return str(p)
+
+
+def same_stamp(d: Path) -> None:
+    """Every UTIAS odometry row of robot 1 stamped with the first row's time."""
+    p = d / "Robot1_Odometry.dat"
+    lines = p.read_text().splitlines()
+    rows = [k for k, ln in enumerate(lines) if ln.strip() and not ln.startswith("#")]
+    t0 = lines[rows[0]].split()[0]
+    for k in rows:
+        lines[k] = " ".join([t0, *lines[k].split()[1:]])
+    p.write_text("\n".join(lines) + "\n")
+
+
+def profile_text(t: Path, **edits) -> str:
+    return text(t, "p.yaml", yaml.safe_dump(profile_doc(**edits)))
+
+
+def duplicated_key_profile(t: Path) -> str:
+    """The bundled profile with ``range_max: 5.0`` added after its own (the second one would win in PyYAML)."""
+    from profiles.store import BUILTIN
+
+    src = (BUILTIN / "sim-park-laser@1.0.0.yaml").read_text()
+    return text(t, "p.yaml", src.replace("  range_max: 80.0\n", "  range_max: 80.0\n  range_max: 5.0\n", 1))
+
+
+def full_disk_in(folder_name: str):
+    """A fault: every write to a file under a folder named ``folder_name`` fails with ENOSPC, and that folder's file
+    system reports no free space (what a full disk does); other folders keep their room."""
+
+    def patch(mp) -> None:
+        import errno
+        import os
+
+        real_open, real_statvfs = io.open, os.statvfs
+
+        def inside(p) -> bool:
+            return folder_name in Path(str(p)).parts
+
+        def fake_open(file, mode="r", *a, **k):
+            fh = real_open(file, mode, *a, **k)
+            if inside(file) and any(c in mode for c in "wax+"):
+                fh.close()
+                raise OSError(errno.ENOSPC, "No space left on device")
+            return fh
+
+        def fake_statvfs(p):
+            st = real_statvfs(p)
+            if inside(p):
+                return os.statvfs_result((st.f_bsize, st.f_frsize, st.f_blocks, 0, 0, *st[5:]))
+            return st
+
+        mp.setattr("builtins.open", fake_open)
+        mp.setattr("io.open", fake_open)
+        mp.setattr(os, "statvfs", fake_statvfs)
+
+    return patch
+
+
+def bag_disk_full(after: int):
+    """A fault: the ROS 2 bag's database refuses the write of message ``after`` as sqlite does on a full disk."""
+
+    def patch(mp) -> None:
+        import sqlite3
+
+        from rosbags.rosbag2 import Writer
+
+        real = Writer.write
+        count = {"n": 0}
+
+        def write(self, *a, **k):
+            count["n"] += 1
+            if count["n"] > after:
+                raise sqlite3.OperationalError("database or disk is full")
+            return real(self, *a, **k)
+
+        mp.setattr(Writer, "write", write)
+
+    return patch
 
 
 def interlaced_log(tmp: Path) -> str:
@@ -241,6 +380,36 @@ CASES = [
     ("out-holds-config", "--force over the folder that holds the simulation's config", lambda t: ["simulate", "park", "--config", _run_with_config(t), "--out", str(t / "run"), "--force"], 2, "run: holds the input"),
     ("out-unwritable", "output folder under a plain file", lambda t: ["log", "convert", small_log(t), str(Path(text(t, "plain", "x")) / "o.dlog")], 2, "plain/o.dlog: cannot write here ("),
     ("out-export-dir", "profile export onto a folder", lambda t: ["profile", "export", "sim-park-laser", "--out", str(t)], 2, "already exists (use --force to replace it)"),
+    # ---- found by a bad-input campaign (issue 50): tracebacks, believed values, misleading messages
+    ("native-encrypted", "a .dlog whose members have the encrypted flag", lambda t: ["log", "info", zip_flag(t, "enc.dlog", encrypted=True)], 1, "enc.dlog: member meta.json is encrypted (zip flag bit 0)"),
+    ("native-compression", "a .dlog member of an unknown compression method", lambda t: ["log", "info", zip_flag(t, "cm.dlog", method=99)], 1, "cm.dlog: member meta.json uses zip compression method 99; a detcal log uses stored or deflate"),
+    ("carmen-gzip-damaged", "a .clf.gz whose deflate stream zlib refuses", lambda t: ["log", "info", damaged_gzip(t)], 1, "d.clf.gz: compressed stream is truncated or corrupt after line"),
+    ("env-source-date-epoch", "SOURCE_DATE_EPOCH that is not an integer", lambda t: Case(["profile", "list"], env={"SOURCE_DATE_EPOCH": "yesterday"}), 2, "SOURCE_DATE_EPOCH: expected whole seconds since 1970-01-01 UTC"),
+    ("env-source-date-epoch-huge", "SOURCE_DATE_EPOCH beyond year 9999", lambda t: Case(["profile", "list"], env={"SOURCE_DATE_EPOCH": "99999999999999"}), 2, "SOURCE_DATE_EPOCH: expected whole seconds since 1970-01-01 UTC (0..253402300799"),
+    ("opt-scheduler-http", "--scheduler http://... (a dashboard's address)", lambda t: ["slam", "sweep", small_log(t), "--profile", "sim-park-laser", "--scheduler", "http://127.0.0.1:8787", "--out", str(t / "sw")], 2, "--scheduler http://127.0.0.1:8787: detcal reaches a Dask scheduler over tcp://"),
+    ("opt-seeds-billion", "--seeds 1000000000", lambda t: ["slam", "sweep", small_log(t), "--profile", "sim-park-laser", "--seeds", "1000000000", "--out", str(t / "sw")], 2, "--seeds: '1000000000' gives 1000000000 seeds, more than one sweep runs (at most 10000)"),
+    ("opt-seeds-overflow", "--seeds 10^20 (beyond a machine integer)", lambda t: ["slam", "sweep", small_log(t), "--profile", "sim-park-laser", "--seeds", "100000000000000000000", "--out", str(t / "sw")], 2, "--seeds: '100000000000000000000' gives 100000000000000000000 seeds"),
+    ("opt-seeds-range-overflow", "--seeds range of seeds beyond 2^63", lambda t: ["slam", "sweep", small_log(t), "--profile", "sim-park-laser", "--seeds", "99999999999999999999-99999999999999999999", "--out", str(t / "sw")], 2, "--seeds: a seed above 9223372036854775807"),
+    ("kitti-huge-frame", "a 1.6 GB KITTI .bin (10^8 points in one frame)", lambda t: ["log", "info", sparse(t, "big.bin", 1_600_000_000)], 1, "big.bin: 100000000 points in one frame (1.6 GB); a lidar frame holds far fewer"),
+    ("config-duplicate-key", "config with a key given twice", lambda t: sim_config(t, "park", "width: 60\nbushes: {count: 3}\nwidth: 80\n"), 2, "c.yaml:3: not valid YAML (key 'width' is given twice (first on line 1))"),
+    ("config-duplicate-nested-key", "config with a nested key given twice", lambda t: sim_config(t, "park", "path:\n  margin: 5\n  margin: 6\n"), 2, "c.yaml:3: not valid YAML (key 'margin' is given twice (first on line 2))"),
+    ("profile-duplicate-key", "profile with range_max given twice", lambda t: ["profile", "validate", duplicated_key_profile(t)], 1, "p.yaml:19: not valid YAML/JSON (key 'range_max' is given twice (first on line 18))"),
+    ("profile-json-duplicate-key", "JSON profile with a key given twice", lambda t: ["profile", "validate", text(t, "p.json", '{"name": "a", "name": "b"}')], 1, "p.json: not valid JSON (key 'name' is given twice in one object)"),
+    ("profile-range-order", "profile with range_min above range_max", lambda t: ["profile", "validate", profile_text(t, sensor__range_min=100.0)], 1, "p.yaml: sensor: range_min (100 m) must be below range_max (80 m)"),
+    ("profile-increment-zero", "profile with angle_increment 0", lambda t: ["profile", "validate", profile_text(t, sensor__angle_increment=0.0)], 1, "p.yaml: sensor: angle_increment is 0: the 361 beams would all point the same way"),
+    ("profile-beams-billion", "profile with n_beams 10^9", lambda t: ["profile", "validate", profile_text(t, sensor__n_beams=10**9)], 1, "p.yaml: sensor.n_beams: Input should be less than or equal to 100000"),
+    ("profile-fan-turns", "profile whose beams span more than a turn", lambda t: ["profile", "validate", profile_text(t, sensor__angle_increment=0.1)], 1, "p.yaml: sensor: 361 beams every 0.1 rad span 36 rad, more than a full turn"),
+    ("profile-angle-min", "profile with angle_min of 7 rad", lambda t: ["profile", "validate", profile_text(t, sensor__angle_min=7.0)], 1, "p.yaml: sensor: angle_min (7 rad) is beyond a full turn"),
+    ("utias-barcode-twice", "UTIAS barcode listed for two subjects", lambda t: ["log", "info", utias_copy(t, _edit_row("Barcodes.dat", 7, 1, "27"))], 1, "Barcodes.dat:12: subject barcode: barcode 27 is listed twice (line 11 with subject 7, this line with subject 8)"),
+    ("utias-subject-twice", "UTIAS landmark subject listed twice", lambda t: ["log", "info", utias_copy(t, _edit_row("Landmark_Groundtruth.dat", 3, 0, "6"))], 1, "Landmark_Groundtruth.dat:"),
+    ("utias-odometry-one-time", "UTIAS odometry all stamped at one time", lambda t: ["slam", "run", utias_copy(t, same_stamp), "--profile", "sim-park-laser"], 1, "Robot1_Odometry.dat: every one of the 1500 odometry records is stamped 0.0 s; the odometry carries no time"),
+    ("utias-speed", "UTIAS odometry speed of 1e300 m/s", lambda t: ["log", "info", utias_copy(t, _edit_row("Robot1_Odometry.dat", 5, 1, "1e300"))], 1, "Robot1_Odometry.dat:6: t v omega: speed beyond 2 m/s"),
+    ("utias-bearing", "UTIAS bearing of 9 rad", lambda t: ["log", "info", utias_copy(t, _edit_row("Robot1_Measurement.dat", 2, 3, "9"))], 1, "Robot1_Measurement.dat:3: t barcode range bearing: bearing outside -pi..pi rad"),
+    ("vp-speed", "Victoria Park speed of 1e300 on one line", lambda t: ["slam", "run", vp_copy(t, _edit_row("inputs.dat", 300, 1, "1e300")), "--profile", "sim-park-laser"], 1, "inputs.dat:301: t speed steering: speed beyond 40 m/s"),
+    ("vp-steering", "Victoria Park steering of 3 rad", lambda t: ["log", "info", vp_copy(t, _edit_row("inputs.dat", 10, 2, "3"))], 1, "inputs.dat:11: t speed steering: steering beyond 1 rad"),
+    ("vp-range", "Victoria Park range beyond the laser's 80 m", lambda t: ["log", "info", vp_copy(t, _edit_row("measurements.dat", 4, 1, "500"))], 1, "measurements.dat:5: t range bearing diameter: range beyond the laser's 80 m"),
+    ("out-full-disk", "profile export into a folder whose disk is full", lambda t: Case(["profile", "export", "sim-park-laser", "--out", str(_folder(t, "diskfull") / "p.yaml")], patch=full_disk_in("diskfull")), 2, "diskfull/p.yaml: cannot write (No space left on device)"),
+    ("out-bag-disk-full", "ROS 2 bag on a disk that fills while it is written", lambda t: Case(["log", "convert", interlaced_log(t), str(t / "bag")], patch=bag_disk_full(3)), 2, "bag: cannot write (the bag's sqlite3 database: database or disk is full)"),
 ]  # fmt: skip
 
 
@@ -302,6 +471,16 @@ def _foreign_dir(t: Path, name: str = "mine") -> str:
 
 def run_case(tmp: Path, build, capsys=None) -> tuple[int, str, str]:
     argv = build(tmp)
+    if isinstance(argv, Case):
+        with pytest.MonkeyPatch.context() as mp:
+            for k, v in (argv.env or {}).items():
+                if v is None:
+                    mp.delenv(k, raising=False)
+                else:
+                    mp.setenv(k, v)
+            if argv.patch is not None:
+                argv.patch(mp)
+            return run_case(tmp, lambda _t: argv.argv, capsys)
     if capsys is None:
         import contextlib
 
@@ -335,6 +514,7 @@ def _inputs_of(case: str) -> set[str]:
     return {
         "t.clf", "x.clf.bz2", "c.clf.bz2", "i.clf", "i.dlog", "x.dlog", "cut.dlog", "ok.dlog", "src.dlog", "f.dlog", "h.dlog", "c.yaml",
         "p.yaml", "p.json", "l.csv", "utias", "run[v2]", "mine", "d.dlog", "plain", "notes.yaml", "e.dlog", "run", "vp",
+        "enc.dlog", "cm.dlog", "d.clf.gz", "big.bin", "diskfull",
     }  # fmt: skip
 
 

@@ -47,7 +47,7 @@ def test_the_loop_recovers_pd_and_clutter_from_a_wrong_start(log):
     from slam_runtime.config import SlamConfig, override
     from detcal.pipelines.self_calibration import self_calibration
 
-    cfg = override(load_yaml_model(SlamConfig, Path(__file__).resolve().parents[2] / "benchmarks/configs/rfs_sim.yaml"), particles=20)
+    cfg = override(load_yaml_model(SlamConfig, Path(__file__).resolve().parents[3] / "benchmarks/configs/rfs_sim.yaml"), particles=20)
 
     def measure(lg, traj, xy, w, prior, k):
         c = self_calibrate(lg, traj, xy, w, prior, SelfCalConfig(gate=0.3), name="x", version="1.0.0", iteration=k)
@@ -77,6 +77,9 @@ def test_selfcal_command_writes_its_folder_and_the_profile(tmp_path, capsys, log
     assert names == [".detcal-output", "iterations.csv", "last_run", "pd_iterations.png", "profile.yaml", "profiles", "slam.yaml", "summary.yaml"]
     prof = yaml.safe_load((tmp_path / "sc/profile.yaml").read_text())
     assert prof["name"] == "sim-selfcal" and prof["pd"]["covariate"] == "range"
+    # its provenance names what rebuilds it: the starting profile (not itself) and the seed, 0 included
+    assert prof["provenance"]["parameters"]["prior"] == nominal().ref != "sim-selfcal@1.0.0"
+    assert prof["provenance"]["seed"] == 0
     assert (tmp_path / "profiles").is_dir() and "sim-selfcal@1.0.0" in out
     saved = (tmp_path / "profiles/sim-selfcal@1.0.0.yaml").read_bytes()
     assert yaml.safe_load(saved) == prof  # the store holds what the run folder holds
