@@ -88,26 +88,19 @@ def test_a_park_of_the_same_sensor_is_consistent(parks, tmp_path, capsys):
         assert (again / name).read_bytes() == (tmp_path / "v" / name).read_bytes(), name
 
 
-def test_a_lower_pd_beyond_10_m_is_drift_at_pd_with_the_bins_named(parks, tmp_path, capsys):
+@pytest.mark.parametrize(("variant", "part", "other"), [("pd_lower", "P_D", "clutter"), ("clutter_double", "clutter", "P_D")])
+def test_a_changed_sensor_is_drift_at_the_part_that_changed(parks, tmp_path, capsys, variant, part, other):
     park, _, _ = parks
-    code, out, err, parts = _validate(capsys, parks, tmp_path, park("pd_lower", 2))
+    code, out, err, parts = _validate(capsys, parks, tmp_path, park(variant, 2))
     assert code == 3, out + err
     verdicts = _verdicts(parts, "park_seed2")
-    assert verdicts["P_D"] == "drifted" and verdicts["clutter"] != "drifted"
-    where = parts.loc[parts["part"] == "P_D", "where"].iloc[0]
-    assert "m)" in where and " -0." in where  # the bins named by their ranges, lower than predicted
-    assert "verdict: drifted: P_D" in out
-
-
-def test_doubled_clutter_is_drift_at_clutter(parks, tmp_path, capsys):
-    park, _, _ = parks
-    code, out, err, parts = _validate(capsys, parks, tmp_path, park("clutter_double", 2))
-    assert code == 3, out + err
-    verdicts = _verdicts(parts, "park_seed2")
-    assert verdicts["clutter"] == "drifted" and verdicts["P_D"] != "drifted"
-    row = parts[parts["part"] == "clutter"].iloc[0]
-    assert row["observed"] > row["right_high"]  # more false alarms per frame than a right profile gives on this log
-    assert "verdict: drifted: clutter" in out
+    assert verdicts[part] == "drifted" and verdicts[other] != "drifted", verdicts
+    assert f"verdict: drifted: {part}" in out
+    row = parts[parts["part"] == part].iloc[0]
+    if part == "P_D":
+        assert "m)" in row["where"] and " -0." in row["where"]  # the bins named by their ranges, lower than predicted
+    else:
+        assert row["observed"] > row["right_high"]  # more false alarms per frame than a right profile gives on this log
 
 
 def test_a_tiny_log_is_too_little_data_with_what_would_do(parks, tmp_path, capsys):
