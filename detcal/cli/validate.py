@@ -161,8 +161,7 @@ def scores_table(title: str, t, first: tuple[str, ...]) -> Table:
     """Rows of validation scores (fold rows or per-log rows) in columns narrow enough for a terminal."""
     tab = Table(title=title)
     cover = "hotelling_coverage" in t and t["hotelling_coverage"].notna().any()
-    verdict = "verdict" in t
-    for c in (*first, "ECE (noise)", "Brier", "loglik", "FA error [95 % CI]", *(["coverage"] if cover else []), *(["verdict"] if verdict else [])):
+    for c in (*first, "ECE (noise)", "Brier", "loglik", "FA error [95 % CI]", *(["coverage"] if cover else [])):
         tab.add_column(c, overflow="fold", justify="left" if c in first else "right")
     for r in t.to_dict("records"):
         row = [str(r[c]) for c in first] + [
@@ -175,8 +174,6 @@ def scores_table(title: str, t, first: tuple[str, ...]) -> Table:
         if cover:
             n = r.get("true_detections")
             row.append(f"{r['hotelling_coverage']:.4f}" + (f" of {int(n)}" if n is not None and not math.isnan(n) else ""))
-        if verdict:
-            row.append(str(r["verdict"]))
         tab.add_row(*row)
     return tab
 
@@ -201,6 +198,10 @@ def _cross_validate(args, reader, cv, config, adapt, landmarks, poses, out_dir, 
     res = cross_validate(loaded, cv, config=cfg, adapt=adapt, landmarks_csv=landmarks, poses=poses)
     figures = write_cv_run(res, target, overwrite=force)
     out.print(scores_table(f"cross-validation ({cv}) -> {target} ({len(figures)} figures)", res.table, ("fold", "test", "profile")))
+    if "verdict" in res.table:  # each fold's drift verdict (folds.csv: per part, with p-values)
+        for r in res.table.to_dict("records"):
+            text = r["drift"] if isinstance(r.get("drift"), str) and r["drift"] else r["verdict"]
+            out.print(f"  {r['fold']} on {r['test']} ({r['profile']}): {text}")
     for prof, s in res.summary.items():
         if isinstance(s, dict):
             out.print(summary_table(f"{prof} profile over the folds", s))
