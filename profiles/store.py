@@ -26,7 +26,7 @@ from pydantic import ValidationError
 from profiles import strict_yaml
 from profiles.atomic import atomic_output
 from profiles.errors import DataError, DetcalError, UsageError
-from profiles.profile import DETECTOR_KINDS, SCHEMA_VERSION, SUPPORTED_SCHEMAS, V2_FIELDS, DetectorProfile, semver_key
+from profiles.profile import DETECTOR_KINDS, LATER_OPTIONAL, SCHEMA_VERSION, SUPPORTED_SCHEMAS, V2_FIELDS, DetectorProfile, semver_key
 from profiles.provenance import parameter_models
 
 BUILTIN = Path(__file__).resolve().parent / "builtin"
@@ -163,6 +163,10 @@ def dump_profile(profile: DetectorProfile, fmt: str = "yaml") -> str:
     for section in ("noise", "sensors", "planes"):  # optional sections: absent rather than null, so older profiles keep their bytes
         if data.get(section) is None:
             data.pop(section, None)
+    for section, keys in LATER_OPTIONAL.items():
+        for k in keys:
+            if isinstance(data.get(section), dict) and data[section].get(k, 0) is None:
+                data[section].pop(k)
     det = data.get("detector", {})
     if det.get("plane", 0) is None:
         det.pop("plane")
