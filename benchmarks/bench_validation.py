@@ -40,7 +40,8 @@ from calib.validate import validate  # noqa: E402
 pd.set_option("display.width", 200)
 pd.set_option("display.max_columns", 20)
 COLS = ["fold", "test", "profile", "ece", "ece_if_calibrated_blocks", "brier", "loglik_per_pair", "false_alarm_relative_error",
-        "false_alarm_relative_error_ci95_low", "false_alarm_relative_error_ci95_high"]
+        "false_alarm_relative_error_ci95_low", "false_alarm_relative_error_ci95_high", "verdict", "pd_p_value", "clutter_p_value",
+        "noise_p_value", "coverage_p_value"]
 
 
 def utias(root: Path) -> None:
@@ -52,6 +53,7 @@ def utias(root: Path) -> None:
         cv = cross_validate(logs, kind, adapt=adapt)
         print(f"\nUTIAS dataset 1, --cv {kind}" + (f" --adapt {adapt:g}" if adapt else "") + f" ({time.perf_counter() - t:.1f} s)")
         print(cv.table[COLS].round(4).to_string(index=False))
+        print("  drift: " + " | ".join(f"{r.test} ({r.profile}): {r.drift}" for r in cv.table.itertuples()))
         for prof, s in cv.summary.items():
             if isinstance(s, dict):
                 print(
@@ -97,6 +99,9 @@ def parks(n: int) -> None:
             pl = v.per_log.assign(calibrated_on=logs[k].name)
             rows.append(pl)
             s = v.summary
+            print(
+                f"  verdicts: {v.drift.verdict}; " + "; ".join(f"{r.name}: {r.headline}" for r in v.drift.rows), flush=True
+            )
             print(
                 f"gamma {gamma:9s} calibrated on {logs[k].name}: gamma {cal.profile.hotelling.gamma:.2f}, in-sample coverage "
                 f"{cal.profile.hotelling.coverage:.4f}, rate {cal.profile.clutter.rate:.3f} ({cal.profile.clutter.count_model}); "

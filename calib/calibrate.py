@@ -33,6 +33,7 @@ import pandas as pd
 from calib import __version__
 from profiles.version import build_stamp
 from calib.clutter import density_summary, fit_density, time_folds
+from calib.drift import landmark_clusters, with_effective_counts
 from calib.fits import (
     ClutterFit,
     HotellingFit,
@@ -367,6 +368,7 @@ def calibrate(
     detected = (det_idx >= 0) & gated[np.maximum(det_idx, 0)]
     pairs["detected"] = detected
     pd_table = fit_pd_table(pairs["n_p"].to_numpy(), detected, "n_p", cfg.pd)
+    pd_table = with_effective_counts(pd_table, pairs, detected, landmark_clusters(pairs))
     # clutter: gated false alarms per scan, over every scan of every log (scans with none count)
     fa = dets[gated & ~true]
     counts = np.concatenate(

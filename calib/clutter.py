@@ -167,6 +167,23 @@ def batch_means_ci(values: np.ndarray, n_batches: int = 20, level: float = 0.95)
     return m, m - half, m + half
 
 
+def batch_se(x: np.ndarray, batches: int = 20) -> np.ndarray:
+    """Standard error of the mean of x (..., F) along its last axis from ``batches`` contiguous batches (NaN under 2)."""
+    f = x.shape[-1]
+    b = min(batches, f // 2)
+    if b < 2:
+        return np.full(x.shape[:-1], np.nan)
+    size = f // b
+    means = x[..., : b * size].reshape(*x.shape[:-1], b, size).mean(axis=-1)
+    return means.std(axis=-1, ddof=1) / np.sqrt(b)
+
+
+def rate_standard_error(counts: np.ndarray, batches: int = 20) -> float | None:
+    """Standard error of a clutter rate measured on counts per frame (F,) (batch means); None when too few frames."""
+    se = float(batch_se(np.asarray(counts, dtype=np.float64), batches))
+    return se if np.isfinite(se) else None
+
+
 # ---------------------------------------------------------------------------------------------- density
 
 

@@ -40,7 +40,9 @@ TABLE_COLUMNS = (
     "frames", "false_alarms_per_frame_observed", "false_alarms_per_frame_predicted", "false_alarm_relative_error",
     "false_alarm_relative_error_ci95_low", "false_alarm_relative_error_ci95_high", "clutter_chi2_p_value",
     "clutter_dispersion", "true_detections", "hotelling_coverage", "frame_period_s",
+    "verdict", "drift", "pd_p_value", "clutter_p_value", "noise_p_value", "coverage_p_value",
 )
+TEXT_COLUMNS = ("verdict", "drift")
 
 
 def frame_stamps(log: SensorLog) -> np.ndarray:
@@ -114,7 +116,7 @@ def _row(f: FoldResult) -> dict:
             row[c] = s.get(base, [np.nan, np.nan])[0 if end == "low" else 1]
         else:
             v = s.get(c, np.nan)
-            row[c] = np.nan if isinstance(v, list | str) else v
+            row[c] = v if c in TEXT_COLUMNS else (np.nan if isinstance(v, list | str) else v)
     return row
 
 
@@ -138,6 +140,7 @@ def summarise(kind: str, folds: list[FoldResult]) -> tuple[pd.DataFrame, dict]:
             "max_abs_false_alarm_error": float(t["false_alarm_relative_error"].abs().max()),
             "pooled_false_alarm_error": float(obs / pred - 1) if pred > 0 else float("nan"),
         }
+        summary[prof]["verdicts"] = {str(k): int(v) for k, v in t["verdict"].value_counts().sort_index().items()}
         if t["hotelling_coverage"].notna().any():
             summary[prof]["mean_hotelling_coverage"] = float(t["hotelling_coverage"].mean())
     return table, summary

@@ -39,7 +39,8 @@ import pandas as pd
 from calib import __version__
 from profiles.version import build_stamp
 from calib.calibrate import created_now
-from calib.clutter import density_summary, fit_density, time_folds
+from calib.clutter import density_summary, fit_density, rate_standard_error, time_folds
+from calib.drift import DriftConfig, RowDrift, landmark_clusters, with_effective_counts
 from calib.fits import ClutterFit, clutter_params, fit_clutter
 from calib.io.common import index_of
 from calib.pdmodels import between_sensor_sd, choose_pd_model, pool_sensors, predict, shrink_rates
@@ -247,6 +248,7 @@ class DetectionCalibration:
     names: list[str] = field(default_factory=list)
     config: DetectionCalibConfig | None = None
     motion: dict | None = None  # the odometry's noise and biases (calib.odometry), when the logs allow it
+    exchange: Exchangeability | None = None  # which sensors the pooled model does not describe (several sensors, on request)
 
 
 def calibrate_detections(
@@ -259,8 +261,13 @@ def calibrate_detections(
     input_refs=None,
     command: str = "",
     per_sensor: bool = False,
+    exchange: DriftConfig | None = None,
 ) -> DetectionCalibration:
     """A pooled profile of detection-level logs (one sensor each), and with ``per_sensor`` one profile per sensor.
+
+    ``exchange`` (several sensors): which sensors the pooled model does not describe
+    (:func:`exchangeability` with these drift settings), in the summary and in
+    :attr:`DetectionCalibration.exchange`.
 
     Folds for the held-out model choices: the sensors when there are several
     (a model must transfer to a sensor it was not fitted to), else
@@ -297,6 +304,7 @@ def calibrate_detections(
         re_ = np.linspace(0.0, rmax, cfg.clutter.range_bins + 1)
         be = np.linspace(-fov / 2, fov / 2, cfg.clutter.bearing_bins + 1)
         density = fit_density(fas["range"].to_numpy(), fas["bearing"].to_numpy(), fa_fold, re_, be, cfg.clutter, label)
+    table = with_effective_counts(table, pairs, pairs["detected"].to_numpy(bool), landmark_clusters(pairs))
     sensor = SensorModel(kind="camera", fov=fov, range_max=rmax, mount=logs[0].sensor.mount if logs[0].sensor else SensorModel().mount)
     clutter = clutter_params(clut, "range_bearing", fov * rmax, density)
     spread = pooling = None
@@ -335,10 +343,15 @@ def calibrate_detections(
     if per_sensor and pooling is not None:
         for k, lg in enumerate(logs):
             own = fit_clutter(parts[k].counts, cfg.clutter.dispersion_level)
+            # the member's rate is w own + (1 - w) pooled: its standard error from both (taken as independent)
+            se_own, se_pool = rate_standard_error(parts[k].counts), clutter.rate_se
+            mine = pairs["log"].to_numpy() == k
             mc = updated(
                 clutter,
                 {
                     "rate": member_rates[k],
+                    "frames": int(parts[k].counts.size),
+                    "rate_se": None if se_own is None or se_pool is None else float(np.hypot(weights[k] * se_own, (1 - weights[k]) * se_pool)),
                     "kappa": None,
                     "chi2": own.chi2 if np.isfinite(own.chi2) else None,
                     "dof": own.dof if np.isfinite(own.chi2) else None,
@@ -351,7 +364,8 @@ def calibrate_detections(
             sp = SensorSpread(**{**spread, "member": names[k], "clutter_weight": weights[k]})
             members.append(
                 DetectorProfile(
-                    name=f"{name}-{names[k]}", pd=pooling.tables[k], clutter=mc, sensors=sp,
+                    name=f"{name}-{names[k]}", clutter=mc, sensors=sp,
+                    pd=with_effective_counts(pooling.tables[k], pairs[mine], pairs["detected"].to_numpy(bool)[mine], landmark_clusters(pairs[mine])),
                     **{**base, "noise": fit_noise(parts[k].detections)},
                 )
             )
@@ -396,7 +410,10 @@ def calibrate_detections(
     if motion is not None:
         v = motion["velocity"]
         summary["odometry"] = {k: round(float(x), 4) for k, x in v.items()} | {"windows": motion["windows"]}
-    return DetectionCalibration(profile, pairs, clut, summary, members, parts, names, cfg, motion)
+    ex = exchangeability(logs, cfg, exchange) if exchange is not None and len(logs) > 1 else None
+    if ex is not None:
+        summary["exchangeability"] = ex.summary()
+    return DetectionCalibration(profile, pairs, clut, summary, members, parts, names, cfg, motion, ex)
 
 
 def odometry_of(logs: list[SensorLog]) -> dict | None:
@@ -420,13 +437,34 @@ def held_out_detections(profile: DetectorProfile, log: SensorLog, *, remap: dict
     pairs["predicted"] = predict(profile.pd, pairs)
     pairs["observed"] = pairs["detected"]
     fa = lab.false_alarms
+    t = lab.detections[lab.detections["true"]]
+    truth = pd.DataFrame(
+        {
+            "cluster": log.name + "/" + t["landmark_index"].astype(str).to_numpy(),
+            "range_residual": t["range_residual"].to_numpy(np.float64),
+            "bearing_residual": t["bearing_residual"].to_numpy(np.float64),
+        }
+    )
     return Held(
         log.name, pairs, lab.counts, fa["range"].to_numpy(np.float64), fa["bearing"].to_numpy(np.float64), period,
-        extra={"true_detections_outside_fov": lab.outside},
+        extra={"true_detections_outside_fov": lab.outside}, truth=truth,
     )
 
 
-def validate_detections(profile: DetectorProfile, logs: list[SensorLog], *, audit: IdentityAudit | None = None) -> Validation:
+def _own_period(profile: DetectorProfile, log: SensorLog) -> float:
+    """A held-out log's own frame period, or the profile's when the log has too few frames to tell."""
+    try:
+        return frame_period([log])
+    except DataError:
+        period = float(profile.provenance.parameters.get("frame_period") or np.nan)
+        if not np.isfinite(period):
+            raise
+        return period
+
+
+def validate_detections(
+    profile: DetectorProfile, logs: list[SensorLog], *, audit: IdentityAudit | None = None, drift: DriftConfig | None = None
+) -> Validation:
     """Score a detection-level profile on held-out logs, each at its own frame period.
 
     The identity audit runs on the held-out logs themselves (it corrects the
@@ -439,15 +477,99 @@ def validate_detections(profile: DetectorProfile, logs: list[SensorLog], *, audi
     for lg in logs:
         _need(lg)
     remap, evidence = audit_identities(logs, profile.detector.association_gate, audit or IdentityAudit())
-    held = []
-    for lg in logs:
-        try:
-            period = frame_period([lg])
-        except DataError:  # too few frames to tell: the training period is the best guess
-            period = float(profile.provenance.parameters.get("frame_period") or np.nan)
-            if not np.isfinite(period):
-                raise
-        held.append(held_out_detections(profile, lg, remap=remap, period=period))
-    return score(profile, held, {"identity_remap": evidence or "none"})
+    held = [held_out_detections(profile, lg, remap=remap, period=_own_period(profile, lg)) for lg in logs]
+    return score(profile, held, {"identity_remap": evidence or "none"}, drift=drift)
+
+
+def _loo_rows(logs, left: list[int], cfg: DetectionCalibConfig, drift: DriftConfig, names: list[str], remap) -> list[RowDrift]:
+    """The raw drift tests of each sensor in ``left`` against the pooled profile of the others in ``left``."""
+    from calib.validate import drift_row
+
+    rows = []
+    for k in left:  # one calibration of the others per sensor: a handful
+        others = calibrate_detections([logs[j] for j in left if j != k], cfg, name="loo", version="0.0.0")
+        held = held_out_detections(others.profile, logs[k], remap=remap, period=_own_period(others.profile, logs[k]))
+        rows.append(drift_row(others.profile, [held], names[k], k + 1, drift))
+    return rows
+
+
+def leave_one_out(logs: list[SensorLog], cfg: DetectionCalibConfig, drift: DriftConfig | None = None):
+    """Each sensor's log against the pooled profile of all the others, one Holm family (a :class:`DriftReport`)."""
+    from calib.drift import decide
+
+    if len(logs) < 2:
+        raise UsageError("leave one out needs logs of at least two sensors")
+    drift = drift or DriftConfig()
+    remap, _ = audit_identities(logs, cfg.gate, cfg.audit)
+    return decide(_loo_rows(logs, list(range(len(logs))), cfg, drift, sensor_names(logs), remap), drift)
+
+
+@dataclass
+class Exchangeability:
+    """Which sensors the pooled model describes (:func:`exchangeability`).
+
+    rows: one per sensor, the drift tests that decided it (for a sensor set
+    apart, those of the round that set it apart; a sensor left alone at the end
+    has none); odd: the sensors set apart, in the order they were, and when no
+    two sensors agree the last one too; steps: rounds of leave-one-out tests.
+    """
+
+    rows: list
+    odd: list[str]
+    steps: int
+    round_of: dict[str, int] = field(default_factory=dict)  # the round whose tests decided each row (its Holm family)
+    none_agree: bool = False  # set apart down to the last one
+
+    def summary(self) -> dict:
+        return {
+            "not_exchangeable": ("all: no two sensors agree" if self.none_agree else self.odd) if self.odd else "none",
+            "rounds": self.steps,
+            "per_sensor": {r.name: f"{r.headline} (round {self.round_of.get(r.name)})" for r in self.rows},
+        }
+
+
+def exchangeability(logs: list[SensorLog], cfg: DetectionCalibConfig, drift: DriftConfig | None = None) -> Exchangeability:
+    """Is each sensor exchangeable with the others? Each one's log against the pooled profile of all the others
+    (leave one out: the profile knows nothing of the sensor it is tested on), every part of every sensor one
+    Holm family (:mod:`calib.drift`). One odd sensor pulls every pooled profile it joins, so the others can
+    look drifted too: the sensor with the strongest evidence (smallest adjusted p-value, then largest statistic) is set apart and the
+    rest tested again without it, until no sensor left is drifted (or one is left). When the fleet is
+    exchangeable, the first round names none with probability at least 1 - alpha.
+    """
+    from calib.drift import decide
+
+    if len(logs) < 2:
+        raise UsageError("exchangeability needs logs of at least two sensors")
+    drift = drift or DriftConfig()
+    names = sensor_names(logs)
+    remap, _ = audit_identities(logs, cfg.gate, cfg.audit)
+    left = list(range(len(logs)))
+    decided: dict[int, RowDrift] = {}
+    odd: list[str] = []
+    round_of: dict[str, int] = {}
+    steps = 0
+    while len(left) >= 2:
+        steps += 1
+        rows = _loo_rows(logs, left, cfg, drift, names, remap)
+        decide(rows, drift)
+        # strongest evidence first: the smallest adjusted p-value, ties (at the bootstrap's floor) broken by the
+        # largest standardised statistic
+        bad = [
+            (min(p.p_adjusted for p in r.parts.values()), -max(abs(p.statistic) for p in r.parts.values()), i)
+            for i, r in enumerate(rows) if r.verdict == "drifted"
+        ]
+        if not bad:
+            decided.update(dict(zip(left, rows, strict=True)))
+            round_of.update({names[k]: steps for k in left})
+            break
+        i = min(bad)[2]
+        decided[left[i]] = rows[i]
+        round_of[names[left[i]]] = steps
+        odd.append(names[left[i]])
+        del left[i]
+    none_agree = len(left) == 1 and bool(odd)
+    if none_agree:  # no two sensors agree: the last one left is no reference, it needs its own profile too
+        odd.append(names[left[0]])
+    return Exchangeability([decided[k] for k in sorted(decided)], odd, steps, round_of, none_agree)
 
 

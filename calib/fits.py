@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2, poisson, rankdata
 
-from calib.clutter import dispersion_test, fit_negative_binomial, nb_pmf_sf, pearson
+from calib.clutter import dispersion_test, fit_negative_binomial, nb_pmf_sf, pearson, rate_standard_error
 from detectors.circle import mahalanobis2 as maha2
 from profiles.errors import DataError
 from profiles.parameters import PdFitConfig
@@ -216,6 +216,7 @@ def fit_clutter(counts: np.ndarray, level: float = 0.05) -> ClutterFit:
 
 
 def clutter_params(fit: ClutterFit, space: str, volume: float, density: ClutterDensity | None = None) -> ClutterParams:
+    """The profile's clutter section, with the frames the rate was measured on and its batch-means standard error."""
     finite = np.isfinite(fit.chi2)
     return ClutterParams(
         rate=fit.rate,
@@ -230,4 +231,6 @@ def clutter_params(fit: ClutterFit, space: str, volume: float, density: ClutterD
         dispersion_test=fit.dispersion_test,
         nb_gof=fit.nb_gof,
         density=density,
+        frames=int(fit.counts.size),
+        rate_se=rate_standard_error(fit.counts),
     )

@@ -382,10 +382,10 @@ def calibrate_planes(
     return PlaneCalibration(profile, cfg, PlaneLabels(dets, pairs, int(sum(p.frames for p in parts))), clut, summary)
 
 
-def validate_planes(profile: DetectorProfile, log: SensorLog):
+def validate_planes(profile: DetectorProfile, log: SensorLog, *, drift=None):
     """Score a lidar3d-planes profile on a held-out log with truth (:mod:`calib.validate`): the reliability of its
     P_D predictions over every (frame, landmark plane) pair in view, and observed against predicted false alarms
-    per frame."""
+    per frame, with the drift verdicts (``drift``: a :class:`calib.drift.DriftConfig`, defaults when None)."""
     from calib.validate import Held, score
 
     if profile.kind != "lidar3d-planes":
@@ -406,6 +406,6 @@ def validate_planes(profile: DetectorProfile, log: SensorLog):
     counts = np.bincount(np.searchsorted(np.arange(0, len(log.clouds), cfg.every), fa["frame"].to_numpy()), minlength=lab.frames)
     period = float(np.median(np.diff(log.clouds.stamp)) / 1e9) if len(log.clouds) > 1 else float("nan")
     held = Held(log.name, pairs, counts, np.zeros(0), np.zeros(0), period, extra={"plane_frame_pairs_in_view": len(pairs)})
-    return score(profile, [held])
+    return score(profile, [held], drift=drift)
 
 

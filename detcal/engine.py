@@ -207,7 +207,8 @@ class Engine:
             out: list = [None] * len(args)
             failed: list[tuple[int, BaseException]] = []
             it = self.map_unordered(
-                _with_log, [(fn, handles[k], tuple(a[1:])) for k, a in enumerate(args)], [f"{fn.__name__}-{n}" for n in names]
+                _with_log, [(fn, handles[k], tuple(a[1:])) for k, a in enumerate(args)],
+                [f"{fn.__name__}-{k}-{n}" for k, n in enumerate(names)],  # unique: two logs may share a name (a seed, a robot)
             )
             if progress is not None:
                 it = progress(it, len(args), f"{fn.__name__.replace('_', ' ')} ({self.label})")

@@ -81,4 +81,4 @@ def register(name: str, detector: Detector, kind: DetectorKind | None = None) ->
     means to a profile."""
     if kind is not None:
         DETECTOR_KINDS.add(name, kind)
-    return DETECTORS.add(name, detector)
+    return DETECTORS.add(name, detector, _depth=2)  # the module that called register, not this one

@@ -55,10 +55,12 @@ from profiles.schema import PD_COVARIATES, CircleDetectorParams, ClutterParams, 
 
 SCHEMA_VERSION = 3
 SUPPORTED_SCHEMAS = (1, 2, 3)
+# schema-2 fields added after its first release: left out when absent, so profiles written before keep their bytes
+LATER_OPTIONAL: dict[str, tuple[str, ...]] = {"pd": ("effective_counts",), "clutter": ("frames", "rate_se")}
 # fields added in schema 2, as a pydantic ``exclude`` spec (left out when writing a schema-1 document)
 V2_FIELDS: dict = {
-    "pd": {"bearing_edges", "model", "shrinkage", "between_sensor_sd", "selection"},
-    "clutter": {"count_model", "size", "dispersion_test", "nb_gof", "density"},
+    "pd": {"bearing_edges", "model", "shrinkage", "between_sensor_sd", "selection", "effective_counts"},
+    "clutter": {"count_model", "size", "dispersion_test", "nb_gof", "density", "frames", "rate_se"},
     "hotelling": {"gamma_method", "coverage"},
     "sensors": True,
     "planes": True,

@@ -333,6 +333,12 @@ class PdTable(Strict):
 
     ``between_sensor_sd`` (pooled profiles): how far the sensors' own P_D spread
     about the pooled one in each bin, beyond binomial noise (beta-binomial).
+
+    ``effective_counts`` (schema 2): each bin's ``counts`` divided by its design
+    effect -- the outcomes of one landmark go together (its size, its surface,
+    where it stands), so a bin's pairs are worth fewer independent trials. This
+    is how well the profile knows each P_D, and what validation
+    (:mod:`calib.drift`) allows for the profile's own sampling error.
     """
 
     covariate: str = "n_p"  # (one of PD_COVARIATES: set below)
@@ -350,6 +356,9 @@ class PdTable(Strict):
     )
     between_sensor_sd: list[float] | list[list[float]] | None = None
     selection: Selection | None = None
+    effective_counts: list[float] | list[list[float]] | None = Field(
+        default=None, description="counts / design effect of the landmarks' correlated outcomes (independent trials the P_D is worth)"
+    )
 
     @model_validator(mode="after")
     def _shapes(self) -> PdTable:
@@ -366,7 +375,7 @@ class PdTable(Strict):
             if np.any(np.diff(be) <= 0):
                 raise ValueError("bearing_edges must increase strictly")
             shape = (e.size - 1, be.size - 1)
-        for name in ("pd", "counts", "detections", "wilson_low", "wilson_high", "between_sensor_sd"):
+        for name in ("pd", "counts", "detections", "wilson_low", "wilson_high", "between_sensor_sd", "effective_counts"):
             v = getattr(self, name)
             if v is None:
                 continue
@@ -511,6 +520,11 @@ class ClutterParams(Strict):
     against the Poisson) rejects the Poisson at 0.05; ``nb_gof`` is the negative
     binomial's Pearson test. A PHD filter uses only the intensity (the mean); the
     count model is what a cardinality-aware filter (CPHD) and the validation use.
+
+    ``frames`` and ``rate_se`` (schema 2): how many frames the rate was measured
+    on and its standard error from batch means (false alarms of one clutter
+    source come in runs of frames, so the naive sqrt(variance / frames) is far
+    too small); validation (:mod:`calib.drift`) allows for it.
     """
 
     rate: float = Field(ge=0.0, description="lambda: mean false alarms per scan")
@@ -526,6 +540,8 @@ class ClutterParams(Strict):
     dispersion_test: CountTest | None = None
     nb_gof: CountTest | None = None
     density: ClutterDensity | None = None
+    frames: int | None = Field(default=None, ge=0, description="frames the rate was measured on")
+    rate_se: float | None = Field(default=None, ge=0.0, description="standard error of the rate (batch means) [false alarms per frame]")
 
     @model_validator(mode="after")
     def _kappa(self) -> ClutterParams:

@@ -27,7 +27,7 @@ from profiles import strict_yaml
 from profiles.atomic import atomic_output
 from profiles.errors import DataError, DetcalError, UsageError
 from profiles.document import columns_from_bins, render, written
-from profiles.profile import DETECTOR_KINDS, SCHEMA_VERSION, SUPPORTED_SCHEMAS, V2_FIELDS, V3_FIELDS, DetectorProfile, semver_key
+from profiles.profile import DETECTOR_KINDS, LATER_OPTIONAL, SCHEMA_VERSION, SUPPORTED_SCHEMAS, V2_FIELDS, V3_FIELDS, DetectorProfile, semver_key
 from profiles.provenance import parameter_models
 
 BUILTIN = Path(__file__).resolve().parent / "builtin"
@@ -168,6 +168,10 @@ def document(profile: DetectorProfile) -> dict:
     for section in ("noise", "sensors", "planes"):  # optional sections: absent rather than null, so older profiles keep their bytes
         if data.get(section) is None:
             data.pop(section, None)
+    for section, keys in LATER_OPTIONAL.items():
+        for k in keys:
+            if isinstance(data.get(section), dict) and data[section].get(k, 0) is None:
+                data[section].pop(k)
     det = data.get("detector", {})
     if det.get("plane", 0) is None:
         det.pop("plane")

@@ -33,6 +33,7 @@ from calib.sim import SIMULATORS, Simulated, Simulator
 from detectors.geometry import cast, compose, relative
 from detectors.sensor_log import Landmarks, Mount, Odometry, ReferencePoses, ScanBatch, SensorLog, SensorModel, seconds_to_stamp
 from profiles.errors import DataError
+from profiles.override import updated
 from profiles.parameters import check_order
 
 #: odometry ticks a simulated run may hold at most (about 14 hours at 200 Hz): a slower speed or a faster rate is refused
@@ -125,6 +126,12 @@ class LaserConfig(_Strict):
     p_miss: float = Field(default=0.01, ge=0.0, le=1.0, description="probability that a beam hitting something returns nothing")
     p_spurious: float = Field(default=0.002, ge=0.0, le=1.0, description="per-beam probability of a dust return")
     spurious_min: float = Field(default=0.5, gt=0.0, description="closest dust return [m]")
+    landmark_dropout: float = Field(
+        default=0.0, ge=0.0, le=1.0,
+        description="probability that a tree farther than dropout_beyond returns nothing in a scan: a weaker sensor whose P_D there is "
+        "(1 - landmark_dropout) times what it would be (validation's drift tests use it)",
+    )
+    dropout_beyond: float = Field(default=10.0, ge=0.0, description="range beyond which trees drop out [m], sensor to trunk centre")
     rate_hz: float = Field(default=5.0, gt=0.0)
     mount: Mount = Mount(x=0.5, y=0.0, theta=0.0)
 
@@ -170,6 +177,27 @@ class ParkConfig(_Strict):
                 f"{self.width} x {self.height} m park"
             )
         return self
+
+
+#: sensor changes a validation should catch (calib.drift; the docs' drift study): name -> what changes
+CHANGES = {
+    "pd_lower": "a tree beyond 10 m returns nothing in a scan with probability 0.1 (P_D x 0.9 there)",
+    "clutter_double": "twice the clutter sources (bushes, posts, walls)",
+    "noise_double": "twice the range noise",
+}
+
+
+def changed(cfg: ParkConfig, change: str) -> ParkConfig:
+    """``cfg`` with one of :data:`CHANGES` applied (validated anew); ``same`` leaves it as it is."""
+    if change == "pd_lower":
+        return updated(cfg, {"laser.landmark_dropout": 0.1, "laser.dropout_beyond": 10.0})
+    if change == "clutter_double":
+        return updated(cfg, {f"{k}.count": 2 * getattr(cfg, k).count for k in ("bushes", "posts", "walls")})
+    if change == "noise_double":
+        return updated(cfg, {"laser.range_sigma": 2 * cfg.laser.range_sigma})
+    if change != "same":
+        raise ValueError(f"unknown change {change!r}; choose from same, {', '.join(CHANGES)}")
+    return cfg
 
 
 @dataclass(frozen=True, eq=False)
@@ -447,8 +475,9 @@ def simulate_park(cfg: ParkConfig, seed: int, progress=None) -> Simulation:
         )
     ranges = np.empty((scan_idx.size, las.n_beams), dtype=np.float32)
     scans = range(scan_idx.size) if progress is None else progress(range(scan_idx.size), scan_idx.size, "simulating scans")
+    n_trees = world.tree_r.size
     for k in scans:  # one vectorised cast (beams x shapes) per scan
-        truth, _ = cast_world(world, spose[k], sensor)
+        truth, hit = cast_world(world, spose[k], sensor)
         noisy = truth + las.range_sigma * rng.standard_normal(las.n_beams)
         miss = rng.uniform(size=las.n_beams) < las.p_miss
         dust = rng.uniform(size=las.n_beams) < las.p_spurious
@@ -456,6 +485,10 @@ def simulate_park(cfg: ParkConfig, seed: int, progress=None) -> Simulation:
         r = np.where(np.isfinite(truth) & ~miss, noisy, np.nan)
         r = np.where(dust & (dust_r > las.spurious_min), dust_r, r)
         r = np.where(r > las.range_max, np.nan, r)
+        if las.landmark_dropout > 0 and n_trees:  # drawn only when asked for: the default run keeps its random stream
+            lost = (rng.uniform(size=n_trees) < las.landmark_dropout) & (np.hypot(*(world.tree_xy - spose[k, :2]).T) > las.dropout_beyond)
+            on_tree = (hit >= 0) & (hit < n_trees)
+            r = np.where(on_tree & lost[np.where(on_tree, hit, 0)], np.nan, r)
         ranges[k] = np.maximum(r, 0.0)
 
     stamp = seconds_to_stamp(t)

@@ -2,7 +2,7 @@
 
 Thin by design: parse, cross-check options, call one pipeline function, print
 a result table. One module per command group (``logs``, ``simulate``,
-``detect``, ``calibrate`` (with validate, selfcal and icp), ``profile``, ``slam``); the reader options are
+``detect``, ``calibrate`` (with selfcal and icp), ``validate``, ``profile``, ``slam``); the reader options are
 defined once (:mod:`detcal.cli.common`). Library errors
 (:class:`profiles.errors.DetcalError`) become one-line plain-text messages with
 exit code 1 (bad data) or 2 (usage); a user never sees a traceback for bad
@@ -31,7 +31,7 @@ except DetcalError as _exc:
     os.environ.pop("SOURCE_DATE_EPOCH")
 _NUMBA_FALLBACK = numba_cache()
 
-from detcal.cli import calibrate, detect, logs, profile, simulate, slam  # noqa: E402
+from detcal.cli import calibrate, detect, logs, profile, simulate, slam, validate  # noqa: E402
 from detcal.cli.common import out, warn  # noqa: E402
 
 app = typer.Typer(
@@ -47,7 +47,7 @@ app.add_typer(profile.app, name="profile")
 app.add_typer(slam.app, name="slam")
 app.command("detect")(detect.detect_cmd)
 app.command("calibrate")(calibrate.calibrate_cmd)
-app.command("validate")(calibrate.validate_cmd)
+app.command("validate")(validate.validate_cmd)
 app.command("icp")(calibrate.icp_cmd)
 app.command("selfcal")(calibrate.selfcal_cmd)
 

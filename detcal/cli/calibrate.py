@@ -76,8 +76,14 @@ def calibrate_cmd(
     force: Annotated[bool, typer.Option(help="Replace an existing run folder and profile version.")] = False,
     robot: RobotsOpt = None,
     per_sensor: Annotated[
-        bool, typer.Option(help="Detection-level logs of several sensors: also write one partially pooled profile per sensor (<name>-<sensor>).")
-    ] = False,
+        bool | None,
+        typer.Option(
+            "--per-sensor/--pooled-only",
+            help="Detection-level logs of several sensors: also write one partially pooled profile per sensor (<name>-<sensor>); "
+            "the default with several sensors. The summary says which sensors the pooled profile does not describe.",
+            show_default=False,
+        ),
+    ] = None,
     workers: Annotated[
         int | None,
         typer.Option(
@@ -137,7 +143,7 @@ def calibrate_cmd(
     for failure in done.summary.get("accepted_poor", []):
         warn(f"written anyway (--accept-poor-ground-truth): {failure}")
     p = done.profile
-    hidden = ("logs", "range_noise", "ground_truth", "data_sufficiency", "accepted_poor")
+    hidden = ("logs", "range_noise", "ground_truth", "data_sufficiency", "accepted_poor", "exchangeability")
     rows = {
         "profile": f"{p.ref} ({done.profile_status}: {done.profile_path})",
         "run folder": f"{done.run_folder} ({done.run_status}" + (f", {len(done.figures)} figures)" if done.figures else ")"),
@@ -146,10 +152,21 @@ def calibrate_cmd(
         **{f"ground truth of {lg}": v for lg, v in done.summary.get("ground_truth", {}).items()},
         **({"data sufficiency": done.summary["data_sufficiency"]} if "data_sufficiency" in done.summary else {}),
         **{k: v for k, v in done.summary.items() if k not in hidden},
+        **exchange_rows(done.summary.get("exchangeability")),
     }
     if not p.pd.two_d:
         rows["P_D table"] = ", ".join(f"{int(e) if float(e).is_integer() else e}:{v:.2f}" for e, v in zip(p.pd.edges[:-1], p.pd.pd, strict=True))
     out.print(summary_table(f"calibration of {', '.join(done.summary['logs'])}", rows))
+
+
+def exchange_rows(ex: dict | None) -> dict:
+    """The summary's rows on which sensors the pooled profile does not describe (each tested against the pooled
+    profile of the others, :func:`calib.detlevel.exchangeability`)."""
+    if not ex:
+        return {}
+    odd = ex["not_exchangeable"]
+    head = "none: the pooled profile describes every sensor" if odd == "none" else (odd if isinstance(odd, str) else ", ".join(odd))
+    return {"not exchangeable (pooled profile rejected)": head, **{f"  {k} against the others": v for k, v in ex["per_sensor"].items()}}
 
 
 def landmark_input(landmarks: Path | None) -> list:
@@ -174,99 +191,6 @@ def unique_refs(refs: list) -> list:
             seen.add((r.name, r.sha256))
             outl.append(r)
     return outl
-
-
-@reader_options("fmt", "max_backstep", "laser", "range_max", "scan_topic", "truth_topic")
-def validate_cmd(
-    args: Annotated[
-        list[str] | None, typer.Argument(metavar="[PROFILE] LOG...", help="A profile (name, name@version or file) and held-out logs; with --cv only logs.")
-    ] = None,
-    *,
-    reader: ReaderArgs,
-    cv: Annotated[str | None, typer.Option("--cv", help="Cross-validate the calibration instead: robots (leave one sensor out) or time (first half / second half).")] = None,
-    config: Annotated[Path | None, typer.Option(help="--cv: the calibration config (as for calibrate).")] = None,
-    adapt: Annotated[float | None, typer.Option(help="--cv robots on detection-level logs: seconds of the held-out sensor used for its own partially pooled profile.")] = None,
-    landmarks: Annotated[Path | None, typer.Option(help="Landmark truth: a CSV (id, x, y, radius) or `cloud`.")] = None,
-    poses: Annotated[str, typer.Option(help="Scan poses from: auto, reference, icp.")] = "auto",
-    out_dir: Annotated[Path | None, typer.Option("--out", help="Run folder (default: runs/validate_<profile>_<log> or runs/cv_<kind>_<log>).")] = None,
-    force: Annotated[bool, typer.Option(help="Replace the run folder if it exists.")] = False,
-    robot: RobotsOpt = None,
-) -> None:
-    """Check a profile on held-out logs, or cross-validate a calibration (--cv robots|time).
-
-    Reports P_D reliability (ECE over informative pairs with bin counts, Brier, log-likelihood),
-    false alarms per frame with a 95 % interval, the clutter tests on the held-out frames,
-    Hotelling coverage against the nominal confidence, and the held-out frames' period.
-    """
-    check_poses(poses)
-    args = args or []
-    if cv is not None:
-        _cross_validate(args, reader, cv, config, adapt, landmarks, poses, out_dir, force, robot)
-        return
-    if config is not None or adapt is not None:
-        raise UsageError("--config and --adapt go with --cv")
-    if len(args) < 2:
-        raise UsageError("validate needs a PROFILE and at least one LOG (or --cv robots|time with logs)")
-    from detcal.pipelines.calibrate import run_validation
-    from profiles.store import resolve
-
-    landmark_input(landmarks)
-    prof = resolve(args[0])
-    loaded, _ = reader.read_many([Path(a) for a in args[1:]], robot)
-    target = out_dir or Path("runs") / f"validate_{prof.ref}_{loaded[0].name}"
-    fresh(target, force, inputs=[*args, landmarks])
-    v, notes = run_validation(prof, loaded, landmarks=landmarks, poses=poses, out=target, force=force)
-    for note in notes:
-        warn(note)
-    out.print(summary_table(f"validation of {prof.ref} on {', '.join(lg.name for lg in loaded)} -> {target}", v.summary))
-    if len(loaded) > 1:
-        out.print(scores_table("per held-out log (ECE noise: what a calibrated model would show)", v.per_log, ("log",)))
-
-
-def scores_table(title: str, t, first: tuple[str, ...]) -> Table:
-    """Rows of validation scores (fold rows or per-log rows) in columns narrow enough for a terminal."""
-    tab = Table(title=title)
-    cover = "hotelling_coverage" in t and t["hotelling_coverage"].notna().any()
-    for c in (*first, "ECE (noise)", "Brier", "loglik", "FA error [95 % CI]", *(["coverage"] if cover else [])):
-        tab.add_column(c, overflow="fold", justify="left" if c in first else "right")
-    for r in t.to_dict("records"):
-        row = [str(r[c]) for c in first] + [
-            f"{r['ece']:.3f} ({r['ece_if_calibrated_blocks']:.3f})",
-            f"{r['brier']:.3f}",
-            f"{r['loglik_per_pair']:.3f}",
-            f"{100 * r['false_alarm_relative_error']:+.0f} [{100 * r['false_alarm_relative_error_ci95_low']:+.0f}, "
-            f"{100 * r['false_alarm_relative_error_ci95_high']:+.0f}] %",
-        ]
-        if cover:
-            n = r.get("true_detections")
-            row.append(f"{r['hotelling_coverage']:.4f}" + (f" of {int(n)}" if n is not None and not math.isnan(n) else ""))
-        tab.add_row(*row)
-    return tab
-
-
-def _cross_validate(args, reader, cv, config, adapt, landmarks, poses, out_dir, force, robot) -> None:
-    from calib.config import load_yaml_model
-    from calib.crossval import cross_validate, write_cv_run
-
-    if cv not in ("robots", "time"):
-        raise UsageError(f"--cv: expected robots or time, got {cv!r}")
-    if not args:
-        raise UsageError("--cv needs the logs to cross-validate")
-    if adapt is not None and not 0 < adapt < float("inf"):
-        raise UsageError(f"--adapt: expected a positive number of seconds, got {adapt:g}")
-    loaded, _ = reader.read_many([Path(a) for a in args], robot)
-    target = out_dir or Path("runs") / f"cv_{cv}_{loaded[0].name}"
-    fresh(target, force, inputs=[*args, config, landmarks])
-    from detcal.pipelines.calibrate import METHODS
-
-    detection = METHODS.get("external").takes(loaded)  # cross-validation knows detection-level and laser calibrations
-    cfg = load_yaml_model(METHODS.get("external" if detection else "circle2d").config(), config)
-    res = cross_validate(loaded, cv, config=cfg, adapt=adapt, landmarks_csv=landmarks, poses=poses)
-    figures = write_cv_run(res, target, overwrite=force)
-    out.print(scores_table(f"cross-validation ({cv}) -> {target} ({len(figures)} figures)", res.table, ("fold", "test", "profile")))
-    for prof, s in res.summary.items():
-        if isinstance(s, dict):
-            out.print(summary_table(f"{prof} profile over the folds", s))
 
 
 @reader_options("fmt", "max_backstep", "laser", "range_max", "scan_topic")

@@ -69,7 +69,8 @@ class CalibrationJob:
     poses: str | None = None
     command: str = ""  # the command as typed (recorded in the profile)
     range_sigma_given: bool = False
-    per_sensor: bool = False  # detection-level logs of several sensors: one profile per sensor too
+    # detection-level logs of several sensors: one profile per sensor too (None: yes when there are several sensors)
+    per_sensor: bool | None = None
     # where each log came from, (path, format, reader options), so a worker can read it where it lives
     sources: list[tuple] | None = None
     workers: int | None = None  # --workers: Dask worker processes for the per-log work (0: this process)
@@ -121,8 +122,10 @@ class Plan:
 class Method:
     """One way of calibrating a detector kind: the logs it takes, its ``--config`` schema, the plan of what its
     profile records (checking the job's options), the calibration itself (-> (calibration, where it ran)), its run
-    folder, the validation of its profiles on held-out logs, and the settings of its config the command line's
-    options of the same name set (``options``: fields of :class:`CalibrationJob`)."""
+    folder, the validation of its profiles on held-out logs (``validate(profile, logs, *, landmarks, poses, drift,
+    per_log)``), the settings of its config the command line's options of the same name set (``options``: fields of
+    :class:`CalibrationJob`), and whether its per-log work runs on the engine (``distributed``: else in this process,
+    where it takes milliseconds per log)."""
 
     takes: Callable[[list[SensorLog]], bool]
     config: Callable[[], type]
@@ -131,6 +134,7 @@ class Method:
     fill: Callable[[object, Path], list[str]]
     validate: Callable[..., object]
     options: tuple[str, ...] = ()
+    distributed: bool = False
 
 
 def _no_gate(job: CalibrationJob, what: str) -> None:
@@ -157,12 +161,12 @@ def _planes_run(job: CalibrationJob, logs, cfg, notes):
     return calibrate_planes(logs, cfg, name=t.name, version=t.version, description=t.description, input_refs=list(job.inputs), command=job.command), "in this process"
 
 
-def _planes_validate(profile, logs, *, landmarks, poses):
+def _planes_validate(profile, logs, *, landmarks, poses, drift, per_log):
     from calib.planes import validate_planes
 
     if len(logs) > 1:
         raise UsageError("validate one lidar log at a time")
-    return validate_planes(profile, logs[0])
+    return validate_planes(profile, logs[0], drift=drift)
 
 
 def _fill_planes(cal, folder):
@@ -183,30 +187,37 @@ def _detections_plan(job: CalibrationJob, logs, cfg) -> Plan:
     # the frame period and the identity audit follow from the inputs and the config: not part of the request
     derived = ("frame_period", "identity_remap")
     members = []
-    if job.per_sensor:
-        if len(logs) < 2:
-            raise UsageError("--per-sensor needs logs of at least two sensors (e.g. --robot 1 --robot 2)")
+    if job.per_sensor and len(logs) < 2:
+        raise UsageError("--per-sensor needs logs of at least two sensors (e.g. --robot 1 --robot 2)")
+    if _per_sensor(job, logs):
         members = [f"{job.target.name}-{n}" for n in sensor_names(logs)]
     return Plan({k: v for k, v in cfg.model_dump(mode="json").items() if k not in derived}, derived, members)
 
 
+def _per_sensor(job: CalibrationJob, logs) -> bool:
+    """Per-sensor profiles beside the pooled one: as asked, else whenever there are several sensors (a fleet's
+    sensors are rarely exchangeable: the pooled profile is the fallback, not the default)."""
+    return job.per_sensor if job.per_sensor is not None else len(logs) > 1
+
+
 def _detections_run(job: CalibrationJob, logs, cfg, notes):
     from calib.detlevel import calibrate_detections
+    from calib.drift import DriftConfig
 
     if job.workers or job.scheduler:
         notes.append("detection-level logs are calibrated in this process (their per-log work takes milliseconds); --workers and --scheduler are not used")
     t = job.target
     cal = calibrate_detections(
         logs, cfg, name=t.name, version=t.version, description=t.description, input_refs=list(job.inputs), command=job.command,
-        per_sensor=job.per_sensor,
+        per_sensor=_per_sensor(job, logs), exchange=DriftConfig() if len(logs) > 1 else None,
     )  # fmt: skip
     return cal, "in this process"
 
 
-def _detections_validate(profile, logs, *, landmarks, poses):
+def _detections_validate(profile, logs, *, landmarks, poses, drift, per_log):
     from calib.detlevel import validate_detections
 
-    return validate_detections(profile, logs)
+    return validate_detections(profile, logs, drift=drift)
 
 
 def _fill_detections(cal, folder):
@@ -231,7 +242,7 @@ def _laser_run(job: CalibrationJob, logs, cfg, notes):
     from calib.calibrate import calibrate
 
     t = job.target
-    with _per_log_engine(job, logs) as (per_log, where):
+    with per_log_engine(logs, job.sources, job.workers, job.scheduler) as (per_log, where):
         cal = calibrate(
             logs, cfg, name=t.name, version=t.version, description=t.description, landmarks_csv=job.landmarks,
             input_refs=list(job.inputs), command=job.command, range_sigma_given=job.range_sigma_given, per_log=per_log,
@@ -240,10 +251,10 @@ def _laser_run(job: CalibrationJob, logs, cfg, notes):
     return cal, where
 
 
-def _laser_validate(profile, logs, *, landmarks, poses):
+def _laser_validate(profile, logs, *, landmarks, poses, drift, per_log):
     from calib.validate import validate
 
-    return validate(profile, logs, landmarks_csv=landmarks, poses=poses)
+    return validate(profile, logs, landmarks_csv=landmarks, poses=poses, drift=drift, per_log=per_log)
 
 
 def _fill_laser(cal, folder):
@@ -273,7 +284,7 @@ METHODS.add("external", Method(
     _config("profiles.parameters", "DetectionCalibConfig"), _detections_plan, _detections_run, _fill_detections, _detections_validate,
 ))  # fmt: skip
 METHODS.add("circle2d", Method(
-    lambda logs: True, _config("profiles.parameters", "CalibrateConfig"), _laser_plan, _laser_run, _fill_laser, _laser_validate, ("poses",),
+    lambda logs: True, _config("profiles.parameters", "CalibrateConfig"), _laser_plan, _laser_run, _fill_laser, _laser_validate, ("poses",), True,
 ))  # fmt: skip
 
 
@@ -329,18 +340,19 @@ def run_calibration(job: CalibrationJob) -> CalibrationOutcome:
 
 
 @contextlib.contextmanager
-def _per_log_engine(job: CalibrationJob, logs: list[SensorLog]) -> Iterator[tuple[object, str]]:
-    """(``per_log`` for :func:`calib.calibrate.calibrate`, where it runs): Dask workers for several laser logs
-    (or whenever ``--scheduler`` names a cluster), each reading its log where it lives; else None (this process)."""
-    distribute = job.sources is not None and (job.scheduler is not None or (job.workers != 0 and len(logs) > 1))
+def per_log_engine(logs: list[SensorLog], sources: list[tuple] | None, workers: int | None, scheduler: str | None) -> Iterator[tuple[object, str]]:
+    """(``per_log`` for :func:`calib.calibrate.calibrate` and :func:`calib.validate.validate`, where it runs): Dask
+    workers for several laser logs (or whenever ``scheduler`` names a cluster), each reading its log where it lives
+    (``sources``: (path, format, reader options) per log); else None (this process)."""
+    distribute = sources is not None and (scheduler is not None or (workers != 0 and len(logs) > 1))
     if not distribute:
         yield None, "in this process"
         return
     from detcal.engine import LogSource, open_engine
     from calib.progress import progress
 
-    handles = [LogSource.of(lg, p, fmt, opts, trim=True) for lg, (p, fmt, opts) in zip(logs, job.sources, strict=True)]
-    with open_engine(job.workers, job.scheduler, len(logs)) as engine:
+    handles = [LogSource.of(lg, p, fmt, opts, trim=True) for lg, (p, fmt, opts) in zip(logs, sources, strict=True)]
+    with open_engine(workers, scheduler, len(logs)) as engine:
         yield engine.per_log(handles, [lg.name for lg in logs], progress), engine.label
 
 
@@ -362,17 +374,3 @@ def _check_run_folder(run_dir: Path, request: Request, force: bool) -> str:
         raise UsageError(f"{run_dir}: already exists (use --force to replace it)")
     check_replaceable(run_dir, overwrite=True, directory=True)  # it must be a run folder detcal wrote
     return "unchanged"
-
-
-def run_validation(profile, logs: list[SensorLog], *, landmarks: Path | None, poses: str, out: Path, force: bool):
-    """``detcal validate``: score ``profile`` on held-out logs and write the run folder; returns (validation, notes)."""
-    from calib.validate import write_validation_run
-
-    check_replaceable(out, overwrite=force, directory=True)
-    kept, notes = trimmed(logs)
-    method = METHODS.get(profile.detector.kind, None)
-    if method is None:
-        raise UsageError(f"profile {profile.ref}: detcal has no calibration of {profile.detector.kind} detectors to validate it with")
-    v = method.validate(profile, kept, landmarks=landmarks, poses=poses)
-    write_validation_run(v, out, overwrite=force)
-    return v, notes

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from calib.detlevel import DetectionCalibConfig, IdentityAudit, calibrate_detections, validate_detections
+from calib.drift import DriftConfig
 from detectors.model import DetectionModel
 from profiles.errors import DataError, UsageError
 from profiles.profile import DetectorProfile
@@ -158,3 +159,65 @@ def test_validation_errors(plain):
     no_fov = updated(plain.profile, {"sensor.fov": None})
     with pytest.raises(DataError, match="the sensor has no fov or range_max"):
         validate_detections(no_fov, [camera_log(3, n=500)])
+
+
+# ------------------------------------------------------------------------------------------ drift verdicts
+
+
+# 499 replicates: p-values down to 0.002, enough for the few tests of one validation
+QUICK = DriftConfig(replicates=499)
+
+
+def test_a_log_of_the_same_camera_is_not_drift_and_a_changed_one_is_at_its_part(plain):
+    same = validate_detections(plain.profile, [camera_log(3, n=6000)], drift=QUICK)
+    assert same.drift.verdict != "drifted", same.drift.rows[0].headline
+    more_clutter = validate_detections(plain.profile, [camera_log(4, n=6000, clutter=0.8)], drift=QUICK).drift.rows[0]
+    assert more_clutter.parts["clutter"].verdict == "drifted" and more_clutter.parts["clutter"].effect == pytest.approx(1.0, abs=0.25)
+
+    def weaker(r, b):
+        return pd_range(r) - 0.1 * (np.asarray(r) > 3.0)
+
+    low = validate_detections(plain.profile, [camera_log(5, n=6000, pd=weaker)], drift=QUICK).drift.rows[0]
+    assert low.parts["pd"].verdict == "drifted"
+    # the bins named are beyond 3 m, and there P_D is lower
+    assert low.parts["pd"].where and all(float(w.split("-")[0]) >= 2.5 and "-0." in w for w in low.parts["pd"].where if w[0].isdigit())
+
+
+def test_each_robot_beside_the_pooled_verdict_and_the_worst_one_overall(plain):
+    def lower(r, b):
+        return 0.6 * pd_range(r)
+
+    v = validate_detections(plain.profile, [camera_log(6, n=6000, robot=6), camera_log(7, n=6000, pd=lower, robot=7)], drift=QUICK)
+    rows = {r.name: r for r in v.drift.rows}
+    assert list(rows) == ["all", "cam6", "cam7"]
+    assert rows["cam7"].verdict == "drifted" and rows["cam7"].parts["pd"].effect < -0.1
+    assert rows["cam6"].verdict != "drifted" and v.drift.verdict == "drifted"
+    t = v.per_log.set_index("log")
+    assert t.loc["cam7", "verdict"] == "drifted" and t.loc["all", "verdict"] == rows["all"].verdict
+    # one family: every part of every row, Holm-adjusted together
+    assert v.drift.tests == sum(len(r.parts) for r in v.drift.rows)
+
+
+def test_exchangeability_names_the_odd_sensor():
+    from calib.detlevel import exchangeability
+
+    def lower(r, b):
+        return 0.6 * pd_range(r)
+
+    logs = [camera_log(11, n=6000, robot=1), camera_log(12, n=6000, robot=2), camera_log(13, n=6000, robot=3), camera_log(14, n=6000, pd=lower, robot=4)]
+    rep = exchangeability(logs, DetectionCalibConfig(), QUICK)
+    verdicts = {r.name: r.verdict for r in rep.rows}
+    # the odd sensor pulls the pooled profile of every other one: it is set apart first, and the rest agree
+    assert rep.odd == ["robot4"] and rep.steps == 2, (rep.odd, verdicts)
+    assert verdicts["robot4"] == "drifted" and all(verdicts[f"robot{k}"] != "drifted" for k in (1, 2, 3)), verdicts
+
+
+def test_drift_verdicts_are_the_same_bytes_for_the_same_seed(plain, tmp_path):
+    from calib.validate import write_validation_run
+
+    logs = [camera_log(8, n=3000)]
+    for name, seed in (("a", 0), ("b", 0), ("c", 1)):
+        write_validation_run(validate_detections(plain.profile, logs, drift=DriftConfig(replicates=199, seed=seed)), tmp_path / name)
+    for f in ("summary.yaml", "logs.csv", "drift_bins.csv", "clutter_counts.csv", "reliability.png"):
+        assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f
+    assert (tmp_path / "a/drift_bins.csv").read_bytes() != (tmp_path / "c/drift_bins.csv").read_bytes()

@@ -133,3 +133,35 @@ def test_config_errors_name_the_field(tmp_path):
     p.write_text("trees: [1, 2\n")
     with pytest.raises(UsageError, match=r"c.yaml:\d+: not valid YAML"):
         load_yaml_model(ParkConfig, p)
+
+
+def test_landmark_dropout_loses_far_trees_only():
+    """With landmark_dropout 0.5 beyond 10 m, a trunk farther than 10 m returns nothing in about half the scans
+    and a nearer one never vanishes; the default (0) draws nothing more, so its scans are the default's bytes."""
+    cfg = small_park_config()
+    base = simulate_park(cfg, 3)
+    d = cfg.model_dump()
+    d["laser"].update(landmark_dropout=0.5, dropout_beyond=10.0)
+    lossy = simulate_park(ParkConfig.model_validate(d), 3)
+    d["laser"].update(landmark_dropout=0.0)
+    assert np.array_equal(simulate_park(ParkConfig.model_validate(d), 3).log.scans.ranges, base.log.scans.ranges, equal_nan=True)
+    log, world = lossy.log, lossy.world
+    gt = log.reference["ground_truth"]
+    poses = sensor_poses(gt.poses[np.searchsorted(gt.stamp, log.scans.stamp)], log.sensor.mount)
+    near_kept, far_lost, far_all = [], 0, 0
+    for k in range(0, len(poses), 5):
+        truth, hit = cast_world(world, poses[k], log.sensor)
+        r = log.scans.ranges[k]
+        tree = (hit >= 0) & (hit < world.tree_r.size)
+        dist = np.hypot(*(world.tree_xy - poses[k, :2]).T)
+        for t in np.unique(hit[tree]):  # the trees this scan sees: tens
+            beams = hit == t
+            returned = np.isfinite(r[beams]).any()
+            if dist[t] <= 10.0:
+                near_kept.append(returned or beams.sum() <= 2)  # a tree of one or two beams may lose them to p_miss
+            else:
+                far_all += 1
+                far_lost += not returned
+    assert all(near_kept)
+    # lost with probability 0.5 (and rarely by p_miss on every beam): over some hundreds of sightings, within 0.1
+    assert far_all > 100 and abs(far_lost / far_all - 0.5) < 0.1
