@@ -195,7 +195,7 @@ def duplicated_key_profile(t: Path) -> str:
     from profiles.store import BUILTIN
 
     src = (BUILTIN / "sim-park-laser@1.0.0.yaml").read_text()
-    return text(t, "p.yaml", src.replace("  range_max: 80.0\n", "  range_max: 80.0\n  range_max: 5.0\n", 1))
+    return text(t, "p.yaml", src.replace("  range_max: 80.0  # m\n", "  range_max: 80.0  # m\n  range_max: 5.0\n", 1))
 
 
 def full_disk_in(folder_name: str):
@@ -393,7 +393,7 @@ CASES = [
     ("kitti-huge-frame", "a 1.6 GB KITTI .bin (10^8 points in one frame)", lambda t: ["log", "info", sparse(t, "big.bin", 1_600_000_000)], 1, "big.bin: 100000000 points in one frame (1.6 GB); a lidar frame holds far fewer"),
     ("config-duplicate-key", "config with a key given twice", lambda t: sim_config(t, "park", "width: 60\nbushes: {count: 3}\nwidth: 80\n"), 2, "c.yaml:3: not valid YAML (key 'width' is given twice (first on line 1))"),
     ("config-duplicate-nested-key", "config with a nested key given twice", lambda t: sim_config(t, "park", "path:\n  margin: 5\n  margin: 6\n"), 2, "c.yaml:3: not valid YAML (key 'margin' is given twice (first on line 2))"),
-    ("profile-duplicate-key", "profile with range_max given twice", lambda t: ["profile", "validate", duplicated_key_profile(t)], 1, "p.yaml:19: not valid YAML/JSON (key 'range_max' is given twice (first on line 18))"),
+    ("profile-duplicate-key", "profile with range_max given twice", lambda t: ["profile", "validate", duplicated_key_profile(t)], 1, "p.yaml:27: not valid YAML/JSON (key 'range_max' is given twice (first on line 26))"),
     ("profile-json-duplicate-key", "JSON profile with a key given twice", lambda t: ["profile", "validate", text(t, "p.json", '{"name": "a", "name": "b"}')], 1, "p.json: not valid JSON (key 'name' is given twice in one object)"),
     ("profile-range-order", "profile with range_min above range_max", lambda t: ["profile", "validate", profile_text(t, sensor__range_min=100.0)], 1, "p.yaml: sensor: range_min (100 m) must be below range_max (80 m)"),
     ("profile-increment-zero", "profile with angle_increment 0", lambda t: ["profile", "validate", profile_text(t, sensor__angle_increment=0.0)], 1, "p.yaml: sensor: angle_increment is 0: the 361 beams would all point the same way"),
