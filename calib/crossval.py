@@ -33,6 +33,7 @@ from calib.io.atomic import atomic_output
 from calib.validate import GZ, Validation, _plain, plot_reliability
 from detectors.sensor_log import Detections, Odometry, ScanBatch, SensorLog
 from profiles.errors import UsageError
+from profiles.override import updated
 
 HALF = ("1st", "2nd")
 TABLE_COLUMNS = (
@@ -241,7 +242,7 @@ def cross_validate(
 
         cfg = config or CalibrateConfig()
         if poses != "auto":
-            cfg = cfg.model_copy(update={"poses": poses})
+            cfg = updated(cfg, {"poses": poses})
         folds = _laser_folds(logs, kind, cfg, landmarks_csv, poses)
     table, summary = summarise(kind, folds)
     summary["logs"] = [lg.name for lg in logs]
