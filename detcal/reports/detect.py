@@ -43,7 +43,7 @@ from profiles.errors import DataError, UsageError  # noqa: E402
 from profiles.planes import PlaneDetectorParams  # noqa: E402
 from profiles.schema import PD_COVARIATES, HotellingParams, PdTable  # noqa: E402
 from profiles.store import resolve  # noqa: E402
-from detcal.reports.figures import wrapped_title  # noqa: E402
+from detcal.reports.figures import save_figure, wrapped_title  # noqa: E402
 
 FIELD_RADIUS = 0.1  # hypothetical landmark radius of the P_D field, as in thesis fig. 6.1
 PLOT_REACH = 40.0  # metres shown around the sensor
@@ -83,9 +83,7 @@ def plot_scan_detections(log: SensorLog, det: CircleDetections, k: int, table: P
     ax.set_ylabel("y [m]")
     wrapped_title(ax, f"{log.name}: scan {k}")
     ax.legend(loc="lower left", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, metadata={"Software": None})
-    plt.close(fig)
+    save_figure(fig, path)
 #: Thesis Table 6.1 (a real park data set), clamped as in ch. 6: above n_p = 6 use
 #: the value at 6, values below 0.1 become 0. Used for plots when no profile is given.
 THESIS_TABLE_6_1 = PdTable(
@@ -221,9 +219,7 @@ def plot_planes_top(log: SensorLog, k: int, params: PlaneDetectorParams, path: P
         ax.set_ylabel("y [m]")
     wrapped_title(axes[0], f"{log.name}, frame {k}: {len(det)} planes from {cloud.shape[0]:,} returns ({(lab >= 0).mean() * 100:.0f} % on a plane)", fontsize=9)
     wrapped_title(axes[1], "the same, within 20 m", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, metadata={"Software": None})
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def plot_transition(log: SensorLog, det: PlaneDetections, poses: np.ndarray, k: int, source: str, path: Path) -> pd.DataFrame:
@@ -260,7 +256,5 @@ def plot_transition(log: SensorLog, det: PlaneDetections, poses: np.ndarray, k: 
     vd = np.median(pairs.filter(like="vertex_").to_numpy()) if len(pairs) else float("nan")
     wrapped_title(axes[0], f"top view, frame {k}: {len(pairs)} pairs, median normal angle {med:.2f} deg, median vertex distance {vd:.2f} m ({source} poses)", fontsize=9)
     wrapped_title(axes[1], "side view (x-z)", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, metadata={"Software": None})
-    plt.close(fig)
+    save_figure(fig, path)
     return pairs

@@ -15,3 +15,12 @@ def wrapped_title(ax, text: str, fontsize: float | None = None, **kw) -> None:
     width_in = ax.get_position().width * fig.get_figwidth()
     chars = max(20, int(width_in * 72 / (0.55 * size)))  # an average glyph of the default font is about 0.55 em wide
     ax.set_title("\n".join(textwrap.fill(line, chars) for line in text.split("\n")), fontsize=size, **kw)
+
+
+def save_figure(fig, path, **kw) -> None:
+    """Lay out, write (no software stamp, so the same figure gives the same bytes) and close a report's figure."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    fig.savefig(path, metadata={"Software": None}, **kw)
+    plt.close(fig)

@@ -8,7 +8,7 @@ from calib.config import dump_yaml
 from calib.planes import PlaneCalibration
 from detcal.reports.calibration import plot_clutter
 from profiles.store import dump_profile
-from detcal.reports.figures import wrapped_title
+from detcal.reports.figures import save_figure, wrapped_title
 
 
 def fill_plane_run(cal: PlaneCalibration, folder) -> list[str]:
@@ -58,6 +58,4 @@ def plot_pd_points(cal: PlaneCalibration, path) -> None:
     wrapped_title(ax, f"plane P_D against visible points ({int(n.sum()):,} plane-frame pairs)")
     ax.legend(fontsize=7, loc="lower right")
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, metadata={"Software": None})
-    plt.close(fig)
+    save_figure(fig, path)

@@ -28,7 +28,7 @@ from detectors.geometry import compose
 from detectors.sensor_log import SensorLog
 from profiles import strict_yaml
 from profiles.errors import DataError
-from detcal.reports.figures import wrapped_title
+from detcal.reports.figures import save_figure, wrapped_title
 
 
 def write_simulation_run(name: str, cfg, seed: int, out: Path, *, overwrite: bool = False, figure: bool = True) -> dict:
@@ -92,9 +92,7 @@ def plot_park_overview(sim: Simulation, path: Path) -> None:
     ax.set_ylabel("y [m]")
     wrapped_title(ax, f"simulated park, seed {sim.seed}: {w.tree_r.size} trees, {len(log.scans)} scans")
     ax.legend(loc="upper right")
-    fig.tight_layout()
-    fig.savefig(path, metadata={"Software": None})
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def plot_street_overview(sim: StreetSimulation, path) -> None:
@@ -134,9 +132,7 @@ def plot_street_overview(sim: StreetSimulation, path) -> None:
         fontsize=9,
     )
     ax.legend(loc="upper left")
-    fig.tight_layout()
-    fig.savefig(path, metadata={"Software": None})
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def plot_rfs_overview(log: SensorLog, path) -> None:
@@ -168,9 +164,7 @@ def _finish(fig, ax, path, title: str, legend: str) -> None:
     ax.set_ylabel("y [m]")
     wrapped_title(ax, title, fontsize=9)
     ax.legend(fontsize=7, loc=legend)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110, metadata={"Software": None})
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def plot_glmb_paper_overview(log: SensorLog, path) -> None:
