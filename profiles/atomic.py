@@ -142,6 +142,11 @@ def _exchange(a: Path, b: Path) -> bool:
     return fn(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0
 
 
+#: Called with the temporary path of every folder output when it is complete, before it is moved into place (the
+#: application adds a command's warnings to its run folders: ``detcal.run_warnings``).
+FOLDER_FINISHERS: list[Callable[[Path], None]] = []
+
+
 class _Staged:
     """The temporary entry of one output, and how to move it into place."""
 
@@ -169,6 +174,8 @@ class _Staged:
         if self.out.directory:
             if not self.tmp.is_dir():
                 raise UsageError(f"{self.out.path}: the writer produced no folder")
+            for finisher in FOLDER_FINISHERS:
+                finisher(self.tmp)
             (self.tmp / MARKER).write_text(_MARKER_TEXT)
         else:
             _mode_of_plain_file(self.tmp)

@@ -27,6 +27,8 @@ from profiles import strict_yaml
 from profiles.atomic import atomic_output
 from profiles.errors import DataError, DetcalError, UsageError
 from profiles.document import columns_from_bins, render, written
+from profiles.migrate import migrate_document
+from profiles.migrate import notify as migration_notice
 from profiles.profile import DETECTOR_KINDS, LATER_OPTIONAL, SCHEMA_VERSION, SUPPORTED_SCHEMAS, V2_FIELDS, V3_FIELDS, DetectorProfile, semver_key
 from profiles.provenance import parameter_models
 
@@ -69,11 +71,12 @@ def _check_parameters(prof: DetectorProfile, where: str) -> None:
     raise DataError(f"{where}: provenance.parameters.{_field_path(e['loc'])}: {msg}") from None
 
 
-def parse_profile(data: object, where: str) -> DetectorProfile:
+def parse_profile(data: object, where: str, *, migrate: bool = True, notify: bool = True) -> DetectorProfile:
     """Validate a loaded document; refuse other schema versions by name.
 
-    Schema 1 documents load as they are: every field schema 2 added is optional
-    with a default meaning the schema-1 behaviour (see :mod:`profiles.profile`).
+    A document of an earlier schema is validated as what it says it is, then (``migrate``) taken to the current
+    schema by the steps of :mod:`profiles.migrate`, which (``notify``) says so in one line to its listeners;
+    ``migrate=False`` gives the profile as its schema has it.
     """
     if not isinstance(data, dict):
         raise DataError(f"{where}: a profile is a mapping at the top level")
@@ -99,14 +102,27 @@ def parse_profile(data: object, where: str) -> DetectorProfile:
         more = f" (and {len(errs) - 1} more)" if len(errs) > 1 else ""
         raise DataError(f"{where}: {_field_path(e['loc'])}: {msg}{more}") from None
     _check_parameters(prof, where)
+    if migrate and prof.schema_version < SCHEMA_VERSION:
+        old = prof.schema_version
+        prof = DetectorProfile.model_validate(migrate_document(prof.model_dump(mode="json"), SCHEMA_VERSION))
+        if notify:
+            migration_notice(where, old, SCHEMA_VERSION)
     return prof
 
 
-def load_profile_file(path: str | Path) -> DetectorProfile:
+def load_profile_file(path: str | Path, *, migrate: bool = True, notify: bool = True) -> DetectorProfile:
+    """The profile in the file ``path`` (an earlier schema's migrated, see :func:`parse_profile`)."""
     path = Path(path)
     if not path.is_file():
         raise UsageError(f"{path}: no such profile file")
-    return parse_profile(read_document(path), str(path))
+    return parse_profile(read_document(path), str(path), migrate=migrate, notify=notify)
+
+
+def schema_of(path: str | Path) -> int | None:
+    """The schema_version a profile file says (None when it says none that is an integer)."""
+    data = read_document(Path(path))
+    v = data.get("schema_version") if isinstance(data, dict) else None
+    return v if isinstance(v, int) and not isinstance(v, bool) else None
 
 
 def read_document(path: Path) -> object:
@@ -317,7 +333,7 @@ def check_new_version(name: str, version: str, folder: str | Path | None = None,
 
 def _load_or_none(path: Path) -> DetectorProfile | None:
     try:
-        return load_profile_file(path)
+        return load_profile_file(path, notify=False)  # compared with what is to be written, not used
     except DetcalError:
         return None
 
@@ -351,11 +367,11 @@ def final_status(profile: DetectorProfile, folder: str | Path | None, force: boo
     """(path, ``"written"``, ``"replaced"``, ``"unchanged"`` or ``"unchanged (bundled)"``) for a finished profile."""
     path, plan = check_save(Request.of(profile, derived), folder, force=force)
     if plan == "bundled":
-        if not same_content(load_profile_file(path), profile):
+        if not same_content(load_profile_file(path, notify=False), profile):
             raise UsageError(f"profile {profile.ref} is bundled with detcal with other content; choose another --name or --version")
         return path, "unchanged (bundled)"
     if plan == "unchanged":
-        if same_content(load_profile_file(path), profile):
+        if same_content(load_profile_file(path, notify=False), profile):
             return path, "unchanged"
         raise UsageError(f"{path}: profile {profile.ref} exists with other content; bump the version (--version) or use --force")
     return path, {"write": "written", "replace": "replaced"}[plan]

@@ -182,8 +182,12 @@ def refuse_empty(path: Path, log) -> None:
 
 
 def warn(message: str) -> None:
-    """One plain-text warning line on stderr."""
-    sys.stderr.write(f"detcal: warning: {' '.join(message.split())}\n")
+    """One plain-text warning line on stderr, recorded for the command's run folder (:mod:`detcal.run_warnings`)."""
+    from detcal import run_warnings
+
+    line = " ".join(message.split())
+    run_warnings.record(line)
+    sys.stderr.write(f"detcal: warning: {line}\n")
     sys.stderr.flush()
 
 

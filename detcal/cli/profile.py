@@ -24,6 +24,7 @@ def profile_list() -> None:
     """List the bundled and user profiles (name@version, origin, file, and which file wins when several share a
     name@version); a file that does not load, or holds another profile than its name says, is marked so."""
     from profiles.errors import DetcalError
+    from profiles.profile import SCHEMA_VERSION
     from profiles.store import load_profile_file, registry, user_dirs
 
     for d in user_dirs():  # a folder the registry cannot look into would otherwise just list nothing
@@ -37,7 +38,10 @@ def profile_list() -> None:
     for e in registry():
         status = "active" if e.shadowed_by is None else f"shadowed by {e.shadowed_by}"
         try:
-            held = load_profile_file(e.path).ref
+            prof = load_profile_file(e.path, migrate=False)
+            held = prof.ref
+            if prof.schema_version < SCHEMA_VERSION:
+                status += f" (schema {prof.schema_version}, migrated when loaded: detcal profile migrate)"
         except DetcalError as exc:
             msg = re.sub(rf"^{re.escape(str(e.path))}(?::(\d+))?: ", lambda m: f"line {m[1]}: " if m[1] else "", " ".join(str(exc).split()))
             status = f"unreadable ({msg})"
@@ -116,8 +120,45 @@ def profile_validate(path: Annotated[Path, typer.Argument(metavar="FILE", help="
     """Check a profile file against the schema; errors name the field path."""
     from profiles.store import load_profile_file
 
-    p = load_profile_file(path)
-    out.print(f"{path}: valid profile {p.ref} (schema {p.schema_version})")
+    p = load_profile_file(path)  # an earlier schema's: validated as it is, then migrated (said in one warning)
+    written = load_profile_file(path, migrate=False, notify=False).schema_version
+    out.print(f"{path}: valid profile {p.ref} (schema {written}" + (f", migrated to {p.schema_version} when loaded)" if written != p.schema_version else ")"))
+
+
+@app.command("migrate")
+def profile_migrate(
+    path: Annotated[Path, typer.Argument(metavar="FILE", help="A profile file of an earlier schema (YAML or JSON).")],
+    dest: Annotated[
+        Path | None, typer.Option("--out", help="The migrated profile's file (default: FILE's name with .migrated before its suffix); never replaced.")
+    ] = None,
+) -> None:
+    """Write a profile of an earlier schema as the current schema, to a new file (FILE is left as it is).
+
+    Each step and what it changes is in the profile reference (docs/reference/profile.md, "Schema versions and
+    migration"); the numbers and the recorded provenance are kept."""
+    from profiles.atomic import atomic_output
+    from profiles.profile import SCHEMA_VERSION
+    from profiles.store import dump_profile, load_profile_file, profile_filename, same_content
+
+    old = load_profile_file(path, migrate=False)
+    if old.schema_version == SCHEMA_VERSION:
+        out.print(f"{path}: already schema {SCHEMA_VERSION}; nothing to migrate, nothing written")
+        return
+    new = load_profile_file(path, notify=False)
+    if dest is None:
+        dest = path.with_name(f"{path.stem}.migrated{path.suffix or '.yaml'}")
+    if dest.suffix == ".yaml" and "@" in dest.stem and dest.name != profile_filename(new):
+        raise UsageError(f"{dest}: the profile store reads a file named name@version.yaml as that profile; name it {profile_filename(new)} or without '@'")
+    if os.path.lexists(dest):
+        raise UsageError(f"{dest}: exists; a migrated profile is never written over a file: give another --out")
+    text = dump_profile(new, "json" if dest.suffix == ".json" else "yaml")
+    with atomic_output(dest, overwrite=False) as tmp:
+        tmp.write_text(text)
+    # what was written reads back as the same profile (the written figures are rounded within the store's tolerance)
+    back = load_profile_file(dest)
+    if not same_content(back, new):
+        raise AssertionError(f"{dest}: the migrated profile does not read back as the profile migrated")
+    out.print(f"wrote {dest}: {new.ref} migrated from schema {old.schema_version} to schema {SCHEMA_VERSION}")
 
 
 @app.command("diff")

@@ -319,7 +319,7 @@ def run_calibration(job: CalibrationJob) -> CalibrationOutcome:
         raise RuntimeError(f"calibration recorded other parameters than planned ({profile.provenance.parameters} != {plan.params})")
     path, status = final_status(profile, t.profiles_dir, t.force, plan.derived)
     written = [(m, *final_status(m, t.profiles_dir, t.force, plan.derived)) for m in cal.members] if plan.members else []
-    if run_plan == "unchanged" and not same_content(load_profile_file(run_dir / "profile.yaml"), profile):
+    if run_plan == "unchanged" and not same_content(load_profile_file(run_dir / "profile.yaml", notify=False), profile):
         raise UsageError(f"{run_dir}: holds a calibration of {profile.ref} with other content; use --force or another --out")
     outputs, writers = [], []
     if run_plan != "unchanged":
@@ -367,7 +367,7 @@ def _check_run_folder(run_dir: Path, request: Request, force: bool) -> str:
         return "replaced"
     old = run_dir / "profile.yaml"
     try:
-        same = run_dir.is_dir() and old.is_file() and same_request(Request.of(load_profile_file(old)), request)
+        same = run_dir.is_dir() and old.is_file() and same_request(Request.of(load_profile_file(old, notify=False)), request)
     except Exception:  # noqa: BLE001  (an unreadable old profile: not the same request)
         same = False
     if not same:

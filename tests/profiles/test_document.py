@@ -11,7 +11,8 @@ from pydantic import BaseModel
 
 from profiles.errors import DataError
 from profiles.profile import DetectorProfile
-from profiles.store import dump_profile, load_profile_file, parse_profile
+from profiles.override import updated
+from profiles.store import dump_profile, load_profile_file, parse_profile, same_content
 from profiles.units import SIGNIFICANT, UNITS, models_of
 from tests.profiles.test_store import make_profile, v2_profile
 
@@ -76,10 +77,12 @@ def test_the_written_document_reads_back(tmp_path):
     doc = yaml.safe_load(dump_profile(p))
     back = parse_profile(doc, "p.yaml")
     assert back.pd.edges == p.pd.edges and back.pd.counts == p.pd.counts and dump_profile(back) == dump_profile(p)
-    # a schema-2 profile keeps its columns and its bytes
+    # a schema-2 profile read as its schema has it keeps its columns and its bytes; loaded, it is migrated to schema 3
     v2 = v2_profile()
     text = dump_profile(v2)
-    assert "bins" not in text and "# " not in text and dump_profile(parse_profile(yaml.safe_load(text), "v2")) == text
+    assert "bins" not in text and "# " not in text and dump_profile(parse_profile(yaml.safe_load(text), "v2", migrate=False)) == text
+    migrated = parse_profile(yaml.safe_load(text), "v2", notify=False)
+    assert migrated.schema_version == 3 and same_content(migrated, updated(v2, {"schema_version": 3}))
 
 
 @pytest.mark.parametrize(

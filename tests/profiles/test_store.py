@@ -196,14 +196,23 @@ def v2_profile() -> DetectorProfile:
     return DetectorProfile.model_validate(d)
 
 
-def test_schema_1_profiles_load_and_keep_their_bytes(tmp_path):
+def test_schema_1_profiles_keep_their_bytes_and_load_migrated(tmp_path):
+    from profiles.migrate import on_migration
+
     p = make_profile(schema_version=1)
     text = dump_profile(p)
     assert text.startswith("schema_version: 1\n") and "count_model" not in text and "bearing_edges" not in text
     f = tmp_path / "old.yaml"
     f.write_text(text)
-    back = load_profile_file(f)
-    assert back.clutter.count_model == "poisson" and back.pd.model == "binned" and dump_profile(back) == text
+    assert dump_profile(load_profile_file(f, migrate=False)) == text
+    lines: list[str] = []
+    off = on_migration(lines.append)
+    try:
+        back = load_profile_file(f)
+    finally:
+        off()
+    assert back.schema_version == 3 and back.clutter.count_model == "poisson" and back.pd.model == "binned"
+    assert lines == [f"{f}: profile schema 1 migrated to schema 3 on loading (its content unchanged); `detcal profile migrate {f}` writes it as schema 3"]
     d = yaml.safe_load(text)
     d["clutter"]["count_model"] = "negative_binomial"
     d["clutter"]["size"] = 2.0
@@ -215,8 +224,9 @@ def test_schema_1_profiles_load_and_keep_their_bytes(tmp_path):
 def test_schema_2_profiles_round_trip(tmp_path):
     p = v2_profile()
     path, _ = save_profile(p, tmp_path)
-    back = load_profile_file(path)
+    back = load_profile_file(path, migrate=False)
     assert back == p and dump_profile(back) == path.read_text()
+    assert load_profile_file(path, notify=False) == updated(p, {"schema_version": 3})
     assert back.clutter.count_pmf(np.arange(3)).sum() < 1 and back.clutter.count_variance == pytest.approx(0.5 + 0.25 / 1.5)
 
 

@@ -1,0 +1,51 @@
+"""The warnings of one command, kept for its run folder.
+
+Every warning the command line prints (:func:`detcal.cli.common.warn`: each a
+count or a fact about the input, such as records dropped outside the truth's
+time span or a profile migrated from an earlier schema) is recorded here as
+well; every run folder the command writes (a folder with a ``summary.yaml``)
+gets them, as they were printed, in ``warnings.yaml`` (written also when there
+are none) and under ``warnings`` in its summary. The same inputs give the same
+warnings, so the bytes stay reproducible. Warnings printed after the folder is
+in place are not in it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+
+_RECORDED: list[str] = []
+
+
+def record(line: str) -> None:
+    """Keep one printed warning (a repeat of the same line is kept once)."""
+    if line not in _RECORDED:
+        _RECORDED.append(line)
+
+
+def recorded() -> list[str]:
+    return list(_RECORDED)
+
+
+def clear() -> None:
+    """Forget what was recorded (the start of a command)."""
+    _RECORDED.clear()
+
+
+def add_to_run_folder(folder: Path) -> None:
+    """``warnings.yaml`` and the summary's ``warnings`` in a run folder about to be moved into place (one with a
+    ``summary.yaml`` mapping; any other folder output, such as a ROS 2 bag, is left alone)."""
+    from calib.config import dump_yaml
+
+    summary_file = Path(folder) / "summary.yaml"
+    if not summary_file.is_file():
+        return
+    lines = recorded()
+    (Path(folder) / "warnings.yaml").write_text(dump_yaml({"count": len(lines), "warnings": lines}))
+    if not lines:
+        return
+    summary = yaml.safe_load(summary_file.read_text())
+    if isinstance(summary, dict) and "warnings" not in summary:
+        summary_file.write_text(dump_yaml({**summary, "warnings": lines}))
