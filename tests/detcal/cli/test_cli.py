@@ -93,7 +93,7 @@ def test_simulate_and_info_through_the_console_script(tmp_path):
     exe = [sys.executable, "-c", "from detcal.cli import run; run()"]
     r = subprocess.run([*exe, "simulate", "park", "--seed", "3", "--out", str(tmp_path / "s"), "--config", str(cfg)], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
-    assert sorted(p.name for p in (tmp_path / "s").iterdir()) == [".detcal-output", "config.yaml", "log.dlog", "overview.png", "summary.yaml", "world.yaml"]
+    assert sorted(p.name for p in (tmp_path / "s").iterdir()) == [".detcal-output", "config.yaml", "log.dlog", "overview.png", "summary.yaml", "warnings.yaml", "world.yaml"]
     r = subprocess.run([*exe, "log", "info", str(tmp_path / "s/log.dlog")], capture_output=True, text=True)
     assert r.returncode == 0 and "361 beams" in r.stdout and "ground_truth" in r.stdout
     r = subprocess.run([*exe, "simulate", "park", "--out", str(tmp_path / "s")], capture_output=True, text=True)
