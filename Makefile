@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed-stamp
 DOCS_STAMP := $(VENV)/.docs-stamp
 DEMO   := runs/demo
 
-.PHONY: demo test test-busy docs bench clean builtin-profile lock
+.PHONY: demo test test-busy docs bench clean builtin-profile rebuild-profiles lock
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -50,6 +50,14 @@ bench: $(STAMP)
 # Regenerate the bundled profile with detcal's own calibration (reproducible bytes).
 builtin-profile: $(STAMP)
 	SOURCE_DATE_EPOCH=1763683200 $(BIN)/detcal calibrate --out runs/builtin --profiles-dir profiles/builtin --force
+
+# Rebuild every bundled and benchmark profile from its recorded provenance (command, inputs, creation time, source
+# commit) and compare it with the file byte for byte (detcal profile rebuild; docs/reference/profile.md). FROM: the
+# working folder the recorded commands ran in (the benchmark profiles read ../shared/data/victoria_park from it).
+FROM ?= .
+rebuild-profiles: $(STAMP)
+	@status=0; for f in profiles/builtin/*.yaml benchmarks/profiles/*.yaml; do \
+	  nice -n 15 $(BIN)/detcal profile rebuild $$f --from $(FROM) || status=1; done; exit $$status
 
 # Refresh constraints.txt to the newest releases the ranges in pyproject.toml allow (then: make builtin-profile, make test).
 lock:

@@ -161,6 +161,36 @@ def profile_migrate(
     out.print(f"wrote {dest}: {new.ref} migrated from schema {old.schema_version} to schema {SCHEMA_VERSION}")
 
 
+@app.command("rebuild")
+def profile_rebuild(
+    path: Annotated[Path, typer.Argument(metavar="FILE", help="A profile file whose provenance records a detcal command.")],
+    origin: Annotated[
+        Path, typer.Option("--from", help="The working folder the recorded command ran in: its relative paths are read from here.")
+    ] = Path("."),
+    keep: Annotated[Path | None, typer.Option("--keep", help="Also write the rebuilt profile here (never over a file).")] = None,
+) -> None:
+    """Rebuild a profile from its provenance (its command, inputs, creation time and source commit) and compare it
+    with FILE byte for byte; exit 1 when it differs. Nothing is written beside FILE: the command runs in a
+    temporary folder (with the recorded commit's source when the profile records one)."""
+    from detcal.pipelines.rebuild import keep as keep_rebuilt
+    from detcal.pipelines.rebuild import rebuild
+    from profiles.errors import DataError
+
+    if not path.is_file():
+        raise UsageError(f"{path}: no such profile file")
+    if keep is not None and os.path.lexists(keep):
+        raise UsageError(f"{keep}: exists; a rebuilt profile is never written over a file")
+    done = rebuild(path, origin=origin)
+    if keep is not None:
+        keep_rebuilt(done, keep)
+    for note in done.notes:
+        warn(f"{path}: {note}")
+    if done.verdict == "differs":
+        first = ", ".join(f"{k}: {_short(a)} -> {_short(b)}" for k, a, b in done.differences[:3])
+        raise DataError(f"{path}: rebuilt from its provenance, {len(done.differences)} fields differ ({first}{', ...' if len(done.differences) > 3 else ''})")
+    out.print(f"{path}: rebuilt from its provenance: {done.verdict}")
+
+
 @app.command("diff")
 def profile_diff(
     a: Annotated[str, typer.Argument(metavar="A", help="name or name@version, or a file.")],
