@@ -22,7 +22,7 @@ kept as recorded: parameters an earlier build did not record (such as
 from) stay unrecorded rather than guessed.
 
 Loading an old profile says so in one line, through the listeners registered
-with :func:`on_migration` (the CLI prints it as a warning); ``detcal profile
+with :func:`profiles.notices.on_notice` (the CLI prints it as a warning); ``detcal profile
 migrate FILE`` writes the migrated profile to a new file.
 """
 
@@ -30,15 +30,10 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-#: listeners told (with one line) when a profile of an earlier schema is migrated on loading
-_LISTENERS: list[Callable[[str], None]] = []
+from profiles.notices import notice, on_notice
 
-
-def on_migration(listener: Callable[[str], None]) -> Callable[[], None]:
-    """Call ``listener(line)`` whenever a profile of an earlier schema is migrated on loading; returns a function
-    that removes it."""
-    _LISTENERS.append(listener)
-    return lambda: _LISTENERS.remove(listener) if listener in _LISTENERS else None
+#: listen to the notices of profiles being loaded, among them a migration's (:mod:`profiles.notices`)
+on_migration = on_notice
 
 
 def notify(where: str, old: int, new: int) -> None:
@@ -47,8 +42,7 @@ def notify(where: str, old: int, new: int) -> None:
         f"{where}: profile schema {old} migrated to schema {new} on loading (its content unchanged); "
         f"`detcal profile migrate {where}` writes it as schema {new}"
     )
-    for listener in list(_LISTENERS):
-        listener(line)
+    notice(line)
 
 
 def _1_to_2(doc: dict) -> dict:

@@ -243,8 +243,16 @@ class HotellingParams(Strict):
             raise ValueError(f"covariance must be {d}x{d}, got {cov.shape}")
         if not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-15):
             raise ValueError("covariance is not symmetric")
-        if np.linalg.eigvalsh(cov).min() <= 0:
+        w = np.linalg.eigvalsh(cov)
+        if w.min() <= 0:
             raise ValueError("covariance is not positive definite")
+        from profiles.plausibility import MAX_CONDITION  # (the bound and why: profiles.plausibility)
+
+        if w.max() / w.min() > MAX_CONDITION:
+            raise ValueError(
+                f"covariance has condition number {w.max() / w.min():.3g}, beyond {MAX_CONDITION:g}: written to six digits, "
+                "its inverse (the gate) keeps no correct digit"
+            )
         return self
 
 

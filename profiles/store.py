@@ -28,6 +28,8 @@ from profiles.atomic import atomic_output
 from profiles.errors import DataError, DetcalError, UsageError
 from profiles.document import columns_from_bins, render, written
 from profiles.migrate import migrate_document
+from profiles.notices import notice
+from profiles.plausibility import refusal, suspicions
 from profiles.migrate import notify as migration_notice
 from profiles.profile import DETECTOR_KINDS, LATER_OPTIONAL, SCHEMA_VERSION, SUPPORTED_SCHEMAS, V2_FIELDS, V3_FIELDS, DetectorProfile, semver_key
 from profiles.provenance import parameter_models
@@ -102,6 +104,12 @@ def parse_profile(data: object, where: str, *, migrate: bool = True, notify: boo
         more = f" (and {len(errs) - 1} more)" if len(errs) > 1 else ""
         raise DataError(f"{where}: {_field_path(e['loc'])}: {msg}{more}") from None
     _check_parameters(prof, where)
+    bad = refusal(prof)
+    if bad is not None:
+        raise DataError(f"{where}: {bad[0]}: {bad[1]}")
+    if notify:
+        for line in suspicions(prof):
+            notice(f"{where}: {line}")
     if migrate and prof.schema_version < SCHEMA_VERSION:
         old = prof.schema_version
         prof = DetectorProfile.model_validate(migrate_document(prof.model_dump(mode="json"), SCHEMA_VERSION))

@@ -86,19 +86,19 @@ def main(argv: list[str] | None = None) -> int:
     from detcal import run_warnings
     from detcal.cli import common
     from profiles.atomic import FOLDER_FINISHERS
-    from profiles.migrate import on_migration
+    from profiles.notices import on_notice
 
     common.ARGV = list(sys.argv[1:] if argv is None else argv)
     run_warnings.clear()
     FOLDER_FINISHERS.append(run_warnings.add_to_run_folder)  # this command's run folders get its warnings
-    migrated: set[str] = set()  # a profile loaded twice by one command is reported once
+    said: set[str] = set()  # a profile loaded twice by one command is reported once
 
     def said_once(line: str) -> None:
-        if line not in migrated:
-            migrated.add(line)
+        if line not in said:
+            said.add(line)
             warn(line)
 
-    stop_listening = on_migration(said_once)
+    stop_listening = on_notice(said_once)
     if _NUMBA_FALLBACK:
         warn(f"numba cannot write its cache of compiled kernels beside detcal nor under the user's cache folder; using {_NUMBA_FALLBACK}")
     try:

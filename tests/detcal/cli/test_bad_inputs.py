@@ -190,6 +190,19 @@ def profile_text(t: Path, **edits) -> str:
     return text(t, "p.yaml", yaml.safe_dump(profile_doc(**edits)))
 
 
+def pd_profile(t: Path, pd: float, **edits) -> str:
+    """The bundled profile with every P_D bin set to ``pd`` (and ``edits`` as in :func:`profile_doc`)."""
+    d = profile_doc(**edits)
+    for b in d["pd"]["bins"]:
+        b["pd"] = pd
+    return text(t, "p.yaml", yaml.safe_dump(d))
+
+
+def legacy_profile(t: Path) -> str:
+    """A schema-1 profile as an earlier build wrote it (from the legacy corpus)."""
+    return text(t, "p.yaml", (VENDORED / "profiles-legacy" / "109d97f_sim-park-laser_1.0.0.yaml").read_text())
+
+
 def duplicated_key_profile(t: Path) -> str:
     """The bundled profile with ``range_max: 5.0`` added after its own (the second one would win in PyYAML)."""
     from profiles.store import BUILTIN
@@ -408,6 +421,16 @@ CASES = [
     ("vp-speed", "Victoria Park speed of 1e300 on one line", lambda t: ["slam", "run", vp_copy(t, _edit_row("inputs.dat", 300, 1, "1e300")), "--profile", "sim-park-laser"], 1, "inputs.dat:301: t speed steering: speed beyond 40 m/s"),
     ("vp-steering", "Victoria Park steering of 3 rad", lambda t: ["log", "info", vp_copy(t, _edit_row("inputs.dat", 10, 2, "3"))], 1, "inputs.dat:11: t speed steering: steering beyond 1 rad"),
     ("vp-range", "Victoria Park range beyond the laser's 80 m", lambda t: ["log", "info", vp_copy(t, _edit_row("measurements.dat", 4, 1, "500"))], 1, "measurements.dat:5: t range bearing diameter: range beyond the laser's 80 m"),
+    # ---- physically implausible profiles (profiles.plausibility) and profile migration / rebuilding
+    ("profile-covariance-condition", "Hotelling covariance of condition number 1e7", lambda t: ["profile", "validate", profile_text(t, hotelling__covariance=[[1.0, 0.0, 0.0], [0.0, 1e-7, 0.0], [0.0, 0.0, 1.0]])], 1, "p.yaml: hotelling: covariance has condition number 1e+07, beyond 1e+06"),
+    ("profile-covariance-indefinite", "Hotelling covariance with a negative eigenvalue", lambda t: ["profile", "validate", profile_text(t, hotelling__covariance=[[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]])], 1, "p.yaml: hotelling: covariance is not positive definite"),
+    ("profile-clutter-band", "clutter rate of 20,000 per frame", lambda t: ["profile", "validate", profile_text(t, clutter__rate=20000.0, clutter__kappa=None)], 1, "p.yaml: clutter.rate: 20000 false alarms per frame is beyond the plausible band [0, 10000]"),
+    ("profile-clutter-beams", "clutter rate above what a 361-beam scan can hold", lambda t: ["profile", "validate", profile_text(t, clutter__rate=200.0, clutter__kappa=None)], 1, "p.yaml: clutter.rate: 200 false alarms per frame is more than a scan of 361 beams can hold (120.333"),
+    ("profile-pd-never", "P_D table of zeros", lambda t: ["slam", "run", small_log(t), "--profile", pd_profile(t, 0.0)], 1, "p.yaml: pd: every P_D bin is 0: the profile says no feature is ever seen"),
+    ("profile-pd-always", "P_D 1 everywhere and no clutter", lambda t: ["profile", "validate", pd_profile(t, 1.0, clutter__rate=0.0, clutter__kappa=None)], 1, "p.yaml: pd: every P_D bin is 1 and clutter.rate is 0"),
+    ("profile-migrate-over", "profile migrate onto an existing file", lambda t: ["profile", "migrate", legacy_profile(t), "--out", text(t, "notes.yaml", "my: notes\n")], 2, "notes.yaml: exists; a migrated profile is never written over a file"),
+    ("profile-rebuild-by-hand", "profile rebuild of a hand-written profile", lambda t: ["profile", "rebuild", str(VENDORED.parents[1] / "benchmarks/profiles/victoria-park-nominal@1.0.0.yaml")], 1, "provenance.command: 'written by hand (nominal assumptions, see description)' is not a detcal command"),
+    ("profile-rebuild-keep-over", "profile rebuild --keep onto an existing file", lambda t: ["profile", "rebuild", profile_text(t), "--keep", text(t, "notes.yaml", "my: notes\n")], 2, "notes.yaml: exists; a rebuilt profile is never written over a file"),
     ("out-full-disk", "profile export into a folder whose disk is full", lambda t: Case(["profile", "export", "sim-park-laser", "--out", str(_folder(t, "diskfull") / "p.yaml")], patch=full_disk_in("diskfull")), 2, "diskfull/p.yaml: cannot write (No space left on device)"),
     ("out-bag-disk-full", "ROS 2 bag on a disk that fills while it is written", lambda t: Case(["log", "convert", interlaced_log(t), str(t / "bag")], patch=bag_disk_full(3)), 2, "bag: cannot write (the bag's sqlite3 database: database or disk is full)"),
 ]  # fmt: skip
