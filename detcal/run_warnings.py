@@ -3,9 +3,10 @@
 Every warning the command line prints (:func:`detcal.cli.common.warn`: each a
 count or a fact about the input, such as records dropped outside the truth's
 time span or a profile migrated from an earlier schema) is recorded here as
-well; every run folder the command writes (a folder with a ``summary.yaml``)
-gets them, as they were printed, in ``warnings.yaml`` (written also when there
-are none) and under ``warnings`` in its summary. The same inputs give the same
+well; every run folder the command writes (a folder with a ``summary.yaml``, or the
+``metrics.yaml`` that summarises a SLAM run) gets them, as they were printed,
+in ``warnings.yaml`` (written also when there are none) and under ``warnings``
+in that summary. The same inputs give the same
 warnings, so the bytes stay reproducible. Warnings printed after the folder is
 in place are not in it.
 """
@@ -17,6 +18,8 @@ from pathlib import Path
 import yaml
 
 _RECORDED: list[str] = []
+#: the files that summarise a run folder (the first found gets the warnings), and whether their writer sorts keys
+SUMMARIES = {"summary.yaml": True, "metrics.yaml": False}
 
 
 def record(line: str) -> None:
@@ -36,16 +39,17 @@ def clear() -> None:
 
 def add_to_run_folder(folder: Path) -> None:
     """``warnings.yaml`` and the summary's ``warnings`` in a run folder about to be moved into place (one with a
-    ``summary.yaml`` mapping; any other folder output, such as a ROS 2 bag, is left alone)."""
+    ``summary.yaml`` or ``metrics.yaml`` mapping; any other folder output, such as a ROS 2 bag, is left alone)."""
     from calib.config import dump_yaml
 
-    summary_file = Path(folder) / "summary.yaml"
-    if not summary_file.is_file():
+    summary_file = next((Path(folder) / n for n in SUMMARIES if (Path(folder) / n).is_file()), None)
+    if summary_file is None:
         return
     lines = recorded()
     (Path(folder) / "warnings.yaml").write_text(dump_yaml({"count": len(lines), "warnings": lines}))
     if not lines:
         return
     summary = yaml.safe_load(summary_file.read_text())
-    if isinstance(summary, dict) and "warnings" not in summary:
-        summary_file.write_text(dump_yaml({**summary, "warnings": lines}))
+    if isinstance(summary, dict) and "warnings" not in summary:  # written again as its writer wrote it
+        sort = SUMMARIES[summary_file.name]
+        summary_file.write_text(yaml.safe_dump({**summary, "warnings": lines}, sort_keys=sort, default_flow_style=None, width=120))

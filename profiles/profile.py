@@ -38,7 +38,9 @@ Schema 3 changed how a profile is written, for a person who reads and diffs it
 quantity (:mod:`profiles.units`), fitted figures to six significant digits, the
 P_D table as ``pd.bins`` with one row per bin (so a change of one bin is a
 one-line diff), and the provenance's ``commit`` and ``packages``. Schema-1 and
--2 documents load and are written back in their own form.
+-2 documents are valid models of their own schema (and written back in their own
+form); read from a file they are migrated to the current schema
+(:mod:`profiles.migrate`).
 """
 
 from __future__ import annotations

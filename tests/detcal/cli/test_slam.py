@@ -26,7 +26,7 @@ def test_slam_run_writes_a_reproducible_run_folder(tmp_path, capsys, park_log):
     code, out, err = run(capsys, *args, "--out", str(tmp_path / "a"))
     assert code == 0, err
     names = sorted(p.name for p in (tmp_path / "a").iterdir())
-    assert names == [".detcal-output", "config.yaml", "map.csv", "metrics.yaml", "ospa.png", "steps.csv", "timing.png", "trajectory.csv", "trajectory_map.png"]
+    assert names == [".detcal-output", "config.yaml", "map.csv", "metrics.yaml", "ospa.png", "steps.csv", "timing.png", "trajectory.csv", "trajectory_map.png", "warnings.yaml"]
     m = yaml.safe_load((tmp_path / "a/metrics.yaml").read_text())
     assert m["frames"] == 60 and m["landmarks_true"] == 40
     # the truth is known: the filter, started at the true pose, stays within a metre over 12 s
@@ -160,3 +160,25 @@ def test_slam_run_with_the_poses_given_maps_along_the_truth(tmp_path, capsys, pa
     assert code == 0, err
     runs = list(csv.DictReader((tmp_path / "e/runs.csv").read_text().splitlines()))
     assert len(runs) == 2 and all(float(r["trajectory_rmse_vs_ground_truth_m"]) < 1e-9 for r in runs)
+
+
+def test_a_runs_counted_warnings_are_saved_in_its_folder(tmp_path, capsys, park_log):
+    """A legal but suspicious profile (no clutter, two P_D bins of 1): its counted warnings, as printed, are the run
+    folder's warnings.yaml and are listed in its summary; a second run writes the same bytes."""
+    from profiles.store import BUILTIN
+
+    d = yaml.safe_load((BUILTIN / "sim-park-laser@1.0.0.yaml").read_text())
+    d["clutter"].update(rate=0.0, kappa=None)
+    (tmp_path / "quiet.yaml").write_text(yaml.safe_dump(d))
+    args = ["slam", "run", str(park_log), "--profile", str(tmp_path / "quiet.yaml"), "--frames", "20", "--seed", "3"]
+    code, _, err = run(capsys, *args, "--out", str(tmp_path / "a"))
+    assert code == 0, err
+    printed = [x.removeprefix("detcal: warning: ") for x in err.splitlines() if x.startswith("detcal: warning: ")]
+    assert any("pd: 2 of 9 P_D bins are 1 with clutter.rate 0" in x for x in printed)
+    assert any(f"clutter.rate: 0 false alarms in {d['clutter']['frames']} frames" in x for x in printed)
+    saved = yaml.safe_load((tmp_path / "a/warnings.yaml").read_text())
+    assert saved == {"count": len(printed), "warnings": printed}
+    assert yaml.safe_load((tmp_path / "a/metrics.yaml").read_text())["warnings"] == printed
+    code, _, err = run(capsys, *args, "--out", str(tmp_path / "b"))
+    assert code == 0, err
+    assert (tmp_path / "a/warnings.yaml").read_bytes() == (tmp_path / "b/warnings.yaml").read_bytes()
