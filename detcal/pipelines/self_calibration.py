@@ -155,7 +155,9 @@ class SelfCalibrationRequest:
         from calib.map_calibration import SelfCalConfig, pool_self_calibrations, profile_change, self_calibrate
         from detcal.reports.self_calibration import fill_selfcal_run
         from detcal.reports.slam_run import write_slam_run
+        from calib.io.common import file_digest
         from profiles.atomic import Output, atomic_outputs
+        from profiles.profile import InputRef
         from profiles.store import check_new_version, looks_like_profile, profile_path, resolve, write_profile_text
         from slam_runtime.run import check_inputs
 
@@ -175,7 +177,11 @@ class SelfCalibrationRequest:
         fresh(target, self.force, inputs=[self.log_path, start_file, self.settings.config])  # both outputs decided before any work
         saved, status = check_new_version(name, self.version, self.profiles_dir, force=self.force)
         fresh(saved, self.force, directory=False, owned=looks_like_profile, inputs=[start_file])
-        refs = self.inputs(self.log_path, log)
+        # the log's files, and the starting profile and SLAM config with their digests: the command names them by path,
+        # and a rebuild from the provenance must find the same ones (detcal profile rebuild compares the bytes)
+        refs = self.inputs(self.log_path, log) + [
+            InputRef(name=f.name, sha256=file_digest(f)) for f in (start_file, self.settings.config) if f is not None and Path(f).is_file()
+        ]
         scfg, cals, k0 = SelfCalConfig(), [], self.average_from
 
         def recorded(p):

@@ -58,3 +58,43 @@ def test_the_staging_folder_holds_the_commands_parent_paths():
     assert [_ups(p) for p in ("../shared/data/vp", "../../x", "a/b", "./c", "..")] == [1, 2, 0, 0, 1]
     assert body("# a comment\n#\nschema_version: 2\nname: x\n") == "schema_version: 2\nname: x\n"
     assert body(Path(BUILTIN / "sim-park-laser@1.0.0.yaml").read_text()).startswith("schema_version: 3\n")
+
+
+def test_a_self_calibrated_profile_is_rebuilt_from_its_provenance(tmp_path, capsys, monkeypatch):
+    """A profile this source writes (a short self-calibration on a simulated log, from a starting profile and a SLAM
+    config in another folder) records enough to be rebuilt byte for byte with one command: its command (paths as
+    typed, relative to the working folder), its inputs' digests (the log, the starting profile, the config), its
+    seed, its creation time and its source commit. Needs a clean checkout (a dirty one records ``+dirty``)."""
+    from calib.io.native import write_native
+    from calib.sim.rfs import simulate_rfs
+    from profiles.override import updated
+    from profiles.store import dump_profile, load_profile_file
+    from profiles.version import source_commit
+    from tests.detcal.pipelines.test_self_calibration import SIM, nominal
+
+    commit = source_commit()
+    if commit is None or commit.endswith("+dirty"):
+        pytest.skip(f"the source is not a clean git checkout (commit {commit}): a profile it writes cannot be rebuilt")
+    data = tmp_path / "data"
+    data.mkdir()
+    lp = write_native(simulate_rfs(updated(SIM, {"steps": 120}), 6), data / "sim.dlog")
+    (data / "start.yaml").write_text(dump_profile(nominal()))
+    (data / "slam.yaml").write_text("particles: 5\nfilter: {kind: rbphd, noise_inflation: 10.0, weighting: marginal}\n")
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1764000000")
+    args = ["selfcal", "../data/sim.dlog", "--profile", "../data/start.yaml", "--config", "../data/slam.yaml", "--iterations", "2", "--seed", "4"]
+    assert main([*args, "--out", "sc", "--profiles-dir", "p", "--name", "sim-selfcal"]) == 0, capsys.readouterr().err
+    made = work / "p/sim-selfcal@1.0.0.yaml"
+    v = load_profile_file(made).provenance
+    assert v.command == "detcal selfcal " + " ".join([*args, "--out", "sc", "--profiles-dir", "p", "--name", "sim-selfcal"]) and v.seed == 4
+    assert [i.name for i in v.inputs] == ["sim.dlog", "start.yaml", "slam.yaml"] and v.commit == commit
+    capsys.readouterr()
+    monkeypatch.delenv("SOURCE_DATE_EPOCH")
+    assert main(["profile", "rebuild", str(made), "--from", str(work)]) == 0, capsys.readouterr().err
+    assert "rebuilt from its provenance: same bytes" in " ".join(capsys.readouterr().out.split())
+    # another SLAM config under the same path: the rebuild finds the difference and names it
+    (data / "slam.yaml").write_text("particles: 6\nfilter: {kind: rbphd, noise_inflation: 10.0, weighting: marginal}\n")
+    done = rebuild(made, origin=work)
+    assert done.verdict == "differs" and "provenance.inputs.2.sha256" in [k for k, _, _ in done.differences]

@@ -73,7 +73,7 @@ def test_selfcal_command_writes_its_folder_and_the_profile(tmp_path, capsys, log
     code, out, err = run(capsys, *args, "--out", str(tmp_path / "sc"), "--profiles-dir", str(tmp_path / "profiles"), "--name", "sim-selfcal")
     assert code == 0, err
     names = sorted(p.name for p in (tmp_path / "sc").iterdir())
-    assert names == [".detcal-output", "iterations.csv", "last_run", "pd_iterations.png", "profile.yaml", "profiles", "slam.yaml", "summary.yaml"]
+    assert names == [".detcal-output", "iterations.csv", "last_run", "pd_iterations.png", "profile.yaml", "profiles", "slam.yaml", "summary.yaml", "warnings.yaml"]
     prof = yaml.safe_load((tmp_path / "sc/profile.yaml").read_text())
     assert prof["name"] == "sim-selfcal" and prof["pd"]["covariate"] == "range"
     assert (tmp_path / "profiles").is_dir() and "sim-selfcal@1.0.0" in out
