@@ -152,6 +152,11 @@ def profile_migrate(
     if os.path.lexists(dest):
         raise UsageError(f"{dest}: exists; a migrated profile is never written over a file: give another --out")
     text = dump_profile(new, "json" if dest.suffix == ".json" else "yaml")
+    if dest.suffix != ".json":  # a comment a person wrote above the document is kept above it
+        from detcal.pipelines.rebuild import body
+
+        original = path.read_text(encoding="utf-8")
+        text = original[: len(original) - len(body(original))] + text
     with atomic_output(dest, overwrite=False) as tmp:
         tmp.write_text(text)
     # what was written reads back as the same profile (the written figures are rounded within the store's tolerance)
