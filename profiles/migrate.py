@@ -30,10 +30,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from profiles.notices import notice, on_notice
-
-#: listen to the notices of profiles being loaded, among them a migration's (:mod:`profiles.notices`)
-on_migration = on_notice
+from profiles.notices import notice
 
 
 def notify(where: str, old: int, new: int) -> None:

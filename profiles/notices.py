@@ -6,7 +6,8 @@ command line prints each notice as a warning (and records it in the run folder).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import contextlib
+from collections.abc import Callable, Iterator
 
 _LISTENERS: list[Callable[[str], None]] = []
 
@@ -21,3 +22,14 @@ def notice(line: str) -> None:
     """Tell the listeners ``line`` (one line, naming the file)."""
     for listener in list(_LISTENERS):
         listener(line)
+
+
+@contextlib.contextmanager
+def collected() -> Iterator[list[str]]:
+    """The notices told while the block runs, in a list (for a caller that reports them its own way)."""
+    lines: list[str] = []
+    off = on_notice(lines.append)
+    try:
+        yield lines
+    finally:
+        off()

@@ -14,7 +14,8 @@ import pytest
 import yaml
 
 from detcal.cli import main
-from profiles.migrate import MIGRATIONS, migrate_document, on_migration
+from profiles.migrate import MIGRATIONS, migrate_document
+from profiles.notices import collected
 from profiles.override import updated
 from profiles.profile import SCHEMA_VERSION, SUPPORTED_SCHEMAS
 from profiles.store import comparable, dump_profile, load_profile_file, same_content
@@ -35,12 +36,8 @@ def test_the_corpus_holds_every_earlier_schema_and_a_calibration_before_landmark
 def test_every_legacy_profile_loads_and_migrates_to_the_same_content(path, tmp_path, capsys):
     as_written = load_profile_file(path, migrate=False)
     assert as_written.schema_version < SCHEMA_VERSION
-    lines: list[str] = []
-    off = on_migration(lines.append)
-    try:
+    with collected() as lines:
         migrated = load_profile_file(path)
-    finally:
-        off()
     assert len(lines) == 1 and f"profile schema {as_written.schema_version} migrated to schema {SCHEMA_VERSION}" in lines[0]
     # documented: the schema number is all a migration changes (the provenance kept as recorded, commit unknown)
     assert migrated == updated(as_written, {"schema_version": SCHEMA_VERSION})

@@ -197,7 +197,7 @@ def v2_profile() -> DetectorProfile:
 
 
 def test_schema_1_profiles_keep_their_bytes_and_load_migrated(tmp_path):
-    from profiles.migrate import on_migration
+    from profiles.notices import collected
 
     p = make_profile(schema_version=1)
     text = dump_profile(p)
@@ -205,12 +205,8 @@ def test_schema_1_profiles_keep_their_bytes_and_load_migrated(tmp_path):
     f = tmp_path / "old.yaml"
     f.write_text(text)
     assert dump_profile(load_profile_file(f, migrate=False)) == text
-    lines: list[str] = []
-    off = on_migration(lines.append)
-    try:
+    with collected() as lines:
         back = load_profile_file(f)
-    finally:
-        off()
     assert back.schema_version == 3 and back.clutter.count_model == "poisson" and back.pd.model == "binned"
     assert lines == [f"{f}: profile schema 1 migrated to schema 3 on loading (its content unchanged); `detcal profile migrate {f}` writes it as schema 3"]
     d = yaml.safe_load(text)
