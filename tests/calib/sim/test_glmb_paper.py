@@ -105,7 +105,7 @@ def test_simulate_glmb_paper_command(tmp_path, capsys):
     out = tmp_path / "gp"
     code, _, err = run(capsys, "simulate", "glmb-paper", "--out", str(out), "--clutter", "10", "--seed", "2")
     assert code == 0, err
-    assert sorted(p.name for p in out.iterdir()) == [".detcal-output", "config.yaml", "log.dlog", "overview.png", "profile.yaml", "summary.yaml"]
+    assert sorted(p.name for p in out.iterdir()) == [".detcal-output", "config.yaml", "log.dlog", "overview.png", "profile.yaml", "summary.yaml", "warnings.yaml"]
     s = yaml.safe_load((out / "summary.yaml").read_text())
     assert s["landmarks"] == 23 and s["landmarks_seen"] == 23 and 9.0 < s["false_alarms_per_scan"] < 11.0
     assert yaml.safe_load((out / "profile.yaml").read_text())["name"] == "glmb-paper-c10"

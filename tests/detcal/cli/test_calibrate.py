@@ -21,7 +21,7 @@ def test_calibrate_validate_and_profile_commands(tmp_path, capsys):
     assert "small@1.0.0 (written" in out
     files = sorted(p.name for p in (tmp_path / "run").iterdir())
     assert files == sorted(
-        [".detcal-output", "profile.yaml", "config.yaml", "summary.yaml", "quality.yaml", "detections.csv.gz", "pairs.csv.gz", "pd_vs_np.png", "roc.png", "clutter.png", "descriptors.png", "map.png", "pd_field.png"]
+        [".detcal-output", "profile.yaml", "config.yaml", "summary.yaml", "quality.yaml", "detections.csv.gz", "pairs.csv.gz", "pd_vs_np.png", "roc.png", "clutter.png", "descriptors.png", "map.png", "pd_field.png", "warnings.yaml"]
     )
     saved = prof_dir / "small@1.0.0.yaml"
     assert saved.read_bytes() == (tmp_path / "run/profile.yaml").read_bytes()

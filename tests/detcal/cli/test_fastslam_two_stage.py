@@ -68,7 +68,7 @@ def test_simulate_two_stage_with_its_options(tmp_path, capsys):
     assert code == 0, err
     assert "two-stage scenario" in text
     names = sorted(p.name for p in (tmp_path / "a").iterdir() if not p.name.startswith("."))
-    assert names == ["config.yaml", "features.csv", "log.dlog", "overview.png", "profile.yaml", "summary.yaml"]
+    assert names == ["config.yaml", "features.csv", "log.dlog", "overview.png", "profile.yaml", "summary.yaml", "warnings.yaml"]
     cfg = yaml.safe_load((tmp_path / "a/config.yaml").read_text())
     assert cfg["seed"] == 4 and cfg["two_stage"]["path"] == "spiral" and cfg["two_stage"]["moving"] is True
     truth = simulate_two_stage(TwoStageConfig(path="spiral", moving=True), 4)
