@@ -31,7 +31,7 @@ def test_mhfastslam_runs_on_points(tmp_path, capsys, paper):
     code, _, err = run(capsys, *args, "--out", str(tmp_path / "a"))
     assert code == 0, err
     names = sorted(p.name for p in (tmp_path / "a").iterdir() if not p.name.startswith("."))
-    assert names == ["config.yaml", "map.csv", "metrics.yaml", "ospa.png", "steps.csv", "timing.png", "trajectory.csv", "trajectory_map.png"]
+    assert names == ["config.yaml", "map.csv", "metrics.yaml", "ospa.png", "steps.csv", "timing.png", "trajectory.csv", "trajectory_map.png", "warnings.yaml"]
     m = yaml.safe_load((tmp_path / "a/metrics.yaml").read_text())
     assert m["filter"] == "MH-FastSLAM"
     assert yaml.safe_load((tmp_path / "a/config.yaml").read_text())["settings"]["filter"]["kind"] == "mhfastslam"
