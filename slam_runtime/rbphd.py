@@ -56,7 +56,9 @@ class RBPHDConfig(BaseModel):
     )
     merge_inflation: float = Field(default=1.0, ge=1.0, description="factor on the spread of the means of a merged group (not on the whole covariance: that compounds)")
     merge_scope: Literal["fresh", "all"] = Field(default="fresh", description="merge only pairs with a component updated or created this step (fresh), or every pair (all)")
-    cap: int = Field(default=150, ge=1, description="components per particle at most")
+    cap: int = Field(
+        default=600, ge=1, description="components per particle at most (it binds on large maps only: 150 bound on Victoria Park from frame ~500)"
+    )
     gate: float = Field(default=16.0, gt=0.0, description="squared Mahalanobis distance beyond which a measurement does not update a component")
     landmark_noise: float = Field(default=0.0, ge=0.0, description="landmark position variance added per second [m^2/s]")
     weighting: Literal["multi_feature", "marginal", "empty_set", "single_feature"] = Field(
