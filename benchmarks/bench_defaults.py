@@ -54,6 +54,7 @@ def one(log, prof, request: SettingsRequest, seed: int, frames: int | None = Non
     m = evaluate(log, res, cfg=cfg)
     m["cpu_ms_per_step_median"] = float(np.median(res.step_cpu_ms[1:]))
     m["particles"] = cfg.particles
+    m["features"] = int(res.map_xy.shape[0])
     return m
 
 
@@ -102,7 +103,7 @@ def main() -> None:
                 m = one(log, prof, req, s, a.frames)
                 print(
                     f"VP {label:<18} seed {s}: RMSE vs GPS {m['trajectory_rmse_vs_gps_m']:.2f} m (odometry {m['odometry_rmse_vs_gps_m']:.2f}), "
-                    f"{m['map_features']} features, CPU {m['cpu_ms_per_step_median']:.2f} ms/step median, frames {m['frames']}",
+                    f"{m['features']} features, CPU {m['cpu_ms_per_step_median']:.2f} ms/step median, frames {m['frames']}",
                     flush=True,
                 )
 
