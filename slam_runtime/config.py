@@ -116,8 +116,7 @@ class SlamConfig(_Strict):
     island_match: float | None = Field(default=None, gt=0.0, description="[m] pair islands' unlabelled features by position up to this distance (labelled filters; null: by label)")
     proposal: Literal["auto", "prior", "optimal"] = Field(
         default="auto",
-        description="draw poses from the motion model (prior), or from its Gaussian updated by the measurements the map explains "
-        "(optimal); auto: optimal for point features with a map filter that offers it, else prior",
+        description="poses from the motion model (prior) or updated by the measurements (optimal); auto: the map filter's choice",
     )
     filter: BaseModel = Field(default=None)  # the union of the registered filters' settings (set by _rebuild)
     mount_yaw: float = Field(default=0.0, ge=-0.2, le=0.2, description="[rad] correction added to the sensor's mount yaw (chosen by the log evidence)")

@@ -57,12 +57,12 @@ class RBPHDConfig(BaseModel):
     merge_inflation: float = Field(default=1.0, ge=1.0, description="factor on the spread of the means of a merged group (not on the whole covariance: that compounds)")
     merge_scope: Literal["fresh", "all"] = Field(default="fresh", description="merge only pairs with a component updated or created this step (fresh), or every pair (all)")
     cap: int = Field(
-        default=600, ge=1, description="components per particle at most (it binds on large maps only: 150 bound on Victoria Park from frame ~500)"
+        default=600, ge=1, description="components per particle at most (binds on large maps: 150 bound on Victoria Park)"
     )
     gate: float = Field(default=16.0, gt=0.0, description="squared Mahalanobis distance beyond which a measurement does not update a component")
     landmark_noise: float = Field(default=0.0, ge=0.0, description="landmark position variance added per second [m^2/s]")
     weighting: Literal["multi_feature", "marginal", "empty_set", "single_feature"] = Field(
-        default="marginal", description="particle weighting: marginal (the single-cluster likelihood), multi_feature (sec. 3.1.4), empty_set or single_feature"
+        default="marginal", description="particle weight: marginal (single-cluster), multi_feature (sec. 3.1.4), empty_set, single_feature"
     )
     map_threshold: float = Field(default=0.5, gt=0.0, description="a component of this weight or more is a map feature")
 
@@ -113,6 +113,7 @@ class RBPHD(MapFilter):
     name = "RB-PHD"
     Config = RBPHDConfig
     proposes_poses = True
+    proposal_default = "optimal"  # (proposal: auto) rfs-sim and Victoria Park chose it: docs/results/slam.md
     #: point features under one noise take the compiled update (:mod:`slam_runtime.rbphd_kernel`, the same numbers)
     compiled = True
 

@@ -258,11 +258,12 @@ class RBSlam:
 
 def resolve_proposal(proposal: str, vehicle: VehicleModel, mapfilter: MapFilter) -> str:
     """The proposal a run draws its poses from: the optimal one needs a planar-pose vehicle and a map filter that offers
-    it ("prior" otherwise); "auto" is the optimal one where, in addition, the features are points (range-bearing)."""
+    it ("prior" otherwise); "auto" is the map filter's ``proposal_default`` for point (range-bearing) features, the
+    prior for others."""
     if not (vehicle.dim == 3 and getattr(mapfilter, "proposes_poses", False)):
         return "prior"
     if proposal == "auto":
-        return "optimal" if isinstance(getattr(mapfilter, "feature", None), RangeBearing) else "prior"
+        return getattr(mapfilter, "proposal_default", "prior") if isinstance(getattr(mapfilter, "feature", None), RangeBearing) else "prior"
     return proposal
 
 

@@ -243,7 +243,8 @@ def test_the_optimal_proposal_is_refused_for_planes():
 
     veh = OdometryIncrement()
     assert resolve_proposal("auto", veh, SimpleNamespace(proposes_poses=True, feature=object())) == "prior"
-    assert resolve_proposal("auto", veh, SimpleNamespace(proposes_poses=True, feature=RangeBearing(np.eye(2)))) == "optimal"
+    assert resolve_proposal("auto", veh, SimpleNamespace(proposes_poses=True, proposal_default="optimal", feature=RangeBearing(np.eye(2)))) == "optimal"
+    assert resolve_proposal("auto", veh, SimpleNamespace(proposes_poses=True, feature=RangeBearing(np.eye(2)))) == "prior"
     assert resolve_proposal("optimal", veh, SimpleNamespace(proposes_poses=False, feature=RangeBearing(np.eye(2)))) == "prior"
 
 
