@@ -14,6 +14,7 @@ $(BIN)/python:
 $(STAMP): pyproject.toml constraints.txt | $(BIN)/python
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[test]"
+	$(BIN)/python -m detcal.warm  # the numba kernels compiled into their cache now, not in the first run
 	touch $(STAMP)
 
 # The main job on the embedded default: calibrate the default simulated park log, writing the profile

@@ -78,7 +78,7 @@ def time_slice(log: SensorLog, start: int, stop: int, suffix: str) -> SensorLog:
     if log.odometry is not None:
         o = log.odometry
         w = (o.stamp >= start) & (o.stamp < stop)
-        odometry = Odometry(o.kind, o.stamp[w], o.values[w])
+        odometry = Odometry(o.kind, o.stamp[w], o.values[w], o.sigma)
     return replace(log, name=f"{log.name}_{suffix}", scans=scans, detections=detections, odometry=odometry, clouds=None)
 
 

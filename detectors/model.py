@@ -234,10 +234,13 @@ class DetectionModel:
         r = np.maximum(z[..., 0], 1e-9)
         band_r = k * np.sqrt(sr * sr + s_rad * s_rad)
         band_b = k * np.sqrt(sb * sb + (s_lat / r) ** 2)
-        near = np.zeros(inside.shape, dtype=bool)
-        for dr, db in ((band_r, 0.0), (-band_r, 0.0), (0.0, band_b), (0.0, -band_b)):
-            q = np.stack([z[..., 0] + dr, _wrap(z[..., 1] + db)], axis=-1)
-            near |= self.in_fov(q) != inside
+        # the four shifted points (range out, in; bearing left, right) tested in one call: (4, ...) stacked
+        zero = np.zeros_like(band_r)
+        zb = np.zeros(band_b.shape)
+        q = np.stack(
+            [z[..., 0] + np.stack([band_r, -band_r, zero, zero]), _wrap(z[..., 1] + np.stack([zb, zb, band_b, -band_b]))], axis=-1
+        )
+        near = (self.in_fov(q) != inside).any(axis=0)
         pd = np.where(inside | near, pd_in, 0.0)
         return pd, near
 
@@ -301,15 +304,14 @@ class DetectionModel:
         """
         p, j = mu.shape[:2]
         sp = np.asarray(sensor_poses, dtype=np.float64)
-        los = mu - sp[:, None, :2]
-        rr = np.maximum(np.hypot(los[..., 0], los[..., 1]), 1e-9)
-        z = np.stack([rr, _wrap(np.arctan2(los[..., 1], los[..., 0]) - sp[:, None, 2])], axis=-1)
         if j == 0:
             return np.zeros((p, 0)), np.zeros((p, 0), dtype=bool)
-        # position std along and across the line of sight
-        u = los / rr[..., None]
-        s_rad = np.sqrt(np.maximum(u[..., 0] ** 2 * cov[..., 0, 0] + 2 * u[..., 0] * u[..., 1] * cov[..., 0, 1] + u[..., 1] ** 2 * cov[..., 1, 1], 0.0))
-        s_lat = np.sqrt(np.maximum(u[..., 1] ** 2 * cov[..., 0, 0] - 2 * u[..., 0] * u[..., 1] * cov[..., 0, 1] + u[..., 0] ** 2 * cov[..., 1, 1], 0.0))
+        from detectors.occlusion import line_of_sight  # numba: imported by the filters that need it only
+
+        # range and bearing, and the position std along and across the line of sight
+        z, s_rad, s_lat = line_of_sight(
+            np.ascontiguousarray(sp), np.ascontiguousarray(mu, dtype=np.float64), np.ascontiguousarray(cov, dtype=np.float64)
+        )
         if self.constant_pd is not None or not self.ray_traced:
             full = np.full((p, j), self.constant_pd) if self.constant_pd is not None else self._table_at(z)
             return self._edge_band(z, s_rad, s_lat, full)

@@ -161,11 +161,17 @@ class Odometry:
 
     stamp:  (M,) int64 ns
     values: (M, k) float64
+    sigma:  (k,) the white noise of each column that the log's source states (a simulator's setting, a data set's
+            documentation), as the standard deviation a random walk of it reaches in one second (the column's unit
+            times s^-1/2 for increments: a per-row std s0 over rows of dt seconds is s0 / sqrt(dt)); None: not stated.
+            The SLAM settings derive the vehicle model's noise from it when they give none
+            (:func:`slam_runtime.defaults.derived`).
     """
 
     kind: str
     stamp: np.ndarray
     values: np.ndarray
+    sigma: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in ODOMETRY_KINDS:
@@ -175,6 +181,12 @@ class Odometry:
         bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
         if bad.size:
             raise DataError(f"odometry.values[{int(bad[0])}]: not a finite number")
+        if self.sigma is not None:
+            k = len(ODOMETRY_KINDS[self.kind])
+            sig = tuple(float(v) for v in np.asarray(self.sigma, dtype=np.float64).ravel())
+            if len(sig) != k or not all(np.isfinite(v) and v >= 0.0 for v in sig):
+                raise DataError(f"odometry.sigma: expected {k} finite standard deviations >= 0 (one per column), got {self.sigma!r}")
+            object.__setattr__(self, "sigma", sig)
         object.__setattr__(self, "stamp", stamp)
         object.__setattr__(self, "values", values)
 

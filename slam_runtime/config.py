@@ -114,8 +114,9 @@ class SlamConfig(_Strict):
     resample_every: int = Field(default=1, ge=1, description="updates at least between two resamplings")
     islands: int = Field(default=1, ge=1, le=1_000, description="independent particle filters the particles are split into; particles must be a multiple of it")
     island_match: float | None = Field(default=None, gt=0.0, description="[m] pair islands' unlabelled features by position up to this distance (labelled filters; null: by label)")
-    proposal: Literal["prior", "optimal"] = Field(
-        default="prior", description="draw poses from the motion model, or from its Gaussian updated by the measurements the map explains"
+    proposal: Literal["auto", "prior", "optimal"] = Field(
+        default="auto",
+        description="poses from the motion model (prior) or updated by the measurements (optimal); auto: the map filter's choice",
     )
     filter: BaseModel = Field(default=None)  # the union of the registered filters' settings (set by _rebuild)
     mount_yaw: float = Field(default=0.0, ge=-0.2, le=0.2, description="[rad] correction added to the sensor's mount yaw (chosen by the log evidence)")
@@ -130,7 +131,7 @@ class SlamConfig(_Strict):
     @field_validator("map_refine", "island_match", "proposal")
     @classmethod
     def _points_only(cls, value, info: ValidationInfo):
-        if value not in (None, False, "prior") and info.data.get("features") == "planes":
+        if value not in (None, False, "prior", "auto") and info.data.get("features") == "planes":
             name = info.field_name
             raise PydanticCustomError(name, "{field} {does}; it does not apply to planes", {"field": name, "does": _POINTS_ONLY[name]})
         return value

@@ -71,6 +71,8 @@ class MapFilter(ABC):
     labelled: bool = False
     #: it offers ``pose_proposal`` (the optimal proposal draws poses from it)
     proposes_poses: bool = False
+    #: the proposal of ``proposal: auto`` for point features ("optimal" where it was measured the better, else "prior")
+    proposal_default: str = "prior"
     #: ``detection.occlusion_sigmas`` when the settings give none: "profile" (the profile's k_sigma) or a number of
     #: range sigmas (inf: no return occludes a map feature)
     occlusion_default: float | str = "profile"

@@ -18,10 +18,12 @@ All particles are processed together (:mod:`slam_runtime.gm`):
   weight 1 / P_D, which the thesis's rule would otherwise lock in); this step's
   birth hypotheses are exempt;
 * the particle's measurement likelihood (sec. 3.1.4, eq. 3.13): the
-  multi-feature strategy by default (empty-set, single-feature and the
-  single-cluster ``marginal`` likelihood as options), evaluated at every
-  feature of weight >= map_threshold; p(Z | M, x) given those features is
-  approximated by a Poisson process of intensity kappa(z) + sum_m P_D(m) g(z | m);
+  single-cluster ``marginal`` likelihood by default (on rfs-sim and Victoria
+  Park as accurate as the multi-feature strategy at a quarter of its cost:
+  docs/results/slam.md), the multi-feature strategy (evaluated at every
+  feature of weight >= map_threshold; p(Z | M, x) given those features
+  approximated by a Poisson process of intensity kappa(z) + sum_m P_D(m) g(z | m)),
+  empty-set and single-feature as options;
 * Vo & Ma pruning and merging with a cap (reported when it binds).
 """
 
@@ -33,9 +35,10 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from slam_runtime.features import FeatureModel
+from slam_runtime.features import FeatureModel, RangeBearing
 from slam_runtime.gm import GMBatch, det, gaussian, inv, matmul, matvec, prune_merge, quad, transpose
 from slam_runtime.mapfilter import MAP_FILTERS, MapFilter, Measurements
+from slam_runtime.rbphd_kernel import update_points
 
 
 class RBPHDConfig(BaseModel):
@@ -53,10 +56,14 @@ class RBPHDConfig(BaseModel):
     )
     merge_inflation: float = Field(default=1.0, ge=1.0, description="factor on the spread of the means of a merged group (not on the whole covariance: that compounds)")
     merge_scope: Literal["fresh", "all"] = Field(default="fresh", description="merge only pairs with a component updated or created this step (fresh), or every pair (all)")
-    cap: int = Field(default=150, ge=1, description="components per particle at most")
+    cap: int = Field(
+        default=600, ge=1, description="components per particle at most (binds on large maps: 150 bound on Victoria Park)"
+    )
     gate: float = Field(default=16.0, gt=0.0, description="squared Mahalanobis distance beyond which a measurement does not update a component")
     landmark_noise: float = Field(default=0.0, ge=0.0, description="landmark position variance added per second [m^2/s]")
-    weighting: Literal["multi_feature", "marginal", "empty_set", "single_feature"] = Field(default="multi_feature", description="particle weighting: multi_feature (sec. 3.1.4), marginal, empty_set or single_feature")
+    weighting: Literal["multi_feature", "marginal", "empty_set", "single_feature"] = Field(
+        default="marginal", description="particle weight: marginal (single-cluster), multi_feature (sec. 3.1.4), empty_set, single_feature"
+    )
     map_threshold: float = Field(default=0.5, gt=0.0, description="a component of this weight or more is a map feature")
 
 
@@ -106,6 +113,9 @@ class RBPHD(MapFilter):
     name = "RB-PHD"
     Config = RBPHDConfig
     proposes_poses = True
+    proposal_default = "optimal"  # (proposal: auto) rfs-sim and Victoria Park chose it: docs/results/slam.md
+    #: point features under one noise take the compiled update (:mod:`slam_runtime.rbphd_kernel`, the same numbers)
+    compiled = True
 
     def __init__(self, feature: FeatureModel, detection, cfg: RBPHDConfig) -> None:
         super().__init__(feature, detection)
@@ -136,6 +146,8 @@ class RBPHD(MapFilter):
 
     # ------------------------------------------------------------------ update
     def update(self, maps: PHDMaps, poses: np.ndarray, meas: Measurements) -> tuple[PHDMaps, np.ndarray]:
+        if self.compiled and meas.cov is None and type(self.feature) is RangeBearing:
+            return self._update_compiled(maps, poses, meas)
         cfg, fm, tm = self.cfg, self.feature, self.timers
         dz = fm.dim_z
         z, rz = self.measurements(meas)
@@ -218,6 +230,44 @@ class RBPHD(MapFilter):
             self.capped_steps += int(capped)
         # adaptive birth: a measurement the map already explains gives birth to little
         birth = self._birth(sp, z, rz, 1.0 - np.clip(w_det.sum(axis=1), 0.0, 1.0) if cfg.adaptive_birth else None)
+        return PHDMaps(gm, birth, merged), loglik
+
+    def _update_compiled(self, maps: PHDMaps, poses: np.ndarray, meas: Measurements) -> tuple[PHDMaps, np.ndarray]:
+        """:meth:`update` for range-bearing points under the filter's one noise: the update of every particle in one
+        compiled call (:func:`slam_runtime.rbphd_kernel.update_points`), the rest as in :meth:`update`."""
+        cfg, tm = self.cfg, self.timers
+        z, rz = self.measurements(meas)
+        sp = self.feature.sensor_pose(poses)
+        n_map = maps.gm.shape[1]
+        prior = maps.gm.concat(maps.birth)  # eq. 3.16
+        w, mu, cov = prior.w, prior.mu, prior.cov
+        with tm("pd"):
+            pd, buf = self.detection.pd_features(sp, mu, cov, meas, w)
+            buf[:, n_map:] = False
+        kappa = self.clutter(z, meas)
+        with tm("update"):
+            missed, w_kept, mu_kept, cov_kept, j_kept, den, wsum = update_points(
+                w, np.ascontiguousarray(mu), np.ascontiguousarray(cov), np.ascontiguousarray(pd, dtype=np.float64), np.ascontiguousarray(buf),
+                np.ascontiguousarray(sp), z, np.ascontiguousarray(self.r), kappa, float(cfg.gate), float(cfg.prune),
+            )
+            upd = GMBatch(missed, mu, cov).concat(GMBatch(w_kept, mu_kept, cov_kept))
+            fresh = None
+            if cfg.merge_scope == "fresh" and maps.merged is not None:
+                fresh = np.ones(upd.shape, dtype=np.bool_)
+                fresh[:, :n_map] = ((pd > 0) & (w > 0))[:, :n_map] | maps.merged
+        with tm("weight"):
+            if cfg.weighting == "marginal":  # as in update()
+                lw = np.log(np.where(kappa > 0, den / np.maximum(kappa, 1e-300), 1.0)).sum(axis=1) if z.shape[0] else np.zeros(w.shape[0])
+                loglik = lw - (pd * w).sum(axis=1)
+            else:
+                pd_upd = np.concatenate([pd, np.take_along_axis(pd, j_kept, axis=1)], axis=1)
+                loglik = self._log_weight(prior, upd, pd_upd, sp, z, kappa, rz)
+        with tm("merge"):
+            gm, capped, merged = prune_merge(
+                upd, prune=cfg.prune, merge=cfg.merge, cap=cfg.cap, inflate=cfg.merge_inflation, mutual=cfg.merge_rule == "mutual", fresh=fresh, groups=True
+            )
+            self.capped_steps += int(capped)
+        birth = self._birth(sp, z, rz, 1.0 - np.clip(wsum, 0.0, 1.0) if cfg.adaptive_birth else None)
         return PHDMaps(gm, birth, merged), loglik
 
     def pose_proposal(

@@ -28,7 +28,7 @@ from profiles.schema import PD_COVARIATES
 from slam_runtime.config import SlamConfig, detection_model, feature_model, map_filter, vehicle_model
 from slam_runtime.metrics import axis_rmse, gospa, ospa, trajectory_rmse
 from slam_runtime.refine import refine_map
-from slam_runtime.slam import RBSlam
+from slam_runtime.slam import RBSlam, resolve_proposal
 from slam_runtime.sources import control_rows, frames
 from slam_runtime.vehicle import VEHICLE_MODELS
 
@@ -405,7 +405,8 @@ def describe(log: SensorLog, profile, cfg: SlamConfig) -> dict[str, str]:
     src = "the settings" if given else ("the profile" if profile.noise is not None or cfg.features == "planes" else "the defaults")
     pd = profile.pd
     rows = {
-        "filter": f"{b.mapfilter.name} ({cfg.filter.kind}), {cfg.particles} particles, {cfg.proposal} proposal",
+        "filter": f"{b.mapfilter.name} ({cfg.filter.kind}), {cfg.particles} particles, "
+        + f"{resolve_proposal(cfg.proposal, b.vehicle, b.mapfilter)} proposal" + (" (auto)" if cfg.proposal == "auto" else ""),
         "features": cfg.features,
         "motion": f"{b.vehicle.label} model for {log.odometry.kind} odometry, motion.{group}: "
         + ", ".join(f"{k} {v:g}" for k, v in noise.model_dump().items()),

@@ -56,6 +56,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
@@ -117,8 +118,7 @@ class RBSlam:
         # per island, after a resampling: a copy of the particle that was heaviest before it (-1: none)
         self._heaviest = np.full(islands, -1, np.int64)
         self.time = {"predict": 0.0, "resample": 0.0}
-        # the optimal proposal needs a planar-pose vehicle and a map filter that offers it
-        self.proposal = proposal if (vehicle.dim == 3 and mapfilter.proposes_poses) else "prior"
+        self.proposal = resolve_proposal(proposal, vehicle, mapfilter)
         self._prior: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
@@ -256,6 +256,17 @@ class RBSlam:
         return average_states(self.mf.feature, lab, x, others), r
 
 
+def resolve_proposal(proposal: str, vehicle: VehicleModel, mapfilter: MapFilter) -> str:
+    """The proposal a run draws its poses from: the optimal one needs a planar-pose vehicle and a map filter that offers
+    it ("prior" otherwise); "auto" is the map filter's ``proposal_default`` for point (range-bearing) features, the
+    prior for others."""
+    if not (vehicle.dim == 3 and getattr(mapfilter, "proposes_poses", False)):
+        return "prior"
+    if proposal == "auto":
+        return getattr(mapfilter, "proposal_default", "prior") if isinstance(getattr(mapfilter, "feature", None), RangeBearing) else "prior"
+    return proposal
+
+
 def _mean_pose(pose: np.ndarray, w: np.ndarray) -> np.ndarray:
     """(3,) the w-weighted mean of planar poses (P, 3), the heading's circular mean."""
     xy = w @ pose[:, :2]
@@ -293,10 +304,40 @@ def match_labels(feature, label: np.ndarray, x: np.ndarray, other_label: np.ndar
 
 
 def _log_normal(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    """log N(x; mean, cov) of planar poses (P, 3) (heading difference wrapped)."""
-    d = x - mean
-    d[:, 2] = np.mod(d[:, 2] + np.pi, 2 * np.pi) - np.pi
-    c = cov + np.eye(3) * 1e-12
-    sol = np.linalg.solve(c, d[..., None])[..., 0]
-    _, logdet = np.linalg.slogdet(c)
-    return -0.5 * (np.einsum("pi,pi->p", d, sol) + logdet + 3 * np.log(2 * np.pi))
+    """log N(x; mean, cov) of planar poses (P, 3) (heading difference wrapped), covariances (P, 3, 3)."""
+    return _log_normal3(np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(mean, dtype=np.float64), np.ascontiguousarray(cov, dtype=np.float64))
+
+
+@numba.njit(cache=True, nogil=True)
+def _log_normal3(x, mean, cov):  # pragma: no cover - compiled
+    """:func:`_log_normal` per particle: the Cholesky factor of cov + 1e-12 I, d^T C^-1 d by forward substitution,
+    log det C = 2 sum log diag L."""
+    p = x.shape[0]
+    out = np.empty(p)
+    ln2pi3 = 3.0 * np.log(2.0 * np.pi)
+    lo = np.zeros((3, 3))
+    d = np.empty(3)
+    y = np.empty(3)
+    for i in range(p):
+        for a in range(3):
+            d[a] = x[i, a] - mean[i, a]
+        d[2] = np.mod(d[2] + np.pi, 2.0 * np.pi) - np.pi
+        for a in range(3):
+            for b in range(a + 1):
+                acc = cov[i, a, b] + (1e-12 if a == b else 0.0)
+                for k in range(b):
+                    acc -= lo[a, k] * lo[b, k]
+                if a == b:
+                    lo[a, a] = np.sqrt(max(acc, 1e-300))
+                else:
+                    lo[a, b] = acc / lo[b, b]
+        quad, logdet = 0.0, 0.0
+        for a in range(3):
+            acc = d[a]
+            for k in range(a):
+                acc -= lo[a, k] * y[k]
+            y[a] = acc / lo[a, a]
+            quad += y[a] * y[a]
+            logdet += 2.0 * np.log(lo[a, a])
+        out[i] = -0.5 * (quad + logdet + ln2pi3)
+    return out

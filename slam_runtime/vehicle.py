@@ -205,6 +205,58 @@ class OdometryIncrement(VehicleModel):
         f[:, 1, 2] = c * u[0] - s * u[1]
         return f
 
+    def predict_gaussian(self, x, controls, dts):
+        """As :meth:`VehicleModel.predict_gaussian`, with the control Jacobian in closed form (the rotation into the
+        particle's heading) and the rows of a frame integrated in one compiled loop."""
+        u = np.asarray(controls, dtype=np.float64).reshape(-1, 3)
+        dt = np.asarray(dts, dtype=np.float64).reshape(-1)
+        d = np.hypot(u[:, 0], u[:, 1])
+        sig = self.const[None, :] * np.sqrt(np.maximum(dt, 0.0))[:, None] + np.column_stack(
+            [self.a_trans * d, self.lateral * d, self.a_rot * np.abs(u[:, 2]) + self.a_rot_trans * d]
+        )  # (R, 3) as sigmas() row by row
+        return _increment_gaussian(np.ascontiguousarray(x, dtype=np.float64), u, sig)
+
+
+@numba.njit(cache=True, nogil=True)
+def _increment_gaussian(x, controls, sig):  # pragma: no cover - compiled
+    """Mean motion and linearised covariance of pose increments through control rows (R, 3) of noise sigmas (R, 3).
+
+    Per row, at heading th (c, s = cos th, sin th): x += c dx - s dy, y += s dx + c dy, th += dth;
+    C <- F C F^T + G diag(sig^2) G^T with F the identity but F[0, 2] = -s dx - c dy, F[1, 2] = c dx - s dy, and
+    G = d(motion)/d(increment) the rotation by th (the heading's row and column: 1)."""
+    p = x.shape[0]
+    out = x.copy()
+    cov = np.zeros((p, 3, 3))
+    f = np.eye(3)
+    g = np.zeros((3, 3))
+    tmp = np.zeros((3, 3))
+    for r in range(controls.shape[0]):
+        ux, uy, ut = controls[r, 0], controls[r, 1], controls[r, 2]
+        for i in range(p):
+            th = out[i, 2]
+            c, s = np.cos(th), np.sin(th)
+            f[0, 2] = -s * ux - c * uy
+            f[1, 2] = c * ux - s * uy
+            g[0, 0], g[0, 1] = c * sig[r, 0], -s * sig[r, 1]
+            g[1, 0], g[1, 1] = s * sig[r, 0], c * sig[r, 1]
+            g[2, 2] = sig[r, 2]
+            for m in range(3):
+                for n in range(3):
+                    acc = 0.0
+                    for k in range(3):
+                        acc += f[m, k] * cov[i, k, n]
+                    tmp[m, n] = acc
+            for m in range(3):
+                for n in range(3):
+                    acc = 0.0
+                    for k in range(3):
+                        acc += tmp[m, k] * f[n, k] + g[m, k] * g[n, k]
+                    cov[i, m, n] = acc
+            out[i, 0] += c * ux - s * uy
+            out[i, 1] += s * ux + c * uy
+            out[i, 2] = np.mod(th + ut + np.pi, 2.0 * np.pi) - np.pi  # as detectors.geometry.compose
+    return out, cov
+
 
 class VelocityNoise(BaseModel):
     """Unicycle (v, omega) commands."""

@@ -68,6 +68,8 @@ def _arrays(log: SensorLog) -> tuple[dict, dict[str, np.ndarray]]:
             arrays["scan/geometry"] = s.geometry
     if log.odometry is not None:
         streams["odometry"] = {"n": len(log.odometry), "kind": log.odometry.kind}
+        if log.odometry.sigma is not None:  # written only where the source states it: other logs keep their bytes
+            streams["odometry"]["sigma"] = list(log.odometry.sigma)
         arrays["odometry/stamp"] = log.odometry.stamp
         arrays["odometry/values"] = log.odometry.values
     if log.reference:
@@ -120,6 +122,7 @@ class _ScanMeta(_Meta):
 class _OdometryMeta(_Meta):
     n: int = Field(ge=0)
     kind: str
+    sigma: list[Annotated[float, Field(ge=0.0, allow_inf_nan=False)]] | None = None
 
 
 class _CountMeta(_Meta):
@@ -404,7 +407,7 @@ def _build(meta: dict, sensor: SensorModel | None, vehicle: Vehicle | None, stre
             load("scan/geometry") if s.geometry else None,
         )
     if streams.odometry is not None:
-        odometry = Odometry(streams.odometry.kind, load("odometry/stamp"), load("odometry/values"))
+        odometry = Odometry(streams.odometry.kind, load("odometry/stamp"), load("odometry/values"), streams.odometry.sigma)
     reference = {
         k: ReferencePoses(k, load(f"reference/{k}/stamp"), load(f"reference/{k}/poses"), point=tuple(m.point)) for k, m in (streams.reference or {}).items()
     }

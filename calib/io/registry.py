@@ -21,6 +21,7 @@ from calib.io.carmen import looks_like_carmen, read_carmen
 from calib.io.common import DEFAULT_MAX_BACKSTEP
 from calib.io.kitti import looks_like_kitti, read_kitti
 from calib.io.native import SUFFIX, is_native, read_native, write_native
+from calib.io.rfsslam import looks_like_rfsslam, read_rfsslam
 from calib.io.rosbag import looks_like_bag, read_rosbag, write_ros2
 from calib.io.utias import looks_like_utias, read_utias
 from calib.io.victoria import looks_like_victoria, read_victoria
@@ -73,6 +74,7 @@ READERS.add("rosbag", LogReader(looks_like_bag, lambda p, o: read_rosbag(
 READERS.add("victoria", LogReader(looks_like_victoria, lambda p, o: read_victoria(p, max_backstep=o.max_backstep)))
 READERS.add("utias", LogReader(looks_like_utias, lambda p, o: read_utias(p, robot=o.robot, max_backstep=o.max_backstep), robots=True))
 READERS.add("kitti", LogReader(looks_like_kitti, lambda p, o: read_kitti(p)))
+READERS.add("rfsslam", LogReader(looks_like_rfsslam, lambda p, o: read_rfsslam(p)))
 
 WRITERS: Registry[LogWriter] = Registry("output format")
 WRITERS.add("native", LogWriter(lambda log, p, overwrite: write_native(log, p, overwrite=overwrite), SUFFIX))

@@ -94,7 +94,8 @@ def simulate_rfs(cfg: RfsSimConfig, seed: int) -> SensorLog:
     return SensorLog(
         name=f"rfs_sim_{seed}",
         sensor=sensor_model(cfg),
-        odometry=Odometry("increment", stamps, odo),
+        # the stated noise: a per-step std sqrt(var_odometry) dt on every axis, as a random walk sqrt(var_odometry dt) per sqrt(s)
+        odometry=Odometry("increment", stamps, odo, (float(np.sqrt(cfg.var_odometry * dt)),) * 3),
         reference={"ground_truth": ReferencePoses("ground_truth", stamps, poses)},
         landmarks=Landmarks(np.arange(1, cfg.landmarks + 1, dtype=np.int64), lm),
         detections=det,

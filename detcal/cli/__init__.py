@@ -31,25 +31,37 @@ except DetcalError as _exc:
     os.environ.pop("SOURCE_DATE_EPOCH")
 _NUMBA_FALLBACK = numba_cache()
 
-from detcal.cli import calibrate, detect, logs, profile, simulate, slam, validate  # noqa: E402
+import importlib  # noqa: E402
+
 from detcal.cli.common import out, warn  # noqa: E402
 
-app = typer.Typer(
-    help="detcal: measure a feature detector's P_D and clutter statistics for RFS SLAM.",
-    no_args_is_help=True,
-    rich_markup_mode=None,  # plain help: option texts hold brackets such as [m]
-    add_completion=False,
-    pretty_exceptions_enable=False,
-)
-app.add_typer(logs.app, name="log")
-app.add_typer(simulate.app, name="simulate")
-app.add_typer(profile.app, name="profile")
-app.add_typer(slam.app, name="slam")
-app.command("detect")(detect.detect_cmd)
-app.command("calibrate")(calibrate.calibrate_cmd)
-app.command("validate")(validate.validate_cmd)
-app.command("icp")(calibrate.icp_cmd)
-app.command("selfcal")(calibrate.selfcal_cmd)
+#: The command groups and single commands, by name: (module of detcal.cli, its typer app or command function). A run
+#: of one command imports only its module (:func:`build`): a SLAM run does not pay for the calibration's imports.
+GROUPS = {"log": ("logs", "app"), "simulate": ("simulate", "app"), "profile": ("profile", "app"), "slam": ("slam", "app")}
+COMMANDS = {
+    "detect": ("detect", "detect_cmd"), "calibrate": ("calibrate", "calibrate_cmd"), "validate": ("validate", "validate_cmd"),
+    "icp": ("calibrate", "icp_cmd"), "selfcal": ("calibrate", "selfcal_cmd"),
+}  # fmt: skip
+
+
+def build(only: str | None = None) -> typer.Typer:
+    """The app with every command (``only`` None) or with the command or group ``only`` alone (the others' modules
+    not imported)."""
+    app = typer.Typer(
+        help="detcal: measure a feature detector's P_D and clutter statistics for RFS SLAM.",
+        no_args_is_help=True,
+        rich_markup_mode=None,  # plain help: option texts hold brackets such as [m]
+        add_completion=False,
+        pretty_exceptions_enable=False,
+    )
+    for name, (module, attr) in GROUPS.items():
+        if only is None or only == name:
+            app.add_typer(getattr(importlib.import_module(f"detcal.cli.{module}"), attr), name=name)
+    for name, (module, attr) in COMMANDS.items():
+        if only is None or only == name:
+            app.command(name)(getattr(importlib.import_module(f"detcal.cli.{module}"), attr))
+    app.callback()(_root)
+    return app
 
 
 def _version(value: bool) -> None:
@@ -58,18 +70,32 @@ def _version(value: bool) -> None:
         raise typer.Exit()
 
 
-@app.callback()
 def _root(
     version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")] = False,
 ) -> None:
     """detcal: measure a feature detector's P_D and clutter statistics for RFS SLAM."""
 
 
-def command():
-    """The click command of the app, each option's value shown as its choices (:mod:`detcal.cli.choices`)."""
+def command(only: str | None = None):
+    """The click command of the app (with ``only`` alone: :func:`build`), each option's value shown as its choices
+    (:mod:`detcal.cli.choices`)."""
     from detcal.cli.choices import label
 
-    return label(typer.main.get_command(app))
+    return label(typer.main.get_command(build(only)))
+
+
+def _only(args: list[str]) -> str | None:
+    """The command or group the arguments run when they name one and ask for nothing of the whole app (its help, its
+    version); None otherwise."""
+    if not args or args[0] not in GROUPS and args[0] not in COMMANDS:
+        return None
+    return args[0]
+
+
+def __getattr__(name: str):
+    if name == "app":  # the whole app, built when asked for
+        return build()
+    raise AttributeError(name)
 
 
 def error_line(message: str) -> None:
@@ -105,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
         if _ENV_ERROR is not None:
             raise _ENV_ERROR
         check_source_date_epoch()
-        command().main(args=argv, prog_name="detcal")
+        command(_only(common.ARGV)).main(args=argv, prog_name="detcal")
     except SystemExit as exc:
         code = exc.code
         if code == 130:  # typer turns a Ctrl-C into exit 130 itself

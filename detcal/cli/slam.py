@@ -58,16 +58,21 @@ def slam_run_cmd(
     if seed < 0:
         raise UsageError(f"--seed: expected a non-negative integer, got {seed}")
     prof = resolve(profile_ref)
-    cfg, motion = request.settings(profile_path(profile_ref))
+    request.settings(profile_path(profile_ref))  # (a bad setting is refused before the log is read)
     log = reader.read(log_path)
     check_inputs(log, prof)
+    cfg, motion, why = request.derived(log, prof, profile_path(profile_ref))
     target = out_dir or Path("runs") / f"slam_{log.name}_{prof.ref}_{seed}"
     fresh(target, force, inputs=[log_path, profile_ref, config])
     if config is None:
         used = describe(log, prof, cfg)
         if motion is not None:
             used["motion"] += f" (from {motion})"
+        for group, source in why.items():
+            used[group] += f" (from {source})"
         out.print(summary_table(f"settings derived for {log.name} and {prof.ref} (no --config)", used))
+    elif why:
+        out.print(f"settings {config} leaves unset, derived: " + "; ".join(f"{g} from {src}" for g, src in why.items()))
     inputs = [r.model_dump() for r in input_refs(log_path, log)]
     res = SlamRun(log, log_path.name, inputs, prof, cfg, seed, target, frames, force).run(progress)
     shown = {k: v for k, v in res.metrics.items() if not isinstance(v, dict)}

@@ -169,6 +169,7 @@ class SelfCalibrationRequest:
         if log.detections is None or log.scans is not None:
             raise UsageError(f"{log.name}: self-calibration takes a detection-level log (detections, no scans)")
         check_inputs(log, start)
+        cfg = self.settings.derived(log, start)[0]  # (the settings the log and the profile give where the request gives none)
         name = self.name or f"{log.name.lower().replace('_', '-')}-selfcal"
         if not NAME_RE.match(name):
             raise UsageError(f"--name: {name!r} must match [a-z0-9][a-z0-9._-]*")

@@ -19,7 +19,7 @@ import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from calib.config import load_yaml_model
+from calib.config import load_yaml_model, read_yaml_mapping
 from detcal.reports.slam_run import write_slam_run
 from detectors.sensor_log import SensorLog
 from profiles.errors import UsageError
@@ -122,10 +122,8 @@ class SettingsRequest:
 
         Without a settings file, a calibration's ``motion.yaml`` beside the profile's ``profile.yaml`` gives the motion
         noise (the vehicle model measured on the calibration's logs)."""
-        base, motion = self.config, None
-        if base is None and profile_file is not None and profile_file.name == "profile.yaml":
-            if (profile_file.parent / "motion.yaml").is_file():
-                base = motion = profile_file.parent / "motion.yaml"
+        base = self._base(profile_file)
+        motion = base if self.config is None else None
         given = {OPTIONS[f]: v for f, v in self.options().items() if v is not None and f != "--filter"}
         flags = {OPTIONS[f]: f for f in OPTIONS} | {k: f"--set {k}" for k in self.sets}
         # --filter's own settings (--set filter.x=...) apply to the filter it names, after the change of kind
@@ -133,6 +131,39 @@ class SettingsRequest:
         cfg = load_yaml_model(SlamConfig, base, {**given, **{k: v for k, v in self.sets.items() if k not in own}}, flags)
         cfg = with_filter(cfg, self.filter)
         return (with_settings(cfg, own) if own else cfg), motion
+
+
+    def _base(self, profile_file: Path | None) -> Path | None:
+        """The settings file: --config, else a calibration's motion.yaml beside the profile's profile.yaml, else None."""
+        if self.config is None and profile_file is not None and profile_file.name == "profile.yaml":
+            if (profile_file.parent / "motion.yaml").is_file():
+                return profile_file.parent / "motion.yaml"
+        return self.config
+
+    def given_keys(self, profile_file: Path | None = None) -> set[str]:
+        """The dotted settings this request gives: the settings file's (every leaf), the options' and --set's."""
+        base = self._base(profile_file)
+        keys = set(_leaves(read_yaml_mapping(base))) if base is not None else set()
+        return keys | {OPTIONS[f] for f, v in self.options().items() if v is not None} | set(self.sets)
+
+    def derived(self, log: SensorLog, profile, profile_file: Path | None = None) -> tuple[SlamConfig, Path | None, dict[str, str]]:
+        """:meth:`settings` with what the log and the profile give for the settings not given
+        (:func:`slam_runtime.defaults.derived`), and {group: where it came from}."""
+        from slam_runtime.defaults import derived
+
+        cfg, motion = self.settings(profile_file)
+        cfg, why = derived(cfg, log, profile, self.given_keys(profile_file))
+        return cfg, motion, why
+
+
+def _leaves(data: dict, prefix: str = ""):
+    """The dotted keys of a nested mapping's leaves (an empty group counts as a leaf)."""
+    for k, v in data.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict) and v:
+            yield from _leaves(v, key + ".")
+        else:
+            yield key
 
 
 def evaluation_hooks(log: SensorLog, cfg: SlamConfig) -> tuple:

@@ -23,6 +23,7 @@ import traceback
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 
 from detcal.pipelines.slam_run import SettingsRequest, check_option, own_option, read_value, run_and_evaluate, run_record
 from detcal.reports.slam_run import write_slam_run
@@ -246,6 +247,7 @@ class SweepRequest:
         from detcal.engine import LogSource, check_options
         from profiles.store import resolve
         from slam_runtime.config import override, with_filter, with_settings
+        from slam_runtime.defaults import derived
         from slam_runtime.run import check_features, check_inputs, check_poses
 
         modes = list(dict.fromkeys(self.pd_modes or ["profile", "constant"]))
@@ -294,13 +296,16 @@ class SweepRequest:
                 check_poses(log, c, self.frames)
             src = LogSource.of(log, p, self.fmt, self.read_options)
             refs = [r.model_dump() for r in self.inputs(p, log)]
-            sources.append((src, refs))
+            # what the settings derive from a log (slam_runtime.defaults) needs its odometry and vehicle only
+            sources.append((src, refs, SimpleNamespace(odometry=log.odometry, vehicle=log.vehicle)))
             described.append({"name": log.name, "file": p.name, "inputs": refs, "fingerprint": src.fingerprint})
             del log  # the runs read it where they run
         self.jobs = []
-        for i, (src, refs) in enumerate(sources):
+        given = self.settings.given_keys() | {k for _, changes in self.varied for k in changes}
+        for i, (src, refs, odo) in enumerate(sources):
             for prof, f, m, n, (v, (label, _)) in itertools.product(profs, kinds, modes, counts, enumerate(self.varied)):
                 cfg = override(configs[f, label], particles=n, **{"detection.pd_mode": m})
+                cfg = derived(cfg, odo, prof, given)[0]  # the settings no option, file or variant gives, from the log
                 tag = f"_v{v}" if self.vary else ""
                 for sd in self.seeds:
                     name = f"{i:02d}_{src.name}_{prof.ref}_{f}_{m}_p{n}{tag}_s{sd}"

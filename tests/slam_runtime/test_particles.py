@@ -234,7 +234,18 @@ def test_the_optimal_proposal_is_refused_for_planes():
 
     with pytest.raises(ValidationError, match="proposal 'optimal' draws the pose from point features' measurements; it does not apply to planes"):
         SlamConfig(features="planes", proposal="optimal")
-    assert SlamConfig(features="planes").proposal == "prior" and SlamConfig(proposal="optimal").proposal == "optimal"
+    assert SlamConfig(features="planes").proposal == "auto" and SlamConfig(proposal="optimal").proposal == "optimal"
+    # auto: the optimal proposal for point (range-bearing) features only, the prior for planes
+    from types import SimpleNamespace
+
+    from slam_runtime.features import RangeBearing
+    from slam_runtime.slam import resolve_proposal
+
+    veh = OdometryIncrement()
+    assert resolve_proposal("auto", veh, SimpleNamespace(proposes_poses=True, feature=object())) == "prior"
+    assert resolve_proposal("auto", veh, SimpleNamespace(proposes_poses=True, proposal_default="optimal", feature=RangeBearing(np.eye(2)))) == "optimal"
+    assert resolve_proposal("auto", veh, SimpleNamespace(proposes_poses=True, feature=RangeBearing(np.eye(2)))) == "prior"
+    assert resolve_proposal("optimal", veh, SimpleNamespace(proposes_poses=False, feature=RangeBearing(np.eye(2)))) == "prior"
 
 
 def test_each_island_counts_its_own_updates_since_it_resampled():

@@ -339,7 +339,7 @@ CASES = [
     ("opt-name", "--name with a slash", lambda t: ["calibrate", small_log(t), "--name", "a/b"], 2, "--name: 'a/b' must match [a-z0-9][a-z0-9._-]*"),
     ("opt-poses", "--poses foo", lambda t: ["calibrate", small_log(t), "--poses", "foo"], 2, "--poses: expected auto, reference, icp, got 'foo'"),
     ("opt-laser", "--laser middle", lambda t: ["log", "info", carmen(t), "--laser", "middle"], 2, "--laser: expected 'front' or 'rear', got 'middle'"),
-    ("opt-format", "--format foo", lambda t: ["log", "info", small_log(t), "--format", "foo"], 2, "--format: expected one of native, carmen, rosbag, victoria, utias, kitti, got 'foo'"),
+    ("opt-format", "--format foo", lambda t: ["log", "info", small_log(t), "--format", "foo"], 2, "--format: expected one of native, carmen, rosbag, victoria, utias, kitti, rfsslam, got 'foo'"),
     ("opt-unknown", "an option that does not exist", lambda t: ["log", "info", small_log(t), "--no-such-option"], 2, "No such option: --no-such-option"),
     ("opt-frames", "--frames 0", lambda t: ["slam", "run", small_log(t), "--profile", "sim-park-laser", "--frames", "0"], 2, "--frames: expected a positive integer, got 0"),
     ("opt-seeds", "--seeds x", lambda t: ["slam", "sweep", small_log(t), "--profile", "sim-park-laser", "--seeds", "x"], 2, "--seeds: expected a count (5), a list (1,3,7) or a range (1-5), got 'x'"),
