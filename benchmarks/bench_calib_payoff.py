@@ -127,6 +127,10 @@ MODIFIERS = {
     "nobuf": {"detection.buffer_zone": False},
     "ba": {"filter.birth_associated": 1e-4},
     "dupwide": {"filter.survival_duplicate": 0.5, "filter.duplicate_gate": 1000.0},
+    "nodup": {"filter.survival_duplicate": 1.0},
+    "dupk2": {"filter.duplicate_sigmas": 2.0},
+    "dupk5": {"filter.duplicate_sigmas": 5.0},
+    "dupk8": {"filter.duplicate_sigmas": 8.0},
 }
 
 
