@@ -60,3 +60,46 @@ def test_a_piece_of_a_mapped_plane_is_its_duplicate_in_the_plane_metric(cls, cfg
         hph = np.einsum("...ij,...jk,...lk->...il", h, np.tile(np.eye(3) * 1e-8, (1, 6, 1, 1)), h)
         dup = mf._duplicates(lab, np.ones((1, 6), bool), np.ones((1, 6)), zhat, hph)
         assert set(np.flatnonzero(dup[0]).tolist()) == flagged, (cls, k, np.flatnonzero(dup[0]))
+
+
+def _street_of_pieces(cls, cfg_cls, seed: int, pd: float, **cfg) -> np.ndarray:
+    """A still sensor before four planes (a facade at 8 m, one set back 0.6 m behind it, a wall across the street
+    and one ahead), each detected with probability 0.8 per frame (noise 2 mm of chart angle, 2 cm of offset),
+    and from frame 10 on, in 40 % of the frames, a piece of the facade fitted 0.15 m and 0.6 deg off it (what
+    the detector gives of a partly seen facade); 60 frames; the filter's constant P_D ``pd``. Returns the map's
+    offsets, sorted."""
+    rng = np.random.default_rng(seed)
+    truth = np.stack([_plane(90.0, 8.0), _plane(90.0, 8.6), _plane(-90.0, 9.0), _plane(0.0, 30.0)])
+    piece = _plane(90.6, 8.15)
+    mf = cls(PlaneFeature(R, height=0.0), _detection_model(pd), cfg_cls(**cfg), rng=np.random.default_rng(seed))
+    maps = mf.empty(1)
+    for t in range(60):
+        z = truth[rng.random(4) < 0.8]
+        if t >= 10 and rng.random() < 0.4:
+            z = np.vstack([z, piece])
+        maps, ll = mf.update(maps, np.zeros((1, 3)), Measurements(z + rng.normal(0, [0.002, 0.002, 0.02], z.shape)))
+        assert np.isfinite(ll).all()
+    x, _ = mf.estimate(maps, 0)
+    return np.sort(x[:, 2])
+
+
+@pytest.mark.parametrize("cls,cfg_cls", FILTERS)
+def test_a_piece_of_a_plane_the_filter_expects_to_see_is_ended_and_one_a_low_pd_excuses_is_not(cls, cfg_cls):
+    """The scene of :func:`_street_of_pieces`, seeds 0-5. With P_D 0.9 the default duplicate test (k = 3: the
+    piece is inside 0.212 m and 1.22 deg of the facade's track) ends the piece's track: it is missed in 60 % of
+    the frames, each miss costing log(0.5 x 0.1) against its death; measured: 4 planes in at least 5 of 6 seeds
+    (the facade, its set-back neighbour 0.6 m behind, which the test leaves alone, and the two others, each
+    within 3 cm of its truth). With the test off (duplicate_sigmas 1e-6) the piece stays a fifth plane in
+    every seed. With P_D 0.3 (a low calibrated P_D, as a partly seen plane has) its misses cost log(0.5 x 0.7)
+    and the detections of the piece, millimetre-precise against a clutter density of 0.003, keep it: 5 planes,
+    as with the test off. This is the measured limit of a survival test: it cannot end a piece the P_D excuses
+    (docs/calibration-payoff.md)."""
+    truth = np.array([8.0, 8.6, 9.0, 30.0])
+    on = [_street_of_pieces(cls, cfg_cls, s, 0.9) for s in range(6)]
+    good = [x for x in on if x.size == 4]
+    assert len(good) >= 5, [x.size for x in on]
+    assert all(np.abs(x - truth).max() < 0.03 for x in good), good
+    off = [_street_of_pieces(cls, cfg_cls, s, 0.9, duplicate_sigmas=1e-6) for s in range(6)]
+    assert all(x.size == 5 and np.any(np.abs(x - 8.15) < 0.03) for x in off), off
+    low = [_street_of_pieces(cls, cfg_cls, s, 0.3) for s in range(6)]
+    assert all(x.size == 5 for x in low), low
