@@ -139,6 +139,8 @@ MODIFIERS = {
     "dupk2": {"filter.duplicate_sigmas": 2.0},
     "dupk5": {"filter.duplicate_sigmas": 5.0},
     "dupk8": {"filter.duplicate_sigmas": 8.0},
+    "dup01": {"filter.survival_duplicate": 0.1},
+    "dup001": {"filter.survival_duplicate": 0.01},
 }
 
 
@@ -373,6 +375,15 @@ def main() -> None:
         done = [json.loads(x) for x in args.out.read_text().splitlines() if x.strip()]
     have = {(r["kind"], r["street"], r["poses"], r["filter"], r["variant"], r["seed"]) for r in done}
     suffix = f"+{args.tag}" if args.tag else ""
+    def applies(f: str, v: str) -> bool:  # a modifier of the labelled filters' settings does not apply to RB-PHD
+        from profiles.errors import DetcalError
+
+        try:
+            with_settings(with_filter(SlamConfig(), f), {k: x for m in v.split("+")[1:] for k, x in MODIFIERS[m].items()})
+        except DetcalError:
+            return False
+        return True
+
     tasks = []
     for poses in args.poses or ["given", "slam"]:  # every log's map-only runs first: they are the quick ones
         for s in args.streets:
@@ -381,7 +392,7 @@ def main() -> None:
                 for f in args.filters or ["glmb", "lmb", "rbphd"]
                 for v in variants
                 for sd in range(args.seeds)
-                if (args.kind, s, poses, f, v + suffix, sd) not in have
+                if (args.kind, s, poses, f, v + suffix, sd) not in have and applies(f, v)
             ]
             if runs:
                 tasks.append({"kind": args.kind, "street": s, "frames": args.frames, "cache": str(cache), "calibrated": str(cal), "runs": runs,
