@@ -248,6 +248,7 @@ def run_task(task: dict) -> list[dict]:
         m = evaluate(log, res, 1.0, 1.0, cfg)
         row = {"kind": kind, "street": task["street"], "poses": poses, "filter": filt, "variant": variant + (f"+{task['tag'][1:]}" if tag else ""), "seed": seed}
         row |= {k: (float(v) if isinstance(v, (int, float, np.floating, np.integer)) else v) for k, v in m.items() if np.isscalar(v)}
+        row["filter_key"] = filt  # the metrics name the filter ("delta-GLMB"); the key (glmb) is what a resumed run asks for
         if kind == "street":
             row |= _feature_origin(log, np.asarray(res.map_xy).reshape(-1, 4), cfg.metric.plane_length)
             row["map"] = np.round(np.asarray(res.map_xy, dtype=np.float64).reshape(-1, 4), 4).tolist()
@@ -297,6 +298,8 @@ def summarise(rows: list[dict], variants: list[str] | None = None) -> None:
     import pandas as pd
 
     df = pd.DataFrame(rows)
+    # a run measured twice (a results file resumed before runs recorded their filter key) counts once: same inputs, same bytes
+    df = df.drop_duplicates(subset=["kind", "street", "poses", "filter", "variant", "seed"], keep="last")
     for (kind, poses, filt), g in df.groupby(["kind", "poses", "filter"], sort=False):
         have = [v for v in (variants or list(dict.fromkeys(g["variant"]))) if v in set(g["variant"])]
         print(f"\n## {kind}, poses {poses}, {filt}: {g['street'].nunique()} logs x {g['seed'].nunique()} seeds")
@@ -373,7 +376,7 @@ def main() -> None:
     done: list[dict] = []
     if args.out and args.out.is_file():
         done = [json.loads(x) for x in args.out.read_text().splitlines() if x.strip()]
-    have = {(r["kind"], r["street"], r["poses"], r["filter"], r["variant"], r["seed"]) for r in done}
+    have = {(r["kind"], r["street"], r["poses"], r.get("filter_key", r["filter"]), r["variant"], r["seed"]) for r in done}
     suffix = f"+{args.tag}" if args.tag else ""
     def applies(f: str, v: str) -> bool:  # a modifier of the labelled filters' settings does not apply to RB-PHD
         from profiles.errors import DetcalError
