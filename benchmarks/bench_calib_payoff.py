@@ -376,7 +376,8 @@ def main() -> None:
     done: list[dict] = []
     if args.out and args.out.is_file():
         done = [json.loads(x) for x in args.out.read_text().splitlines() if x.strip()]
-    have = {(r["kind"], r["street"], r["poses"], r.get("filter_key", r["filter"]), r["variant"], r["seed"]) for r in done}
+    names = {"delta-GLMB": "glmb", "LMB": "lmb", "RB-PHD": "rbphd"}  # rows written before they carried filter_key
+    have = {(r["kind"], r["street"], r["poses"], r.get("filter_key", names.get(r["filter"], r["filter"])), r["variant"], r["seed"]) for r in done}
     suffix = f"+{args.tag}" if args.tag else ""
     def applies(f: str, v: str) -> bool:  # a modifier of the labelled filters' settings does not apply to RB-PHD
         from profiles.errors import DetcalError
