@@ -233,6 +233,8 @@ class LabelledFilter(MapFilter):
         super().__init__(feature, detection)
         self.cfg = cfg
         self.r = feature.r * cfg.noise_inflation
+        #: planar features (the plane metric's duplicate test, which also sees tracks in the buffer zone)
+        self._plane_features = type(feature).plane_gap is not FeatureModel.plane_gap
         #: P_S of a possible second track (survival_duplicate; null: the feature model's own)
         self.survival_duplicate = feature.survival_duplicate if cfg.survival_duplicate is None else cfg.survival_duplicate
         self.rng, self.groups = rng, 1
@@ -291,7 +293,9 @@ class LabelledFilter(MapFilter):
             zhat, h = fm.predict_sensor(sp[:, None, :], mu_a)
             hph = matmul(h, matmul(cov_a, transpose(h)))
             if dup_on:  # (an active track that is not a birth has P_D > 0)
-                cand = in_a & ~birth_a & ~buf_a
+                # planes: the buffer zone (P_D uncertain at the edge of a plane's visibility) is where a partly seen
+                # plane leaves its pieces, so its tracks take the test too; point features' buffer tracks do not
+                cand = in_a & ~birth_a & (~buf_a | self._plane_features)
                 dup = self._duplicates(sl.label[rows, act], cand, (sl.r if exist is None else exist)[rows, act], zhat, hph)
                 ps = np.where(dup, np.minimum(ps, self.survival_duplicate), ps)
         pd_miss = np.where(buf_a, 0.0, pd_a)
