@@ -84,22 +84,20 @@ def _street_of_pieces(cls, cfg_cls, seed: int, pd: float, **cfg) -> np.ndarray:
 
 
 @pytest.mark.parametrize("cls,cfg_cls", FILTERS)
-def test_a_piece_of_a_plane_the_filter_expects_to_see_is_ended_and_one_a_low_pd_excuses_is_not(cls, cfg_cls):
-    """The scene of :func:`_street_of_pieces`, seeds 0-5. With P_D 0.9 the default duplicate test (k = 3: the
-    piece is inside 0.212 m and 1.22 deg of the facade's track) ends the piece's track: it is missed in 60 % of
-    the frames, each miss costing log(0.5 x 0.1) against its death; measured: 4 planes in at least 5 of 6 seeds
-    (the facade, its set-back neighbour 0.6 m behind, which the test leaves alone, and the two others, each
-    within 3 cm of its truth). With the test off (duplicate_sigmas 1e-6) the piece stays a fifth plane in
-    every seed. With P_D 0.3 (a low calibrated P_D, as a partly seen plane has) its misses cost log(0.5 x 0.7)
-    and the detections of the piece, millimetre-precise against a clutter density of 0.003, keep it: 5 planes,
-    as with the test off. This is the measured limit of a survival test: it cannot end a piece the P_D excuses
-    (docs/calibration-payoff.md)."""
+@pytest.mark.parametrize("pd", [0.9, 0.3])
+def test_a_piece_of_a_plane_is_ended_whether_the_pd_expects_it_or_excuses_it(cls, cfg_cls, pd):
+    """The scene of :func:`_street_of_pieces`, seeds 0-5, with P_D 0.9 and with a low P_D 0.3 (as a calibrated
+    profile gives a partly seen plane). The default duplicate test (k = 3: the piece is inside 0.212 m and
+    1.22 deg of the facade's track; tracks in the buffer zone included) ends the piece's track: measured 4 planes
+    in 5 of 6 seeds at either P_D (the facade, its set-back neighbour 0.6 m behind, which the test leaves alone,
+    and the two others, each within 1.6 cm of its truth; tolerance 3 cm, 1.5 sigma of the 2 cm offset noise).
+    With the test off (duplicate_sigmas 1e-6) the piece stays a fifth plane in every seed, within 3 cm of 8.15 m.
+    Before the buffer zone's tracks took the test, the low P_D kept the piece in every seed: the piece lives at
+    the edge of the facade's visibility."""
     truth = np.array([8.0, 8.6, 9.0, 30.0])
-    on = [_street_of_pieces(cls, cfg_cls, s, 0.9) for s in range(6)]
+    on = [_street_of_pieces(cls, cfg_cls, s, pd) for s in range(6)]
     good = [x for x in on if x.size == 4]
     assert len(good) >= 5, [x.size for x in on]
     assert all(np.abs(x - truth).max() < 0.03 for x in good), good
-    off = [_street_of_pieces(cls, cfg_cls, s, 0.9, duplicate_sigmas=1e-6) for s in range(6)]
+    off = [_street_of_pieces(cls, cfg_cls, s, pd, duplicate_sigmas=1e-6) for s in range(6)]
     assert all(x.size == 5 and np.any(np.abs(x - 8.15) < 0.03) for x in off), off
-    low = [_street_of_pieces(cls, cfg_cls, s, 0.3) for s in range(6)]
-    assert all(x.size == 5 for x in low), low
