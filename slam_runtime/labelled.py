@@ -371,8 +371,8 @@ class LabelledFilter(MapFilter):
         predicted planes within ``duplicate_sigmas`` x sqrt(2) x sigma_n and their offsets within as many sigma_d,
         sigma_n and sigma_d the measurement noise R's (the larger of its azimuth and elevation sigmas, and its
         offset sigma; the profile's spread of true detections about their planes, floored). A plane seen in
-        pieces gives each piece's track the bias of its own segment's fit (5-25 cm and a degree on the simulated
-        streets), while the tracks' own covariances shrink to millimetres: the Mahalanobis gate under H P H^T
+        pieces gives each piece's track the bias of its own segment's fit (1-25 cm and up to a degree on the
+        simulated streets: docs/calibration-payoff.md), while the tracks' own covariances shrink to millimetres: the Mahalanobis gate under H P H^T
         then separates two tracks that no segmentation could, so the plane test ignores the tracks' covariances
         and asks whether two detections of one plane could differ by that much (each within k sigma of the plane,
         so their difference within k sqrt(2) sigma)."""
