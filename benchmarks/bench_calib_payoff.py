@@ -18,6 +18,11 @@ For planar landmarks on simulated streets (``--kind street``) and circle landmar
   distance of 1000), ``+nobuf`` turns the buffer zone off, ``+ba`` makes births from measurements a track could
   explain rare (``filter.birth_associated: 1e-4``).
 
+``--detector KEY=VALUE`` (with ``--tag NAME``) changes a plane detector setting in every calibration (the street-100
+profile and the truth; the runtime reads the detector from the profile, so calibration and filter count the same
+units): ``--detector coplanar_offset=0.25 --tag pieces`` merges the pieces of a plane 5-25 cm apart into one
+detection; its rows' variants end in ``+NAME``.
+
 with the poses given (``--poses given``: the map filter alone, every particle on the true path, 1 particle) and in
 full SLAM (``--poses slam``: ``--particles``, 20 by default), over ``--streets`` logs x ``--seeds`` filter seeds.
 Printed per (poses, filter): each variant's mean map OSPA and trajectory RMSE, and the paired differences
@@ -97,15 +102,18 @@ def simulated(kind: str, seed: int, frames: int | None, cache: Path | None = Non
     return log
 
 
-def calibrated(kind: str, log, out: Path, name: str, every: int = 1) -> Path:
-    """The calibration of one log, cached as YAML: the plane calibration (every ``every``-th frame) of a street,
+def calibrated(kind: str, log, out: Path, name: str, every: int = 1, detector: dict | None = None) -> Path:
+    """The calibration of one log, cached as YAML: the plane calibration (every ``every``-th frame; ``detector``:
+    plane detector settings changed from the defaults, which the profile then carries to the runtime) of a street,
     the laser calibration (default config) of a park; ``log`` None for the park: the bundled sim-park-laser."""
     if out.is_file():
         return out
     if kind == "street":
         from calib.planes import PlaneCalibConfig, calibrate_planes
+        from profiles.planes import PlaneDetectorParams
 
-        prof = calibrate_planes([log], PlaneCalibConfig(every=every), name=name, version="1.0.0").profile
+        cfg = PlaneCalibConfig(every=every, detector=PlaneDetectorParams(**(detector or {})))
+        prof = calibrate_planes([log], cfg, name=name, version="1.0.0").profile
     elif log is None:
         from profiles.store import bundled
 
@@ -127,6 +135,12 @@ MODIFIERS = {
     "nobuf": {"detection.buffer_zone": False},
     "ba": {"filter.birth_associated": 1e-4},
     "dupwide": {"filter.survival_duplicate": 0.5, "filter.duplicate_gate": 1000.0},
+    "nodup": {"filter.survival_duplicate": 1.0},
+    "dupk2": {"filter.duplicate_sigmas": 2.0},
+    "dupk5": {"filter.duplicate_sigmas": 5.0},
+    "dupk8": {"filter.duplicate_sigmas": 8.0},
+    "dup01": {"filter.survival_duplicate": 0.1},
+    "dup001": {"filter.survival_duplicate": 0.01},
 }
 
 
@@ -205,13 +219,14 @@ def run_task(task: dict) -> list[dict]:
     kind = task["kind"]
     store = _cached_detector() if kind == "street" else {}
     log = simulated(kind, task["street"], task["frames"], Path(task["cache"]))
-    det_path = Path(task["cache"]) / f"det2-{kind}{task['street']}_f{task['frames']}.pkl"
+    tag = task["tag"]
+    det_path = Path(task["cache"]) / f"det2-{kind}{task['street']}_f{task['frames']}{tag}.pkl"
     if kind == "street":
         global _NEED_OUTLINES
         _NEED_OUTLINES = any("+ext" in r[2] for r in task["runs"])
         _load_detections(log, det_path, store)
-    tname = f"truth-{kind}{task['street']}" + (f"-f{task['frames']}" if kind == "street" else "")
-    truth = load_profile_file(calibrated(kind, log, Path(task["cache"]) / f"{tname}.yaml", tname))
+    tname = f"truth-{kind}{task['street']}" + (f"-f{task['frames']}" if kind == "street" else "") + tag
+    truth = load_profile_file(calibrated(kind, log, Path(task["cache"]) / f"{tname}.yaml", tname, detector=task["detector"]))
     cal = load_profile_file(task["calibrated"])
     rows = []
     for poses, filt, variant, seed in task["runs"]:
@@ -231,8 +246,9 @@ def run_task(task: dict) -> list[dict]:
         c0 = time.process_time()
         res = run_slam(log, prof, cfg, seed)
         m = evaluate(log, res, 1.0, 1.0, cfg)
-        row = {"kind": kind, "street": task["street"], "poses": poses, "filter": filt, "variant": variant, "seed": seed}
+        row = {"kind": kind, "street": task["street"], "poses": poses, "filter": filt, "variant": variant + (f"+{task['tag'][1:]}" if tag else ""), "seed": seed}
         row |= {k: (float(v) if isinstance(v, (int, float, np.floating, np.integer)) else v) for k, v in m.items() if np.isscalar(v)}
+        row["filter_key"] = filt  # the metrics name the filter ("delta-GLMB"); the key (glmb) is what a resumed run asks for
         if kind == "street":
             row |= _feature_origin(log, np.asarray(res.map_xy).reshape(-1, 4), cfg.metric.plane_length)
             row["map"] = np.round(np.asarray(res.map_xy, dtype=np.float64).reshape(-1, 4), 4).tolist()
@@ -282,6 +298,8 @@ def summarise(rows: list[dict], variants: list[str] | None = None) -> None:
     import pandas as pd
 
     df = pd.DataFrame(rows)
+    # a run measured twice (a results file resumed before runs recorded their filter key) counts once: same inputs, same bytes
+    df = df.drop_duplicates(subset=["kind", "street", "poses", "filter", "variant", "seed"], keep="last")
     for (kind, poses, filt), g in df.groupby(["kind", "poses", "filter"], sort=False):
         have = [v for v in (variants or list(dict.fromkeys(g["variant"]))) if v in set(g["variant"])]
         print(f"\n## {kind}, poses {poses}, {filt}: {g['street'].nunique()} logs x {g['seed'].nunique()} seeds")
@@ -327,6 +345,12 @@ def main() -> None:
     ap.add_argument("--variants", default=",".join(BASE))
     ap.add_argument("--particles", type=int, default=20)
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    ap.add_argument(
+        "--detector", action="append", default=[], metavar="KEY=VALUE",
+        help="streets: a plane detector setting for every calibration (the street-100 profile, the truth) and so the runtime, "
+        "which reads it from the profile; the runs' variants get the suffix +NAME of --tag",
+    )
+    ap.add_argument("--tag", default="", help="with --detector: the suffix of the variants and the cache files")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
     ap.add_argument("--out", type=Path, default=None)
@@ -339,16 +363,31 @@ def main() -> None:
     cache = args.cache
     cache.mkdir(parents=True, exist_ok=True)
     variants = args.variants.split(",")
+    detector = dict(parse_set(x) for x in args.detector)
+    if detector and not args.tag:
+        raise SystemExit("--detector needs --tag (the variants' suffix and the cache files')")
+    tag = f"-{args.tag}" if args.tag else ""
     if args.kind == "street":
-        cal = cache / "street100-every2.yaml"
+        cal = cache / f"street100-every2{tag}.yaml"
         if not cal.is_file():
-            calibrated("street", simulated("street", 100, None), cal, "street100-every2", 2)  # not kept: used once
+            calibrated("street", simulated("street", 100, None), cal, "street100-every2" + tag, 2, detector)  # not kept: used once
     else:
         cal = calibrated("park", None, cache / "sim-park-laser.yaml", "sim-park-laser")
     done: list[dict] = []
     if args.out and args.out.is_file():
         done = [json.loads(x) for x in args.out.read_text().splitlines() if x.strip()]
-    have = {(r["kind"], r["street"], r["poses"], r["filter"], r["variant"], r["seed"]) for r in done}
+    names = {"delta-GLMB": "glmb", "LMB": "lmb", "RB-PHD": "rbphd"}  # rows written before they carried filter_key
+    have = {(r["kind"], r["street"], r["poses"], r.get("filter_key", names.get(r["filter"], r["filter"])), r["variant"], r["seed"]) for r in done}
+    suffix = f"+{args.tag}" if args.tag else ""
+    def applies(f: str, v: str) -> bool:  # a modifier of the labelled filters' settings does not apply to RB-PHD
+        from profiles.errors import DetcalError
+
+        try:
+            with_settings(with_filter(SlamConfig(), f), {k: x for m in v.split("+")[1:] for k, x in MODIFIERS[m].items()})
+        except DetcalError:
+            return False
+        return True
+
     tasks = []
     for poses in args.poses or ["given", "slam"]:  # every log's map-only runs first: they are the quick ones
         for s in args.streets:
@@ -357,16 +396,17 @@ def main() -> None:
                 for f in args.filters or ["glmb", "lmb", "rbphd"]
                 for v in variants
                 for sd in range(args.seeds)
-                if (args.kind, s, poses, f, v, sd) not in have
+                if (args.kind, s, poses, f, v + suffix, sd) not in have and applies(f, v)
             ]
             if runs:
                 tasks.append({"kind": args.kind, "street": s, "frames": args.frames, "cache": str(cache), "calibrated": str(cal), "runs": runs,
-                              "particles": args.particles, "sets": dict(parse_set(x) for x in args.set), "out": str(args.out) if args.out else None})
+                              "particles": args.particles, "sets": dict(parse_set(x) for x in args.set), "out": str(args.out) if args.out else None,
+                              "detector": detector, "tag": tag})
     rows = list(done)
     with ProcessPoolExecutor(max_workers=args.workers) if args.workers > 1 else _Serial() as ex:
         for res in ex.map(run_task, tasks):
             rows += res
-    summarise([r for r in rows if r["kind"] == args.kind], variants)
+    summarise([r for r in rows if r["kind"] == args.kind], [v + suffix for v in variants])
 
 
 class _Serial:

@@ -77,6 +77,8 @@ class FeatureModel(ABC):
     angular: tuple[int, ...] = ()
     #: which state components are angles (wrapped when states of one feature are averaged)
     state_angular: tuple[int, ...] = ()
+    #: the labelled filters' survival_duplicate when the settings give none (1: off)
+    survival_duplicate: float = 1.0
 
     def __init__(self, r: np.ndarray, mount: np.ndarray | None = None) -> None:
         """r (dz, dz): the measurement noise covariance (a floor, when each measurement brings its own);
@@ -114,6 +116,12 @@ class FeatureModel(ABC):
 
     def position(self, x: np.ndarray) -> np.ndarray:
         return x
+
+    def plane_gap(self, za: np.ndarray, zb: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """(normal angle [rad], offset difference [m]), each of the broadcast shape (...), between measurements za, zb
+        (..., dz) of planar features (the plane metric of the labelled filters' duplicate test); None: the feature is not a plane
+        (the filters' Mahalanobis gate decides)."""
+        return None
 
 
 class RangeBearingNoise(BaseModel):

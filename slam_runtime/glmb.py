@@ -279,7 +279,7 @@ class GLMB(LabelledFilter):
             factors = None
             if ab is not None:
                 factors = self._store(self._factors(maps), self._learn(sl, ab, pd_model, buf, res, c), tracks, free)
-        births = self._births(sp, z, rz, c.explained)
+        births = self._births(sp, z, rz, c.explained, c.piece)
         self.step += 1
         return GLMBMaps(tracks, logw, member, free, free_r, births, factors), res.loglik
 

@@ -52,10 +52,21 @@ class LabelledSettings(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     survival: float = Field(default=1.0, gt=0.0, le=1.0, description="P_S per step of a feature in the field of view (the paper: 0.95)")
     survival_outside: float = Field(default=1.0, gt=0.0, le=1.0, description="P_S of a feature out of the field of view")
-    survival_duplicate: float = Field(default=1.0, gt=0.0, le=1.0, description="P_S in view of a track an older track of its particle lies near (1: off)")
-    duplicate_gate: float = Field(default=1.0, gt=0.0, description="squared Mahalanobis distance within which survival_duplicate takes two tracks for one landmark")
+    survival_duplicate: float | None = Field(
+        default=None, gt=0.0, le=1.0,
+        description="P_S in view of a track an older track of its particle lies near (1: off; null: planes 0.5, points 1)",
+    )
+    duplicate_gate: float = Field(default=1.0, gt=0.0, description="points: squared Mahalanobis distance within which survival_duplicate takes two tracks for one landmark")
+    duplicate_sigmas: float = Field(
+        default=3.0, gt=0.0,
+        description="planes: two tracks are one landmark within this many sqrt(2) x R's sigmas of normal and offset",
+    )
     birth_unassociated: float = Field(default=0.01, gt=0.0, lt=1.0, description="birth probability from a measurement outside every track's gate")
     birth_associated: float = Field(default=0.005, gt=0.0, lt=1.0, description="birth probability from a measurement some track could explain")
+    birth_piece: float = Field(
+        default=1e-4, gt=0.0, lt=1.0,
+        description="planes: birth probability from a measurement within duplicate_sigmas of a confirmed track",
+    )
     gate: float = Field(default=16.0, gt=0.0, description="squared Mahalanobis distance beyond which a measurement cannot update a track")
     samples: int = Field(default=60, ge=1, le=100_000, description="Gibbs samples per particle and step, shared among the hypotheses by sqrt(weight)")
     noise_inflation: float = Field(default=1.0, ge=1.0, description="factor on the measurement noise covariance")
@@ -195,6 +206,7 @@ class _Costs:
     l_miss: np.ndarray  # (P, A)
     l_det: np.ndarray  # (P, A, M)
     explained: np.ndarray  # (P, M) some existing track could explain the measurement (inside its gate)
+    piece: np.ndarray  # (P, M) planes: the measurement lies within the duplicate distance of a confirmed track
     held: np.ndarray  # (P, A) bool: candidates left out of the sampler, the sum of their options in the weight
     l_held: np.ndarray  # (P, A) log of that sum (0 where not held)
     idle: np.ndarray  # (P, A) bool: the held births that gate nothing and are likelier absent (delta-GLMB drops them)
@@ -221,6 +233,10 @@ class LabelledFilter(MapFilter):
         super().__init__(feature, detection)
         self.cfg = cfg
         self.r = feature.r * cfg.noise_inflation
+        #: planar features (the plane metric's duplicate test, which also sees tracks in the buffer zone)
+        self._plane_features = type(feature).plane_gap is not FeatureModel.plane_gap
+        #: P_S of a possible second track (survival_duplicate; null: the feature model's own)
+        self.survival_duplicate = feature.survival_duplicate if cfg.survival_duplicate is None else cfg.survival_duplicate
         self.rng, self.groups = rng, 1
         self.step = 0
         # the map estimate's positions (map_estimate: seen_mean): per label, sorted, the particles' weighted mean
@@ -271,15 +287,17 @@ class LabelledFilter(MapFilter):
         in_a = np.arange(a)[None, :] < nact[:, None]
         pd_a, buf_a, r_a, birth_a = pd[rows, act], buf[rows, act], sl.r[rows, act], sl.birth[rows, act]
         ps = np.where(birth_a | buf_a, 1.0, np.where(pd_a > 0, cfg.survival, cfg.survival_outside))
-        dup_on = cfg.survival_duplicate < 1.0 and a > 1
+        dup_on = self.survival_duplicate < 1.0 and a > 1
         if a and (m or dup_on):
             mu_a, cov_a = sl.mu[rows, act], sl.cov[rows, act]
             zhat, h = fm.predict_sensor(sp[:, None, :], mu_a)
             hph = matmul(h, matmul(cov_a, transpose(h)))
             if dup_on:  # (an active track that is not a birth has P_D > 0)
-                cand = in_a & ~birth_a & ~buf_a
+                # planes: the buffer zone (P_D uncertain at the edge of a plane's visibility) is where a partly seen
+                # plane leaves its pieces, so its tracks take the test too; point features' buffer tracks do not
+                cand = in_a & ~birth_a & (~buf_a | self._plane_features)
                 dup = self._duplicates(sl.label[rows, act], cand, (sl.r if exist is None else exist)[rows, act], zhat, hph)
-                ps = np.where(dup, np.minimum(ps, cfg.survival_duplicate), ps)
+                ps = np.where(dup, np.minimum(ps, self.survival_duplicate), ps)
         pd_miss = np.where(buf_a, 0.0, pd_a)
         with np.errstate(divide="ignore"):
             l_death = np.log(np.maximum(1.0 - r_a * ps, 0.0))
@@ -294,6 +312,14 @@ class LabelledFilter(MapFilter):
             # delta-GLMB hypothesis holds (r = 1 there; a rule on the label's summed weight instead made more births and
             # cost more CPU for no better map: docs/results.md)
             explained = (gated & (~birth_a & (r_a >= 0.5))[..., None]).any(axis=1)
+        piece = np.zeros((p, m), dtype=bool)
+        if a and m:
+            # planes: a measurement as near a confirmed track as a piece of its plane (the duplicate test's plane
+            # metric) is that plane seen in pieces, not a new landmark (birth_piece)
+            near = self._plane_near(zhat[:, :, None, :], z[None, None, :, :])
+            if near is not None:
+                conf = in_a & ~birth_a & (r_a >= DUPLICATE_OF)
+                piece = (near & conf[..., None]).any(axis=1)
         # candidates held out of the sampler (module docstring of slam_runtime.gibbs): idle births (they gate nothing and
         # absence is the likelier option) and, where shared is given, the independent births and released tracks
         fin = np.isfinite(l_det)
@@ -309,8 +335,20 @@ class LabelledFilter(MapFilter):
             mx = opts.max(axis=1)
             l_held[held] = mx + np.log(np.exp(opts - mx[:, None]).sum(axis=1))
         return _Costs(
-            act.astype(np.int64), nact.astype(np.int64), l_death, l_miss, l_det, explained, held, l_held, idle, sl.label[rows, act].astype(np.int64)
+            act.astype(np.int64), nact.astype(np.int64), l_death, l_miss, l_det, explained, piece, held, l_held, idle,
+            sl.label[rows, act].astype(np.int64),
         )
+
+    def _plane_near(self, za: np.ndarray, zb: np.ndarray) -> np.ndarray | None:
+        """(...) bool: planes za, zb (..., 3) (sensor-frame charts, broadcast) one landmark could give, the normals
+        within duplicate_sigmas x sqrt(2) x R's normal sigma and the offsets within as many offset sigmas
+        (:meth:`_duplicates`); None for features that are not planes."""
+        gap = self.feature.plane_gap(za, zb)
+        if gap is None:
+            return None
+        sig = np.sqrt(np.diag(self.r))
+        lim = self.cfg.duplicate_sigmas * np.sqrt(2.0)
+        return (gap[0] <= lim * max(sig[0], sig[1])) & (gap[1] <= lim * sig[2])
 
     def _duplicates(self, lab: np.ndarray, cand: np.ndarray, exist: np.ndarray, zhat: np.ndarray, hph: np.ndarray) -> np.ndarray:
         """(P, A) the candidates cand (P, A) that an older candidate of their particle lies near: a possible second
@@ -320,20 +358,32 @@ class LabelledFilter(MapFilter):
         existence (its label's, summed over its versions among the candidates; exist (P, A)) at least
         ``DUPLICATE_OF`` (0.99).
 
-        Near: one measurement cannot tell the two apart, the squared Mahalanobis distance of their predicted
-        measurements zhat (P, A, dz) under H P H^T of both (hph (P, A, dz, dz)) plus the model's measurement noise R
-        below ``duplicate_gate``. In measurement space, not in the map's: on real logs a track's covariance shrinks
-        to centimetres where its duplicates lie a few times farther away, distinct by the tracks'
+        Near, point features: one measurement cannot tell the two apart, the squared Mahalanobis distance of their
+        predicted measurements zhat (P, A, dz) under H P H^T of both (hph (P, A, dz, dz)) plus the model's
+        measurement noise R below ``duplicate_gate``. In measurement space, not in the map's: on real logs a track's
+        covariance shrinks to centimetres where its duplicates lie a few times farther away, distinct by the tracks'
         covariances but not by any measurement. R is the model's: where measurements carry their own covariances
-        (the laser's circle fits, the planes) it is the floor added to them, so the gate is stricter there than
-        'one measurement' says. While a new track's covariance is still large, a distinct landmark near a confirmed
-        one can be inside the gate for its first steps, and takes survival_duplicate then."""
+        (the laser's circle fits) it is the floor added to them, so the gate is stricter there than 'one
+        measurement' says. While a new track's covariance is still large, a distinct landmark near a confirmed
+        one can be inside the gate for its first steps, and takes survival_duplicate then.
+
+        Near, planes (the plane metric, :meth:`slam_runtime.features.FeatureModel.plane_gap`): the normals of the
+        predicted planes within ``duplicate_sigmas`` x sqrt(2) x sigma_n and their offsets within as many sigma_d,
+        sigma_n and sigma_d the measurement noise R's (the larger of its azimuth and elevation sigmas, and its
+        offset sigma; the profile's spread of true detections about their planes, floored). A plane seen in
+        pieces gives each piece's track the bias of its own segment's fit (1-25 cm and up to a degree on the
+        simulated streets: docs/calibration-payoff.md), while the tracks' own covariances shrink to millimetres: the Mahalanobis gate under H P H^T
+        then separates two tracks that no segmentation could, so the plane test ignores the tracks' covariances
+        and asks whether two detections of one plane could differ by that much (each within k sigma of the plane,
+        so their difference within k sqrt(2) sigma)."""
         same = lab[:, :, None] == lab[:, None, :]  # (P, A, A)
         lab_ex = np.einsum("pij,pj->pi", (same & cand[:, None, :]).astype(np.float64), np.where(cand, exist, 0.0))
         older = cand[:, :, None] & cand[:, None, :] & (lab[:, None, :] < lab[:, :, None]) & (lab_ex >= DUPLICATE_OF)[:, None, :]
         i, j, k = np.nonzero(older)
-        nu = self.feature.innovation(zhat[i, j], zhat[i, k])
-        near = quad(inv(hph[i, j] + hph[i, k] + self.r), nu) < self.cfg.duplicate_gate
+        near = self._plane_near(zhat[i, j], zhat[i, k])
+        if near is None:
+            nu = self.feature.innovation(zhat[i, j], zhat[i, k])
+            near = quad(inv(hph[i, j] + hph[i, k] + self.r), nu) < self.cfg.duplicate_gate
         out = np.zeros(cand.shape, dtype=bool)
         out[i[near], j[near]] = True
         return out
@@ -423,8 +473,9 @@ class LabelledFilter(MapFilter):
         )
         return hp, ha, np.minimum(r, 1.0), mean, cov
 
-    def _births(self, sp: np.ndarray, z: np.ndarray, rz: np.ndarray, explained: np.ndarray) -> Births:
-        """Birth tracks for the next step from this step's measurements (eq. 28, adaptive birth)."""
+    def _births(self, sp: np.ndarray, z: np.ndarray, rz: np.ndarray, explained: np.ndarray, piece: np.ndarray | None = None) -> Births:
+        """Birth tracks for the next step from this step's measurements (eq. 28, adaptive birth); explained (P, M):
+        inside some track's gate (birth_associated), piece (P, M): a piece of a confirmed plane (birth_piece)."""
         p, m = sp.shape[0], z.shape[0]
         d = self.feature.dim_x
         if m == 0:
@@ -434,6 +485,8 @@ class LabelledFilter(MapFilter):
         if self.transition is not None:  # the velocity's prior, which G R G^T of the position cannot give
             cov = cov + self.feature.birth_cov
         r = np.where(explained, self.cfg.birth_associated, self.cfg.birth_unassociated)
+        if piece is not None:
+            r = np.where(piece, np.minimum(r, self.cfg.birth_piece), r)
         label = (np.int64(self.step) << LABEL_BITS) + np.arange(m, dtype=np.int64)
         return Births(pos, cov, r, label)
 

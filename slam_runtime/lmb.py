@@ -194,7 +194,7 @@ class LMB(LabelledFilter):
             )
             r = np.where(held, r_all[rows, order], 0.0)
             pd_ab = None if ab is None else np.where(held[..., None], ab[rows, order], prior_ab(self.cfg))
-        births = self._births(sp, z, rz, c.explained)
+        births = self._births(sp, z, rz, c.explained, c.piece)
         self.step += 1
         return LMBMaps(tracks, r, births, pd_ab), res.loglik
 

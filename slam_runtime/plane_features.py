@@ -32,7 +32,7 @@ from __future__ import annotations
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from detectors.geometry3d import normal_from_chart, orient_away, sensor_to_world, world_to_sensor
+from detectors.geometry3d import normal_angle, normal_from_chart, orient_away, sensor_to_world, world_to_sensor
 from slam_runtime.features import FEATURE_MODELS, FeatureModel
 
 #: least (azimuth [rad], elevation [rad], offset [m]) noise of a plane measurement when the settings give none
@@ -59,6 +59,9 @@ class PlaneFeature(FeatureModel):
     angular = (0,)
     state_angular = (0,)
     Noise = PlaneNoiseSettings
+    #: a plane seen in pieces leaves a second track a few cm off its landmark's, which a low calibrated P_D does not
+    #: end (docs/calibration-payoff.md); 0.5 per step in view ends it within a few steps unless the data keep it
+    survival_duplicate = 0.5
 
     @classmethod
     def from_settings(cls, detection, noise, mount: np.ndarray, metric=None) -> PlaneFeature:
@@ -82,6 +85,14 @@ class PlaneFeature(FeatureModel):
 
     def inverse_sensor(self, sensor, z):
         return sensor_to_world(z, sensor, self.height)
+
+    def plane_gap(self, za: np.ndarray, zb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(normal angle [rad], |offset difference| [m]), each of the broadcast shape (...), between sensor-frame
+        charts za, zb (..., 3): how far apart two planes are in the plane metric, whichever orientation each was
+        born with (both oriented away from the sensor first)."""
+        na, da = orient_away(*normal_from_chart(za))
+        nb, db = orient_away(*normal_from_chart(zb))
+        return normal_angle(na, nb, unsigned=False), np.abs(da - db)
 
     def position(self, x: np.ndarray) -> np.ndarray:
         """(..., 4) the embedding (L n, d), oriented so that d >= 0."""
