@@ -72,9 +72,7 @@ class RBPHDConfig(BaseModel):
     map_threshold: float = Field(default=0.5, gt=0.0, description="a component of this weight or more is a map feature")
     update_rule: Literal["phd", "existence"] = Field(
         default="phd",
-        description="phd: eqs. 3.17-3.18 (a feature's weight climbs towards 1 / P_D when seen more often than P_D says, and "
-        "loses (1 - P_D) of it per miss); existence: each component's weight is its existence probability, at most "
-        "existence_max (missed: r (1 - P_D) / (1 - r P_D); detected: its share of the measurement; the sum at most 1)",
+        description="phd: eqs. 3.17-3.18; existence: a component's weight is its existence probability (low P_D: module docstring)",
     )
     existence_max: float = Field(default=0.99, gt=0.5, lt=1.0, description="update_rule existence: the largest weight of a component")
 
