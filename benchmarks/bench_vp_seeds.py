@@ -6,7 +6,7 @@ Run: ``python benchmarks/bench_vp_seeds.py [--data ../shared/data] [--prefix 200
 
 1. Choice: for every candidate yaw, runs of the first ``--prefix`` frames with the ``--choose-seeds`` (never the
    reported ones); the yaw of the largest mean log evidence (``slam_runtime.run.LogEvidence``: no GPS) is taken.
-   ``--yaws`` with one value skips the choice.
+   ``--yaws`` with one value skips the choice; ``--choose-only`` stops after it (one process per candidate).
 2. Report: the full run with that yaw for each of ``--seeds``: RMSE against GPS at the laser after a rigid fit, the
    median CPU time per step (process time, the filter's step), the map's features; then the median, the mean and
    the worst seed.
@@ -41,6 +41,7 @@ def main() -> None:
     ap.add_argument("--choose-seeds", default="100,101", help="seeds of the choice runs (not the reported ones)")
     ap.add_argument("--yaws", default="-0.03,-0.025,-0.02,-0.015,-0.01,-0.005,0", help="candidate mount yaws [rad]")
     ap.add_argument("--seeds", default="0-9", help="reported seeds")
+    ap.add_argument("--choose-only", action="store_true", help="print the candidates' evidence on the prefix and stop (one yaw: its evidence)")
     ap.add_argument("--set", dest="sets", action="append", default=[], help="override a setting: key=value (repeatable)")
     a = ap.parse_args()
     os.environ.setdefault("SOURCE_DATE_EPOCH", "1700000000")
@@ -65,7 +66,7 @@ def main() -> None:
         base = with_settings(base, sets)
     yaws = [float(y) for y in a.yaws.split(",")]
     print(f"CPUs {os.cpu_count()}, load average {'/'.join(f'{x:.1f}' for x in os.getloadavg())}" + (f"; settings {sets}" if sets else ""))
-    if len(yaws) > 1:
+    if len(yaws) > 1 or a.choose_only:
         choose = ints(a.choose_seeds)
         print(f"choice of the mount yaw: first {a.prefix} frames, seeds {choose}, mean log evidence")
         score = {}
@@ -75,6 +76,8 @@ def main() -> None:
             score[y] = statistics.mean(ev)
             print(f"  mount_yaw {y:+.3f}: {' / '.join(f'{e:.0f}' for e in ev)} nats (mean {score[y]:.0f})", flush=True)
         yaw = max(score, key=score.get)
+        if a.choose_only:
+            return
     else:
         yaw = yaws[0]
     print(f"mount_yaw {yaw:+.3f}; full run, seeds {a.seeds}: RMSE vs GPS at the laser after a rigid fit", flush=True)
