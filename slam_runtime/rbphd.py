@@ -17,6 +17,18 @@ All particles are processed together (:mod:`slam_runtime.gm`):
   up to one feature's worth (a component whose P_D is underestimated gathers
   weight 1 / P_D, which the thesis's rule would otherwise lock in); this step's
   birth hypotheses are exempt;
+* ``update_rule: existence`` (off by default): under a low or misjudged P_D the
+  PHD's weights are biased (a feature seen more often than P_D says climbs
+  towards 1 / P_D, one seen less often loses (1 - P_D) of its weight per miss and
+  leaves the map; thesis sec. 3.3: the PHD is forgetful and needs a high P_D).
+  With it each component is read as a Bernoulli whose existence is its weight, at
+  most ``existence_max``: the shares of eq. 3.18 give the probability rho that it
+  made one of the measurements (at most 1), and the missed copy keeps
+  (1 - rho) r (1 - P_D) / (1 - r P_D), the existence of a Bernoulli after a miss
+  (the multi-Bernoulli update the thesis names as the alternative, sec. 3.4.1);
+  merged duplicates are capped at ``existence_max`` again. A component's weight is
+  then its existence and the map (weight >= map_threshold) the features likelier
+  to exist than not;
 * the particle's measurement likelihood (sec. 3.1.4, eq. 3.13): the
   single-cluster ``marginal`` likelihood by default (on rfs-sim and Victoria
   Park as accurate as the multi-feature strategy at a quarter of its cost:
@@ -65,6 +77,11 @@ class RBPHDConfig(BaseModel):
         default="marginal", description="particle weight: marginal (single-cluster), multi_feature (sec. 3.1.4), empty_set, single_feature"
     )
     map_threshold: float = Field(default=0.5, gt=0.0, description="a component of this weight or more is a map feature")
+    update_rule: Literal["phd", "existence"] = Field(
+        default="phd",
+        description="phd: eqs. 3.17-3.18; existence: a component's weight is its existence probability (low P_D: module docstring)",
+    )
+    existence_max: float = Field(default=0.99, gt=0.5, lt=1.0, description="update_rule existence: the largest weight of a component")
 
 
 @dataclass
@@ -185,11 +202,22 @@ class RBPHD(MapFilter):
             gated = m2 <= cfg.gate
             q = np.zeros(m2.shape)
             q[gated] = gaussian(m2[gated], det_pair[gated], dz)
+            existence = cfg.update_rule == "existence"
+            if existence:  # each component a Bernoulli of existence r: the weight, capped
+                w_s = np.minimum(w_s, cfg.existence_max)
             num = (pd_s * w_s)[..., None] * q  # (P, Js, M)
             den = kappa[None, :] + num.sum(axis=1)  # (P, M)
             w_det = num / np.where(den > 0, den, 1.0)[:, None, :]
             missed = w.copy()
-            missed_s = (1.0 - pd_s) * w_s
+            if existence:
+                # the probability rho that the component made one of the measurements (its shares, eq. 3.18, at most 1 in
+                # all); otherwise it was missed, and a Bernoulli's existence after a miss is r (1 - P_D) / (1 - r P_D)
+                rho = w_det.sum(axis=2)
+                w_det = w_det / np.maximum(rho, 1.0)[..., None]
+                rho = np.minimum(rho, 1.0)
+                missed_s = (1.0 - rho) * w_s * (1.0 - pd_s) / np.maximum(1.0 - w_s * pd_s, 1e-12)
+            else:
+                missed_s = (1.0 - pd_s) * w_s
             buf_s = buf[rows, sel] & in_s
             gained = w_det.sum(axis=2)
             protect = np.minimum(w_s, 1.0)
@@ -228,6 +256,8 @@ class RBPHD(MapFilter):
                 upd, prune=cfg.prune, merge=cfg.merge, cap=cfg.cap, inflate=cfg.merge_inflation, mutual=cfg.merge_rule == "mutual", fresh=fresh, groups=True
             )
             self.capped_steps += int(capped)
+            if cfg.update_rule == "existence":  # duplicates of one feature merged: still one feature
+                gm = GMBatch(np.minimum(gm.w, cfg.existence_max), gm.mu, gm.cov)
         # adaptive birth: a measurement the map already explains gives birth to little
         birth = self._birth(sp, z, rz, 1.0 - np.clip(w_det.sum(axis=1), 0.0, 1.0) if cfg.adaptive_birth else None)
         return PHDMaps(gm, birth, merged), loglik

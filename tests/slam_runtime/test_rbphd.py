@@ -204,3 +204,54 @@ def test_the_optimal_proposal_associates_under_the_motion_prior_uncertainty():
     assert used[0] == 1
     assert abs(mean[0, 2]) < 0.006
     assert cov[0, 2, 2] < 0.1 * q[0, 2, 2]  # the measurement, not the prior, sets the heading
+
+
+def _static_run(mf, lms, p_true, steps, rng, misses_at_end=0):
+    """A static sensor at the origin looking at ``lms``, each detected with probability ``p_true`` per step (the filter
+    assumes its model's P_D), 5 cm / 5 mrad noise, Poisson clutter of 0.5 per scan; the last ``misses_at_end`` steps
+    detect nothing of the landmarks. Returns the final maps."""
+    fm = mf.feature
+    maps = mf.empty(1)
+    for k in range(steps):
+        z, _ = fm.predict(np.zeros(3), lms)
+        z = z[(rng.uniform(size=len(lms)) < p_true) & (k < steps - misses_at_end)]
+        z = z + rng.normal(0, 1, z.shape) * [0.05, 0.005]
+        nc = rng.poisson(0.5)
+        clutter = np.column_stack([rng.uniform(0, 20, nc), rng.uniform(-np.pi / 2, np.pi / 2, nc)])
+        maps, _ = mf.update(maps, np.zeros((1, 3)), Measurements(np.vstack([z, clutter])))
+    return maps
+
+
+def _mass_near(maps, lms, radius=0.3):
+    """(L,) the summed weight of the components within ``radius`` of each landmark."""
+    d = np.linalg.norm(maps.gm.mu[0][:, None, :] - lms[None], axis=2)
+    return np.array([maps.gm.w[0][d[:, i] < radius].sum() for i in range(len(lms))])
+
+
+def test_existence_rule_removes_the_weight_bias_of_a_low_pd():
+    """The PHD's bias under a low P_D (UTIAS's camera: P_D 0.1-0.6 from the profile, landmarks seen more often than
+    that by some robots): with the model's P_D 0.25 and landmarks detected at every other step (true rate 0.5), the
+    weight near each landmark climbs towards 1 / P_D while detected (the PHD's fixed point of (1 - P_D) w + 1) and
+    drops by (1 - P_D) per miss, so what counts as one feature swings between ~0.5 and 4 (2 in the mean). With
+    ``update_rule: existence`` each landmark is one component of weight at most existence_max, and eight misses in
+    a row (a landmark occluded) leave it mapped: (1 - P_D)^8 = 0.1 of the PHD's weight is gone, while a Bernoulli of
+    existence 0.99 keeps r (1 - P_D) / (1 - r P_D) per miss (0.99 -> 0.74 after eight).
+    The tolerances: one landmark is one feature (the count must be exact), the weight may not exceed
+    existence_max, and 60 looks at 5 cm / 5 mrad place each within a few cm (0.1 m allowed)."""
+    lms = np.array([[5.0, 2.0], [8.0, -3.0], [12.0, 1.0]])
+    det = model(pd=0.25, buffer=False)
+    biased = _mass_near(_static_run(phd(det), lms, 0.5, 60, np.random.default_rng(3)), lms)
+    # the bias: in the mean a landmark weighs p_true / P_D = 2 features (the fixed point of w = (1 - P_D) w + p_true);
+    # at any one step each lies between ~0.5 and 4, so the three together are asked for more than 4.5, not 6
+    assert biased.sum() > 4.5
+    mf = phd(det, update_rule="existence")
+    maps = _static_run(mf, lms, 0.5, 60, np.random.default_rng(3))
+    mass = _mass_near(maps, lms)
+    assert np.all(mass <= 0.99 + 1e-9) and np.all(mass > 0.9)
+    xy, w = mf.estimate(maps, 0)
+    assert xy.shape[0] == 3  # one feature per landmark, no clutter feature
+    assert np.all(np.linalg.norm(xy[:, None, :] - lms[None], axis=2).min(axis=1) < 0.1)
+    # eight misses in a row at the end: the PHD loses the landmarks from its map, the existence rule keeps them
+    lost = phd(det).estimate(_static_run(phd(det), lms, 0.5, 60, np.random.default_rng(3), misses_at_end=8), 0)[0]
+    kept = mf.estimate(_static_run(mf, lms, 0.5, 60, np.random.default_rng(3), misses_at_end=8), 0)[0]
+    assert lost.shape[0] < 3 and kept.shape[0] == 3
