@@ -163,7 +163,8 @@ class RBPHD(MapFilter):
 
     # ------------------------------------------------------------------ update
     def update(self, maps: PHDMaps, poses: np.ndarray, meas: Measurements) -> tuple[PHDMaps, np.ndarray]:
-        if self.compiled and meas.cov is None and type(self.feature) is RangeBearing:
+        if self.compiled and meas.cov is None and type(self.feature) is RangeBearing and self.cfg.update_rule == "phd":
+            # the compiled kernel holds the PHD's update (eqs. 3.17-3.18) only; the existence rule runs in numpy
             return self._update_compiled(maps, poses, meas)
         cfg, fm, tm = self.cfg, self.feature, self.timers
         dz = fm.dim_z
