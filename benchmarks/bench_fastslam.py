@@ -8,7 +8,7 @@ Run: ``python benchmarks/bench_fastslam.py [--data ../shared/data] [--parts rfs,
   (200 particles, the optimal proposal), the truth profile; map OSPA c = 1 m, p = 1;
 * park: ``detcal simulate park --seed W --config benchmarks/configs/small_park.yaml`` for worlds 1-4
   (``--park-worlds``), the bundled laser profile ``sim-park-laser``, 20 particles (the park comparisons of
-  docs/labelled-filters.md); map OSPA c = 1 m against the trees;
+  docs/results/labelled-real.md); map OSPA c = 1 m against the trees;
 * vp: Victoria Park, ``benchmarks/configs/victoria_park.yaml`` (10 particles), RB-PHD's self-calibrated profile
   ``victoria-park-selfcal@1.2.0`` for RB-PHD and MH-FastSLAM, delta-GLMB's own (``-glmb@1.1.0``) for delta-GLMB, as in
   bench_real_filters.py; RMSE against GPS after a rigid fit (no landmark truth);

@@ -28,7 +28,7 @@ P_D, the buffer zone, kappa, survival and adaptive birth as in
 With ``merge_alternatives`` (off by default) the update's delta-GLMB goes
 through delta-GLMB's reduction (:func:`slam_runtime.hypotheses.reduce_hypotheses`)
 before the LMB approximation, so that labels it holds as alternatives of one
-landmark become one track (docs/labelled-filters.md).
+landmark become one track (docs/results/labelled-paper.md).
 
 P_D learned per track (``learn_pd``): :mod:`slam_runtime.pd_factor`, per track.
 

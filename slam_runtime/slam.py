@@ -290,7 +290,7 @@ def match_labels(feature, label: np.ndarray, x: np.ndarray, other_label: np.ndar
     assignment of least total cost, a pair costing the distance between the positions (``feature.position``) and a
     feature left unpaired ``gate`` [m] (OSPA's cut-off: pairs ``gate`` or more apart are not made; their labels stay).
     A label is one landmark in every particle of an island, but in every island only if each bore the landmark from
-    the same measurement; under heavy clutter they often do not (docs/labelled-filters.md, islands)."""
+    the same measurement; under heavy clutter they often do not (docs/results/labelled-paper.md, islands)."""
     out = np.array(other_label, dtype=np.int64, copy=True)
     free_ref = np.flatnonzero(~np.isin(label, other_label))
     free_oth = np.flatnonzero(~np.isin(other_label, label))

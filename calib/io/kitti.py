@@ -1,8 +1,13 @@
 """KITTI Velodyne ``.bin`` frames: N x 4 float32 (x, y, z [m], reflectance), sensor frame.
 
-A single ``.bin`` file or a folder of them (sorted by name). KITTI object
+Read: a single ``.bin`` file or a folder of them (sorted by name). KITTI object
 frames carry no time: frame ``k`` is stamped ``k * 0.1 s`` (the HDL-64E's
 10 Hz), and the log's source says so.
+
+Write (:func:`write_kitti`): a log's point clouds as a folder of ``000000.bin``,
+``000001.bin``, ... in the same layout, so that a simulated street can stand in
+for KITTI frames (the how-to runs on two such frames). Only the points travel:
+KITTI's layout has no room for stamps, poses, odometry or plane truth.
 """
 
 from __future__ import annotations
@@ -12,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.io.common import file_digest
+from profiles.atomic import atomic_output
 from detectors.sensor_log import PointClouds, SensorLog, SensorModel
 from profiles.errors import DataError, UsageError
 
@@ -67,3 +73,24 @@ def read_kitti(path: str | Path) -> SensorLog:
         clouds=PointClouds(np.arange(len(files), dtype=np.int64) * PERIOD_NS, offsets, points),
         source={"reader": "kitti", "files": {f.name: file_digest(f) for f in files}, "stamps": "synthetic, 10 Hz by frame order"},
     )
+
+
+def write_kitti(log: SensorLog, path: str | Path, *, overwrite: bool = False) -> Path:
+    """Write the point clouds of ``log`` to the folder ``path`` as KITTI Velodyne frames, atomically.
+
+    Frame ``k`` becomes ``{k:06d}.bin``: its (P_k, 4) float32 points (x, y, z [m], reflectance; sensor frame),
+    little-endian, as :func:`read_kitti` reads them. A log without point clouds, or with an empty frame (which
+    KITTI's reader refuses), is refused before anything is written.
+    """
+    path = Path(path)
+    clouds = log.clouds
+    if clouds is None:
+        raise UsageError(f"{path}: the log {log.name!r} has no point clouds to write as KITTI frames")
+    empty = np.flatnonzero(np.diff(clouds.offsets) == 0)
+    if empty.size:
+        raise DataError(f"{path}: frame {int(empty[0])} of {log.name!r} has no points; a KITTI frame cannot be empty")
+    with atomic_output(path, overwrite=overwrite, directory=True) as tmp:
+        tmp.mkdir()
+        for k in range(len(clouds)):
+            clouds.frame(k).astype("<f4", copy=False).tofile(tmp / f"{k:06d}.bin")
+    return path

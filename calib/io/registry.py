@@ -19,7 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from calib.io.carmen import looks_like_carmen, read_carmen
 from calib.io.common import DEFAULT_MAX_BACKSTEP
-from calib.io.kitti import looks_like_kitti, read_kitti
+from calib.io.kitti import looks_like_kitti, read_kitti, write_kitti
 from calib.io.native import SUFFIX, is_native, read_native, write_native
 from calib.io.rfsslam import looks_like_rfsslam, read_rfsslam
 from calib.io.rosbag import looks_like_bag, read_rosbag, write_ros2
@@ -60,10 +60,11 @@ class LogReader:
 
 @dataclasses.dataclass(frozen=True)
 class LogWriter:
-    """One output format: ``write(log, path, overwrite)``; chosen from a path whose suffix is ``suffix`` ("" : a folder)."""
+    """One output format: ``write(log, path, overwrite)``; chosen from a path whose suffix is ``suffix`` ("" : a folder;
+    ``None``: only when named, ``--to``)."""
 
     write: Callable[[SensorLog, Path, bool], Path]
-    suffix: str
+    suffix: str | None
 
 
 READERS: Registry[LogReader] = Registry("log format")
@@ -79,6 +80,7 @@ READERS.add("rfsslam", LogReader(looks_like_rfsslam, lambda p, o: read_rfsslam(p
 WRITERS: Registry[LogWriter] = Registry("output format")
 WRITERS.add("native", LogWriter(lambda log, p, overwrite: write_native(log, p, overwrite=overwrite), SUFFIX))
 WRITERS.add("ros2", LogWriter(lambda log, p, overwrite: write_ros2(log, p, overwrite=overwrite), ""))
+WRITERS.add("kitti", LogWriter(lambda log, p, overwrite: write_kitti(log, p, overwrite=overwrite), None))
 
 
 def detect_format(path: Path) -> str:

@@ -10,8 +10,9 @@ topic of a type the topic is picked automatically; with several, name it.
 Stamps are the message headers'.
 
 Writing (ROS 2, :func:`write_ros2`): standard topics for ROS tools --
-``/scan`` (LaserScan) and ``/odom`` (nav_msgs/Odometry, for pose or velocity
-odometry) -- plus exact float64 copies under ``/detcal/...``
+``/scan`` (LaserScan), ``/odom`` (nav_msgs/Odometry: pose or velocity odometry
+as it is, increments as their running pose from the origin) and ``/ground_truth``
+(nav_msgs/Odometry, when the log has ground-truth poses) -- plus exact float64 copies under ``/detcal/...``
 (``std_msgs/Float64MultiArray``) and the log's metadata as the bag's
 ``custom_data["detcal"]``, so that native -> ROS 2 -> native is lossless:
 LaserScan angles are float32 and a quaternion does not give back a yaw bit
@@ -53,6 +54,8 @@ ODOM_TYPE = "nav_msgs/msg/Odometry"
 POSE_TYPES = (ODOM_TYPE, "geometry_msgs/msg/PoseStamped")
 ARRAY_TYPE = "std_msgs/msg/Float64MultiArray"
 CUSTOM_KEY = "detcal"
+#: where the writer puts the log's ground-truth poses for ROS tools (nav_msgs/Odometry, frame ``map``)
+TRUTH_TOPIC = "/ground_truth"
 META_VERSION = 1
 
 
@@ -176,8 +179,9 @@ def _gap(stamps: np.ndarray) -> dict[str, float]:
 
 def _read_foreign(reader, conns, path, scan_topic, odom_topic, truth_topic, max_backstep) -> SensorLog:
     scan_t = _pick(conns, (SCAN_TYPE,), scan_topic, "scan", path, required=False)
-    odom_t = _pick(conns, (ODOM_TYPE,), odom_topic, "odom", path, required=False)
     truth_t = _pick(conns, POSE_TYPES, truth_topic, "truth", path, required=False) if truth_topic else None
+    # the named truth topic is not an odometry candidate (a bag often carries both as nav_msgs/Odometry)
+    odom_t = _pick({t: m for t, m in conns.items() if t != truth_t}, (ODOM_TYPE,), odom_topic, "odom", path, required=False)
     if scan_t is None and odom_t is None:
         have = ", ".join(f"{t} ({m})" for t, m in sorted(conns.items())) or "none"
         raise UsageError(f"{path}: no LaserScan or Odometry topic; the bag has: {have}")
@@ -280,10 +284,12 @@ def _topics(log: SensorLog) -> dict[str, str]:
             t["/detcal/scan/geometry"] = ARRAY_TYPE
     if log.odometry is not None:
         t["/detcal/odometry"] = ARRAY_TYPE
-        if log.odometry.kind in ("pose", "velocity"):
+        if log.odometry.kind in ("pose", "velocity", "increment"):  # increments go out as their running pose
             t["/odom"] = ODOM_TYPE
     for k in log.reference:
         t[f"/detcal/reference/{k}"] = ARRAY_TYPE
+    if _truth_poses(log) is not None:
+        t[TRUTH_TOPIC] = ODOM_TYPE
     if log.detections is not None:
         t["/detcal/detections"] = ARRAY_TYPE
     return t
@@ -341,6 +347,9 @@ def write_ros2(log: SensorLog, path: str | Path, *, overwrite: bool = False) -> 
                     writer.write(conn[topic], stamp, ts.serialize_cdr(msg, msg.__msgtype__))
 
                 det_off = det.frame_slices() if det is not None else None
+                odom = log.odometry
+                odom_poses = increment_poses(odom.values) if odom is not None and odom.kind == "increment" else None
+                truth = _truth_poses(log)
                 sensor = log.sensor
                 layouts = sensor.layouts() if sensor is not None else ()
                 for ev in log.events():
@@ -376,11 +385,16 @@ def write_ros2(log: SensorLog, path: str | Path, *, overwrite: bool = False) -> 
                     elif ev.stream == "odometry":
                         o = log.odometry
                         put("/detcal/odometry", ev.stamp, array(o.values[i], ("row", "_".join(o.columns))))
-                        if "/odom" in conn:  # standard odometry for ROS tools (pose or velocity kinds, see _topics)
-                            put("/odom", ev.stamp, _odom_msg(T, header(ev.stamp, "odom"), o.values, o, i))
+                        if "/odom" in conn:  # standard odometry for ROS tools (see _topics)
+                            if odom_poses is None:
+                                put("/odom", ev.stamp, _odom_msg(T, header(ev.stamp, "odom"), o.values, o.kind, i))
+                            else:
+                                put("/odom", ev.stamp, _odom_msg(T, header(ev.stamp, "odom"), odom_poses, "pose", i))
                     elif ev.stream.startswith("reference:"):
                         k = ev.stream.split(":", 1)[1]
                         put(f"/detcal/reference/{k}", ev.stamp, array(log.reference[k].poses[i], ("row", "x_y_theta")))
+                        if k == "ground_truth" and truth is not None:
+                            put(TRUTH_TOPIC, ev.stamp, _odom_msg(T, header(ev.stamp, "map"), truth, "pose", i))
                     elif ev.stream == "detections":
                         a, b = int(det_off[i]), int(det_off[i + 1])
                         cols = [det.range[a:b], det.bearing[a:b]] + [det.descriptors[k][a:b].astype(np.float64) for k in sorted(det.descriptors)]
@@ -398,7 +412,26 @@ def _scan_meta(s: ScanBatch) -> dict:
     return meta
 
 
-def _odom_msg(T, hdr, values: np.ndarray, o: Odometry, i: int):
+def increment_poses(inc: np.ndarray) -> np.ndarray:
+    """(N, 3) running odometry-frame poses (x, y, theta) after each of N increments (dx, dy, dtheta), each in the
+    vehicle frame of the row before it, starting at the origin (as ``calib.icp.odometry_poses`` composes them)."""
+    th = np.cumsum(inc[:, 2])
+    before = np.concatenate([[0.0], th[:-1]])
+    c, s = np.cos(before), np.sin(before)
+    x = np.cumsum(c * inc[:, 0] - s * inc[:, 1])
+    y = np.cumsum(s * inc[:, 0] + c * inc[:, 1])
+    return np.column_stack([x, y, np.mod(th + np.pi, 2 * np.pi) - np.pi])
+
+
+def _truth_poses(log: SensorLog) -> np.ndarray | None:
+    """The ground-truth poses (N, 3) written on the standard truth topic, when the log has them with a heading."""
+    ref = log.reference.get("ground_truth")
+    if ref is None or not np.isfinite(ref.poses).all():
+        return None
+    return ref.poses
+
+
+def _odom_msg(T, hdr, values: np.ndarray, kind: str, i: int):
     pose = T["geometry_msgs/msg/Pose"](
         position=T["geometry_msgs/msg/Point"](x=0.0, y=0.0, z=0.0),
         orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
@@ -406,7 +439,7 @@ def _odom_msg(T, hdr, values: np.ndarray, o: Odometry, i: int):
     twist = T["geometry_msgs/msg/Twist"](
         linear=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0), angular=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
     )
-    if o.kind == "pose":
+    if kind == "pose":
         x, y, th = (float(v) for v in values[i])
         pose.position.x, pose.position.y = x, y
         pose.orientation.z, pose.orientation.w = float(np.sin(th / 2)), float(np.cos(th / 2))

@@ -106,12 +106,12 @@ def info_table(log, path: Path) -> Table:
 @reader_options()
 def log_convert(
     src: Annotated[Path, typer.Argument(help="The log to read.")],
-    dst: Annotated[Path, typer.Argument(help="Output: NAME.dlog (native) or a folder name (ROS 2 bag).")],
+    dst: Annotated[Path, typer.Argument(help="Output: NAME.dlog (native) or a folder name (a ROS 2 bag; KITTI frames with --to kitti).")],
     reader: ReaderArgs,
-    to: Annotated[str | None, typer.Option("--to", help="Output format: native or ros2 (default: from DST).")] = None,
+    to: Annotated[str | None, typer.Option("--to", help="Output format: native, ros2 or kitti (default: from DST).")] = None,
     force: Annotated[bool, typer.Option(help="Replace DST if it exists.")] = False,
 ) -> None:
-    """Convert a log to detcal's native format or to a ROS 2 bag."""
+    """Convert a log to detcal's native format, a ROS 2 bag or KITTI Velodyne frames (point clouds only)."""
     from calib.io.native import is_detcal_log
     from calib.io.registry import output_format, write_log
 
@@ -122,4 +122,7 @@ def log_convert(
         fresh(dst, force, inputs=[src])
     log = reader.read(src)
     write_log(log, dst, kind, overwrite=force)
-    out.print(f"wrote {dst} ({kind}): {', '.join(log.streams())}")
+    if kind == "kitti":  # only the clouds travel (calib.io.kitti.write_kitti)
+        out.print(f"wrote {dst} ({kind}): {len(log.clouds)} frames of point clouds")
+    else:
+        out.print(f"wrote {dst} ({kind}): {', '.join(log.streams())}")

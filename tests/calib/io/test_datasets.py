@@ -78,6 +78,40 @@ def test_kitti_frames_and_truncation(tmp_path):
         read_kitti(tmp_path)
 
 
+def test_point_clouds_written_as_kitti_frames_read_back_bit_for_bit(tmp_path):
+    """`log convert --to kitti`: each frame's float32 points are the file's bytes, so reading them back gives the
+    same points; the folder is only written through --to kitti (a folder name alone stays a ROS 2 bag)."""
+    from calib.io.registry import output_format, write_log
+    from tests.calib.io.test_native import full_log
+
+    log = full_log()
+    write_log(log, tmp_path / "velodyne", "kitti")
+    assert sorted(p.name for p in (tmp_path / "velodyne").glob("*.bin")) == ["000000.bin", "000001.bin"]
+    back = read_kitti(tmp_path / "velodyne")
+    np.testing.assert_array_equal(back.clouds.offsets, log.clouds.offsets)
+    np.testing.assert_array_equal(back.clouds.points, log.clouds.points)
+    assert output_format(tmp_path / "x", None) == "ros2"
+    with pytest.raises(UsageError, match="exists"):
+        write_log(log, tmp_path / "velodyne", "kitti")
+
+
+def test_kitti_frames_refused_for_logs_without_clouds_or_with_an_empty_frame(tmp_path, small_sim):
+    import dataclasses
+
+    from calib.io.kitti import write_kitti
+    from detectors.sensor_log import PointClouds
+    from tests.calib.io.test_native import full_log
+
+    with pytest.raises(UsageError, match="has no point clouds to write as KITTI frames"):
+        write_kitti(small_sim.log, tmp_path / "a")
+    log = full_log()
+    c = log.clouds
+    empty = dataclasses.replace(log, clouds=PointClouds(c.stamp, np.array([0, 0, c.offsets[-1]]), c.points))
+    with pytest.raises(DataError, match="frame 0 of .* has no points"):
+        write_kitti(empty, tmp_path / "b")
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
 def test_format_detection(tmp_path):
     assert detect_format(VENDORED / "victoria_park") == "victoria"
     assert detect_format(VENDORED / "utias_dataset1") == "utias"

@@ -134,6 +134,27 @@ def test_native_to_ros2_to_native_is_lossless_on_a_simulated_log(tmp_path, small
     assert_logs_equal(log, read_log(tmp_path / "back.dlog"))
 
 
+def test_a_written_bag_read_as_a_foreign_one_gives_the_scans_odometry_and_truth(tmp_path, small_sim):
+    """The standard topics alone (/scan, /odom, /ground_truth, as ROS tools see them) carry the log: the park's
+    odometry increments come back as the running pose whose relative motions are those increments, and the truth
+    as the simulator's poses. Tolerances: LaserScan ranges are float32 (relative 1e-7 of up to 80 m); a pose goes
+    through a float64 quaternion, so its yaw comes back within 1e-12 rad."""
+    from detectors.geometry import relative
+
+    log = small_sim.log
+    assert log.odometry.kind == "increment"
+    write_log(log, tmp_path / "bag")
+    back = read_rosbag(tmp_path / "bag", scan_topic="/scan", odom_topic="/odom", truth_topic="/ground_truth")
+    np.testing.assert_allclose(back.scans.ranges, log.scans.ranges, rtol=1e-6, atol=1e-5)
+    assert back.odometry.kind == "pose"
+    np.testing.assert_array_equal(back.odometry.stamp, log.odometry.stamp)
+    steps = relative(back.odometry.values[:-1], back.odometry.values[1:])
+    np.testing.assert_allclose(steps, log.odometry.values[1:], atol=1e-9)
+    truth = log.reference["ground_truth"]
+    np.testing.assert_array_equal(back.reference["ground_truth"].stamp, truth.stamp)
+    np.testing.assert_allclose(back.reference["ground_truth"].poses, truth.poses, atol=1e-9)
+
+
 def test_ros2_bag_metadata_names_only_the_final_folder(tmp_path, small_sim):
     """The bag is written under its final name inside a temporary folder: no temporary name leaks into it."""
     write_log(small_sim.log, tmp_path / "mybag")

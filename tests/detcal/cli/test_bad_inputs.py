@@ -348,7 +348,7 @@ CASES = [
     ("opt-landmarks-missing", "--landmarks file that does not exist", lambda t: ["calibrate", small_log(t), "--landmarks", str(t / "none.csv")], 2, "--landmarks: "),
     ("opt-landmarks-bad", "landmark CSV with a text radius", lambda t: ["calibrate", small_log(t), "--landmarks", text(t, "l.csv", "id,x,y,radius\n1,0,0,big\n")], 1, "l.csv:2: id must be an integer, x, y numbers and radius > 0"),
     ("opt-landmarks-columns", "landmark CSV without a radius column", lambda t: ["calibrate", small_log(t), "--landmarks", text(t, "l.csv", "id,x,y\n1,0,0\n")], 1, "l.csv: missing columns ['radius']"),
-    ("opt-to", "--to foo", lambda t: ["log", "convert", small_log(t), str(t / "o"), "--to", "foo"], 2, "--to: expected one of native, ros2, got 'foo'"),
+    ("opt-to", "--to foo", lambda t: ["log", "convert", small_log(t), str(t / "o"), "--to", "foo"], 2, "--to: expected one of native, ros2, kitti, got 'foo'"),
     ("opt-out-suffix", "output name of no known format", lambda t: ["log", "convert", small_log(t), str(t / "o.txt")], 2, "o.txt: cannot tell the output format"),
     ("input-missing", "log that does not exist", lambda t: ["calibrate", str(t / "missing.dlog")], 2, "missing.dlog: no such file"),
     ("input-folder", "a folder that holds no log", lambda t: ["log", "info", str(t)], 2, "cannot tell the log format from the path"),
