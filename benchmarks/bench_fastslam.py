@@ -160,10 +160,11 @@ def report(runs: list[dict], part: str, filters: list[str]) -> None:
     if not rows:
         return
     ref = rows[0]["reference"]
-    print(f"\n{part}: {len({(o['world'], o['seed']) for o in rows if o['filter'] == filters[0]})} runs per filter; pose RMSE vs {ref}")
+    n = ", ".join(f"{f} {sum(o['filter'] == f for o in rows)}" for f in filters)
+    print(f"\n{part}: runs {n}; pose RMSE vs {ref}")
     for f in filters:
         r = [o for o in rows if o["filter"] == f and (part != "clutter" or o["clutter"] == RATES[-1])]
-        if part == "clutter":
+        if part == "clutter" or not r:  # (a stopped measurement: a filter with no run yet)
             continue
         mapped = f"{np.mean([o['mapped'] for o in r]):.1f} of {r[0]['true']}" if r[0]["true"] > 0 else "n/a"
         print(
@@ -182,12 +183,15 @@ def _clutter(rows: list[dict], filters: list[str]) -> None:
         print(f"  {f}")
         for c in RATES:
             r = [by[(f, c, *k)] for k in keys if (f, c, *k) in by]
+            if not r:
+                continue
             print(
                 f"    {c:>4g} false alarms/scan: map OSPA {_ms([o['ospa'] for o in r])}  RMSE {_ms([o['rmse'] for o in r])} m"
                 f"  mapped {np.mean([o['mapped'] for o in r]):.1f} of {r[0]['true']}  features {np.mean([o['features'] for o in r]):.1f}"
                 f"  CPU {_ms([o['cpu'] for o in r])} ms/step",
                 flush=True,
             )
+            print("      per world (seed): " + ", ".join(f"{o['world']} ({o['seed']}) {o['ospa']:.3f}" for o in sorted(r, key=lambda o: (o["world"], o["seed"]))), flush=True)
         rise = [by[(f, RATES[-1], *k)]["ospa"] - by[(f, RATES[0], *k)]["ospa"] for k in keys if (f, RATES[0], *k) in by and (f, RATES[-1], *k) in by]
         print(f"    rise of the map OSPA from {RATES[0]:g} to {RATES[-1]:g}, paired: {_ms(rise)}", flush=True)
     base = filters[0]
@@ -216,6 +220,7 @@ def main() -> None:
     ap.add_argument("--clutter-seeds", default="0")
     ap.add_argument("--set", dest="sets", action="append", default=[], help="override a setting of every run: key=value")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--report-only", action="store_true", help="print the figures of the runs already kept, run nothing")
     ap.add_argument(
         "--csv", type=Path, default=None,
         help="every run's figures, one row per run, added as each run ends; the runs already there are read back and not run again",
@@ -238,6 +243,7 @@ def main() -> None:
     done = {key(o["part"], o["filter"], o["world"], o["seed"], o["clutter"], o["sets"] or ""): o for o in (read_rows(a.csv) if a.csv else [])}
     runs = [done[key(*j)] for j in jobs if key(*j) in done]
     todo = [j for j in jobs if key(*j) not in done]
+    todo = [] if a.report_only else todo
     back = f" ({len(runs)} of {len(jobs)} read back from {a.csv})" if runs else ""
     print(f"CPUs {os.cpu_count()}, load average {'/'.join(f'{x:.1f}' for x in os.getloadavg())}; {len(todo)} runs on {a.workers} workers{back}", flush=True)
     if todo:

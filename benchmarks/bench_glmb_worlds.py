@@ -123,6 +123,7 @@ def main() -> None:
     ap.add_argument("--true-poses", action="store_true", help="every particle at the true pose (mapping only)")
     ap.add_argument("--clutter-draws", default=None, help="other clutter streams of each world: 0-9 (default: the world's own)")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--report-only", action="store_true", help="print the figures of the runs already kept, run nothing")
     a = ap.parse_args()
     filters = a.filters or ["glmb"]
     if len(filters) > 2 or len(set(filters)) < len(filters) or (a.pair_sets and len(filters) > 1):
@@ -144,6 +145,7 @@ def main() -> None:
     done = {_key(o["filter"], o["clutter"], o["world"], o["draw"], o["seed"]): o for o in back}
     runs = [done[k] for j in jobs if (k := _job_key(j)) in done]
     todo = [j for j in jobs if _job_key(j) not in done]
+    todo = [] if a.report_only else todo
     if runs:
         print(f"{len(runs)} of {len(jobs)} runs read back from {a.csv}", flush=True)
     if todo:

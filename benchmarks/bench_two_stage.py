@@ -154,6 +154,7 @@ def main() -> None:
     ap.add_argument("--set", dest="sets", action="append", default=[], help="override a setting of every run: key=value")
     ap.add_argument("--sim", dest="sim_sets", action="append", default=[], help="a setting of the scenario: key=value (e.g. steps=400)")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--report-only", action="store_true", help="print the figures of the runs already kept, run nothing")
     ap.add_argument("--out", type=Path, default=None, help="keep every run here as it ends; the runs already there are read back")
     ap.add_argument("--csv", type=Path, default=None, help="every run's summary figures, one row per run")
     ap.add_argument("--figure", type=Path, default=None, help="the mean OSPA curves (PNG)")
@@ -164,6 +165,7 @@ def main() -> None:
     ]
     out = [load_run(f) for j in jobs if a.out is not None and (f := run_file(a.out, j)).exists()]
     todo = [j for j in jobs if a.out is None or not run_file(a.out, j).exists()]
+    todo = [] if a.report_only else todo
     back = f" ({len(out)} of {len(jobs)} read back from {a.out})" if out else ""
     print(f"CPUs {os.cpu_count()}, load average {'/'.join(f'{x:.1f}' for x in os.getloadavg())}; {len(todo)} runs on {a.workers} workers{back}", flush=True)
     if todo:
