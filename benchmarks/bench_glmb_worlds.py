@@ -137,9 +137,9 @@ def main() -> None:
         sys.exit("bench_glmb_worlds: map_refine is not measured here; run detcal slam sweep with a config that holds it")
     rates = [float(c) for c in a.clutter.split(",")]
     draws = [None] if a.clutter_draws is None else ints(a.clutter_draws)
-    jobs = [
+    jobs = [  # the filters of one pair side by side, so that a stopped measurement keeps whole pairs
         (c, w, s, f, sets, a.true_poses, d, a.config)
-        for f, sets in variants for c in rates for w in ints(a.worlds) for d in draws for s in ints(a.seeds)
+        for c in rates for w in ints(a.worlds) for d in draws for s in ints(a.seeds) for f, sets in variants
     ]
     back = [{**o, "draw": None if o["draw"] == "" else o["draw"]} for o in (read_rows(a.csv) if a.csv else [])]
     done = {_key(o["filter"], o["clutter"], o["world"], o["draw"], o["seed"]): o for o in back}
