@@ -162,6 +162,8 @@ def main() -> None:
 
 def _report(out: list, kind: str, a, rates: list, draws: list) -> None:
     """One filter's figures per clutter rate."""
+    if not out:
+        return
     config = "" if a.config == CONFIG else f"{a.config.name}, "
     print(
         f"{kind}, worlds {a.worlds}, filter seeds {a.seeds}, {config}{' '.join(a.sets) or 'the config'}{', true poses' if a.true_poses else ''}"
@@ -169,6 +171,8 @@ def _report(out: list, kind: str, a, rates: list, draws: list) -> None:
     )
     worlds = ints(a.worlds)
     for c in rates:
+        if not any(o["clutter"] == c for o in out):  # (a stopped measurement: no run at this rate yet)
+            continue
         r = {k: np.array([o[k] for o in out if o["clutter"] == c], dtype=float) for k in out[0] if k not in ("filter", "clutter", "world", "draw", "seed")}
         print(
             f"  {c:g} false alarms per scan ({r['ospa'].size} runs): map OSPA {_mean_se(r['ospa'])}"
@@ -189,7 +193,9 @@ def _paired(runs: list, filters: list, rates: list) -> None:
     key = {(o["filter"], o["clutter"], o["world"], o["draw"], o["seed"]): o for o in runs}
     print(f"{filters[0]} - {filters[1]}, paired")
     for c in rates:
-        pairs = [(o, key[(filters[1], *k[1:])]) for k, o in key.items() if k[0] == filters[0] and k[1] == c]
+        pairs = [(o, key[(filters[1], *k[1:])]) for k, o in key.items() if k[0] == filters[0] and k[1] == c and (filters[1], *k[1:]) in key]
+        if not pairs:
+            continue
         d = np.array([x["ospa"] - y["ospa"] for x, y in pairs])
         dm = np.array([x["missed"] - y["missed"] for x, y in pairs], dtype=float)
         dl = np.array([x["loc"] - y["loc"] for x, y in pairs])
