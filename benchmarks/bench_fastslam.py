@@ -43,7 +43,7 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.common import ints, parse_set, write_rows  # noqa: E402
+from benchmarks.common import append_row, ints, parse_set, read_rows  # noqa: E402
 
 DATA = ROOT.parent / "shared/data"
 RATES = (1.0, 5.0, 10.0, 15.0)
@@ -124,8 +124,15 @@ def one(job: tuple) -> dict:
         "part": part, "filter": kind, "world": world, "seed": seed, "clutter": clutter if clutter is not None else float("nan"),
         "rmse": m[f"trajectory_rmse_vs_{ref}_m"], "reference": ref, "ospa": m.get("map_ospa", float("nan")),
         "mapped": m.get("landmarks_mapped", -1), "true": m.get("landmarks_true", -1), "features": int(res.map_xy.shape[0]),
-        "cpu": m["cpu_ms_per_step_mean"], "steps": m["frames"],
+        "cpu": m["cpu_ms_per_step_mean"], "steps": m["frames"], "sets": " ".join(sets),
     }
+
+
+def key(part, kind, world, seed, clutter, sets) -> tuple:
+    """A run's identity: a job's fields, or a row's (read back from the CSV, where no clutter is NaN and the --set
+    items one text)."""
+    c = -1.0 if clutter is None or float(clutter) != float(clutter) else float(clutter)
+    return (str(part), str(kind), int(world), int(seed), c, sets if isinstance(sets, str) else " ".join(sets))
 
 
 def warm(filters: tuple[str, ...]) -> None:
@@ -153,10 +160,11 @@ def report(runs: list[dict], part: str, filters: list[str]) -> None:
     if not rows:
         return
     ref = rows[0]["reference"]
-    print(f"\n{part}: {len({(o['world'], o['seed']) for o in rows if o['filter'] == filters[0]})} runs per filter; pose RMSE vs {ref}")
+    n = ", ".join(f"{f} {sum(o['filter'] == f for o in rows)}" for f in filters)
+    print(f"\n{part}: runs {n}; pose RMSE vs {ref}")
     for f in filters:
         r = [o for o in rows if o["filter"] == f and (part != "clutter" or o["clutter"] == RATES[-1])]
-        if part == "clutter":
+        if part == "clutter" or not r:  # (a stopped measurement: a filter with no run yet)
             continue
         mapped = f"{np.mean([o['mapped'] for o in r]):.1f} of {r[0]['true']}" if r[0]["true"] > 0 else "n/a"
         print(
@@ -175,12 +183,15 @@ def _clutter(rows: list[dict], filters: list[str]) -> None:
         print(f"  {f}")
         for c in RATES:
             r = [by[(f, c, *k)] for k in keys if (f, c, *k) in by]
+            if not r:
+                continue
             print(
                 f"    {c:>4g} false alarms/scan: map OSPA {_ms([o['ospa'] for o in r])}  RMSE {_ms([o['rmse'] for o in r])} m"
                 f"  mapped {np.mean([o['mapped'] for o in r]):.1f} of {r[0]['true']}  features {np.mean([o['features'] for o in r]):.1f}"
                 f"  CPU {_ms([o['cpu'] for o in r])} ms/step",
                 flush=True,
             )
+            print("      per world (seed): " + ", ".join(f"{o['world']} ({o['seed']}) {o['ospa']:.3f}" for o in sorted(r, key=lambda o: (o["world"], o["seed"]))), flush=True)
         rise = [by[(f, RATES[-1], *k)]["ospa"] - by[(f, RATES[0], *k)]["ospa"] for k in keys if (f, RATES[0], *k) in by and (f, RATES[-1], *k) in by]
         print(f"    rise of the map OSPA from {RATES[0]:g} to {RATES[-1]:g}, paired: {_ms(rise)}", flush=True)
     base = filters[0]
@@ -209,7 +220,11 @@ def main() -> None:
     ap.add_argument("--clutter-seeds", default="0")
     ap.add_argument("--set", dest="sets", action="append", default=[], help="override a setting of every run: key=value")
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--csv", type=Path, default=None, help="write every run's figures here, one row per run")
+    ap.add_argument("--report-only", action="store_true", help="print the figures of the runs already kept, run nothing")
+    ap.add_argument(
+        "--csv", type=Path, default=None,
+        help="every run's figures, one row per run, added as each run ends; the runs already there are read back and not run again",
+    )
     a = ap.parse_args()
     DATA = a.data  # (the workers are forked after this)
     parts, filters, seeds = a.parts.split(","), a.filters.split(","), ints(a.seeds)
@@ -225,14 +240,19 @@ def main() -> None:
         rates = RATES if part == "clutter" else (None,)
         sd = ints(a.clutter_seeds) if part == "clutter" else seeds
         jobs += [(part, f, w, s, c, tuple(a.sets)) for f in filters for c in rates for w in worlds for s in sd]
-    print(f"CPUs {os.cpu_count()}, load average {'/'.join(f'{x:.1f}' for x in os.getloadavg())}; {len(jobs)} runs on {a.workers} workers", flush=True)
-    with Pool(a.workers, initializer=warm, initargs=(tuple(filters),)) as pool:
-        runs = []
-        for o in pool.imap(one, jobs, chunksize=1):  # each run printed as it ends (in the order of the jobs)
-            runs.append(o)
-            print(f"  run {len(runs)}/{len(jobs)}: " + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in o.items()), flush=True)
-    if a.csv is not None:
-        write_rows(a.csv, runs)
+    done = {key(o["part"], o["filter"], o["world"], o["seed"], o["clutter"], o["sets"] or ""): o for o in (read_rows(a.csv) if a.csv else [])}
+    runs = [done[key(*j)] for j in jobs if key(*j) in done]
+    todo = [j for j in jobs if key(*j) not in done]
+    todo = [] if a.report_only else todo
+    back = f" ({len(runs)} of {len(jobs)} read back from {a.csv})" if runs else ""
+    print(f"CPUs {os.cpu_count()}, load average {'/'.join(f'{x:.1f}' for x in os.getloadavg())}; {len(todo)} runs on {a.workers} workers{back}", flush=True)
+    if todo:
+        with Pool(a.workers, initializer=warm, initargs=(tuple(filters),)) as pool:
+            for o in pool.imap_unordered(one, todo, chunksize=1):  # each run kept as it ends
+                runs.append(o)
+                if a.csv is not None:
+                    append_row(a.csv, o)
+                print(f"  run {len(runs)}/{len(jobs)}: " + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in o.items()), flush=True)
     for part in parts:
         report(runs, part, filters)
 

@@ -1,7 +1,7 @@
 """A labelled filter's map on the held-out glmb-paper worlds, many runs per setting:
 ``python benchmarks/bench_glmb_worlds.py [--clutter 1,15] [--worlds 2,3,4,5] [--seeds 0-14] [--filter glmb]
-[--filter lmb] [--config C.yaml] [--set key=value ...] [--true-poses] [--clutter-draws 0-9] [--csv runs.csv]
-[--workers 2]``.
+[--filter lmb] [--config C.yaml] [--set key=value ...] [--pair-set key=value ...] [--true-poses] [--clutter-draws 0-9]
+[--csv runs.csv] [--workers 2]``.
 
 Each run is ``detcal simulate glmb-paper --clutter C --seed W`` (world W) and one filter seed with the
 settings of ``benchmarks/configs/glmb_paper_optimal.yaml`` or ``--config`` (``--set`` overrides any, e.g.
@@ -16,8 +16,11 @@ by itself). ``--clutter-draws`` runs each world under other draws of its false a
 detections kept: ``simulate_glmb_paper(..., clutter_draw=D)``), to tell a world's own clutter draw from the
 filter. With two ``--filter`` each run is made with both and the paired difference (first - second, matched by
 clutter rate, world, clutter draw and filter seed) is printed with its standard error and the number of runs the
-first is lower in. ``--csv`` writes every run's figures, one row per run. Same arguments, same figures; BLAS is
-pinned to one thread per worker.
+first is lower in. ``--pair-set key=value`` (repeatable) pairs one filter with itself under those settings instead
+(e.g. ``--pair-set filter.release_unseen=false``: the exact delta-GLMB beside the hybrid); the second's rows are
+labelled ``glmb[filter.release_unseen=false]``. ``--csv`` writes every run's figures, one row per run, as each run
+ends; the runs already in it are read back and not run again (a stopped measurement resumes). Same arguments, same
+figures; BLAS is pinned to one thread per worker.
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.common import ints, parse_set, write_rows  # noqa: E402
+from benchmarks.common import append_row, ints, parse_set, read_rows  # noqa: E402
 from calib.config import load_yaml_model  # noqa: E402
 from calib.sim.glmb_paper import GlmbPaperConfig, simulate_glmb_paper, truth_profile  # noqa: E402
 from slam_runtime.config import SlamConfig, override, with_filter  # noqa: E402
@@ -49,7 +52,8 @@ CONFIG = ROOT / "benchmarks/configs/glmb_paper_optimal.yaml"
 
 
 def one(job: tuple) -> dict:
-    clutter, world, seed, kind, sets, true_poses, draw, config = job
+    clutter, world, seed, label, sets, true_poses, draw, config = job
+    kind = label.split("[", 1)[0]
     cfg = load_yaml_model(SlamConfig, config)
     if kind != cfg.filter.kind:
         cfg = with_filter(cfg, kind)
@@ -74,10 +78,20 @@ def one(job: tuple) -> dict:
     g = gospa(est, log.landmarks.xy, 0.5, 1.0)
     found = max(m["landmarks_true"] - g["n_missed"], 1)
     return {
-        "filter": kind, "clutter": clutter, "world": world, "draw": draw, "seed": seed, "ospa": ospa(est, log.landmarks.xy, 0.5, 1.0), "ospa_other": other,
+        "filter": label, "clutter": clutter, "world": world, "draw": draw, "seed": seed, "ospa": ospa(est, log.landmarks.xy, 0.5, 1.0), "ospa_other": other,
         "rmse": m["trajectory_rmse_vs_ground_truth_m"], "rmse_mean": m["mean_trajectory_rmse_vs_ground_truth_m"], "missed": g["n_missed"],
         "false": g["n_false"], "loc": g["localisation"] / found, "cpu": m["cpu_ms_per_step_mean"],
     }
+
+
+def _key(label, clutter, world, draw, seed) -> tuple:
+    """A run's identity (a row read back from the CSV holds no clutter draw as an empty text)."""
+    return (str(label), float(clutter), int(world), -1 if draw in (None, "") else int(draw), int(seed))
+
+
+def _job_key(job: tuple) -> tuple:
+    clutter, world, seed, label, _sets, _true, draw, _config = job
+    return _key(label, clutter, world, draw, seed)
 
 
 class _Last:
@@ -103,28 +117,43 @@ def main() -> None:
     ap.add_argument("--seeds", default="0-14", help="filter seeds: 0-14 or 0,3")
     ap.add_argument("--filter", dest="filters", action="append", choices=("glmb", "lmb", "rbphd"), help="glmb (default); twice to pair two")
     ap.add_argument("--config", type=Path, default=CONFIG, help="the settings (default: glmb_paper_optimal.yaml)")
-    ap.add_argument("--csv", type=Path, default=None, help="write every run's figures here, one row per run")
+    ap.add_argument("--csv", type=Path, default=None, help="every run's figures, one row per run as it ends; runs already there are not run again")
+    ap.add_argument("--pair-set", dest="pair_sets", action="append", default=[], help="pair the filter with itself under this setting: key=value")
     ap.add_argument("--set", dest="sets", action="append", default=[], help="override a setting: key=value (repeatable)")
     ap.add_argument("--true-poses", action="store_true", help="every particle at the true pose (mapping only)")
     ap.add_argument("--clutter-draws", default=None, help="other clutter streams of each world: 0-9 (default: the world's own)")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--report-only", action="store_true", help="print the figures of the runs already kept, run nothing")
     a = ap.parse_args()
     filters = a.filters or ["glmb"]
-    if len(filters) > 2 or len(set(filters)) < len(filters):
-        sys.exit("bench_glmb_worlds: --filter takes one filter, or two different ones to pair")
-    if any(x.split("=", 1)[0].strip() == "map_refine" for x in a.sets):
+    if len(filters) > 2 or len(set(filters)) < len(filters) or (a.pair_sets and len(filters) > 1):
+        sys.exit("bench_glmb_worlds: --filter takes one filter, or two different ones to pair (one with --pair-set)")
+    variants = [(f, a.sets) for f in filters]
+    if a.pair_sets:
+        variants.append((f"{filters[0]}[{' '.join(a.pair_sets)}]", [*a.sets, *a.pair_sets]))
+        filters = [v[0] for v in variants]
+    if any(x.split("=", 1)[0].strip() == "map_refine" for x in [*a.sets, *a.pair_sets]):
         # the runs place the map two ways after the run (seen_mean and best); map_refine would refine only the first
         sys.exit("bench_glmb_worlds: map_refine is not measured here; run detcal slam sweep with a config that holds it")
     rates = [float(c) for c in a.clutter.split(",")]
     draws = [None] if a.clutter_draws is None else ints(a.clutter_draws)
-    jobs = [
-        (c, w, s, f, a.sets, a.true_poses, d, a.config)
-        for f in filters for c in rates for w in ints(a.worlds) for d in draws for s in ints(a.seeds)
+    jobs = [  # the filters of one pair side by side, so that a stopped measurement keeps whole pairs
+        (c, w, s, f, sets, a.true_poses, d, a.config)
+        for c in rates for w in ints(a.worlds) for d in draws for s in ints(a.seeds) for f, sets in variants
     ]
-    with Pool(a.workers) as pool:
-        runs = pool.map(one, jobs, chunksize=1)
-    if a.csv is not None:
-        write_rows(a.csv, runs)
+    back = [{**o, "draw": None if o["draw"] == "" else o["draw"]} for o in (read_rows(a.csv) if a.csv else [])]
+    done = {_key(o["filter"], o["clutter"], o["world"], o["draw"], o["seed"]): o for o in back}
+    runs = [done[k] for j in jobs if (k := _job_key(j)) in done]
+    todo = [j for j in jobs if _job_key(j) not in done]
+    todo = [] if a.report_only else todo
+    if runs:
+        print(f"{len(runs)} of {len(jobs)} runs read back from {a.csv}", flush=True)
+    if todo:
+        with Pool(a.workers) as pool:
+            for o in pool.imap_unordered(one, todo, chunksize=1):  # each run kept as it ends
+                runs.append(o)
+                if a.csv is not None:
+                    append_row(a.csv, o)
     for f in filters:
         _report([o for o in runs if o["filter"] == f], f, a, rates, draws)
     if len(filters) == 2:
@@ -133,6 +162,8 @@ def main() -> None:
 
 def _report(out: list, kind: str, a, rates: list, draws: list) -> None:
     """One filter's figures per clutter rate."""
+    if not out:
+        return
     config = "" if a.config == CONFIG else f"{a.config.name}, "
     print(
         f"{kind}, worlds {a.worlds}, filter seeds {a.seeds}, {config}{' '.join(a.sets) or 'the config'}{', true poses' if a.true_poses else ''}"
@@ -140,6 +171,8 @@ def _report(out: list, kind: str, a, rates: list, draws: list) -> None:
     )
     worlds = ints(a.worlds)
     for c in rates:
+        if not any(o["clutter"] == c for o in out):  # (a stopped measurement: no run at this rate yet)
+            continue
         r = {k: np.array([o[k] for o in out if o["clutter"] == c], dtype=float) for k in out[0] if k not in ("filter", "clutter", "world", "draw", "seed")}
         print(
             f"  {c:g} false alarms per scan ({r['ospa'].size} runs): map OSPA {_mean_se(r['ospa'])}"
@@ -160,7 +193,9 @@ def _paired(runs: list, filters: list, rates: list) -> None:
     key = {(o["filter"], o["clutter"], o["world"], o["draw"], o["seed"]): o for o in runs}
     print(f"{filters[0]} - {filters[1]}, paired")
     for c in rates:
-        pairs = [(o, key[(filters[1], *k[1:])]) for k, o in key.items() if k[0] == filters[0] and k[1] == c]
+        pairs = [(o, key[(filters[1], *k[1:])]) for k, o in key.items() if k[0] == filters[0] and k[1] == c and (filters[1], *k[1:]) in key]
+        if not pairs:
+            continue
         d = np.array([x["ospa"] - y["ospa"] for x, y in pairs])
         dm = np.array([x["missed"] - y["missed"] for x, y in pairs], dtype=float)
         dl = np.array([x["loc"] - y["loc"] for x, y in pairs])

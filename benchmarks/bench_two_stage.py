@@ -3,7 +3,7 @@ points, 100 Monte Carlo runs, OSPA (p = 1, c = 100 m) at every step (their Fig. 
 
 Run: ``python benchmarks/bench_two_stage.py [--runs 0-99] [--paths serpentine] [--cases static,moving]
 [--filters lmb,glmb] [--config benchmarks/configs/two_stage.yaml] [--set key=value ...] [--sim key=value ...] [--workers 2]
-[--csv runs.csv] [--figure two-stage-ospa.png]``.
+[--out DIR] [--csv runs.csv] [--figure two-stage-ospa.png]``.
 
 Run i is ``detcal simulate two-stage --seed i`` (``--moving`` for the moving case) with filter seed i and the
 settings of ``benchmarks/configs/two_stage.yaml``, the filter kind changed per row; in the moving case the filters
@@ -14,7 +14,10 @@ of the paper's sec. 2.1, M_k = M_k-1 u C(x_k-1)), at their positions at k: OSPA 
 localisation and cardinality parts (for p = 1 they add up: OSPA = loc + card, card = c (n - m) / n). CPU is the
 run's process CPU time (the whole filter over the 100 steps), one process per core, BLAS pinned. Prints per case
 and filter the OSPA, loc and card averaged over the steps and at the last step, the features mapped at the end
-and the CPU per run and per step, with standard errors over the runs; ``--figure`` draws the mean curves.
+and the CPU per run and per step, with standard errors over the runs; ``--figure`` draws the mean curves. ``--out DIR``
+keeps each run's curves and figures in DIR as it ends (one ``.npz`` per path, case, filter and run) and reads the
+runs already there back instead of running them again: a stopped measurement resumes where it stopped (one DIR per
+set of ``--config``/``--set``/``--sim`` settings: the files do not record them).
 """
 
 from __future__ import annotations
@@ -106,6 +109,27 @@ def one(job: tuple) -> dict:
 MOVING: dict = {"filter.feature_motion": "constant_velocity"}
 
 
+def run_file(folder: Path, job_or_run) -> Path:
+    """Where ``--out`` keeps one run: ``{path}-{case}-{filter}-{run:03d}.npz``."""
+    p, c, f, r = (job_or_run[k] for k in ("path", "case", "filter", "run")) if isinstance(job_or_run, dict) else job_or_run[:4]
+    return folder / f"{p}-{c}-{f}-{int(r):03d}.npz"
+
+
+def save_run(folder: Path, o: dict) -> None:
+    """One run's curves and figures into ``folder`` (written to a temporary name, then renamed: never half a file)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    path = run_file(folder, o)
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez(tmp, **{k: np.asarray(v) for k, v in o.items()})
+    os.replace(tmp, path)
+
+
+def load_run(path: Path) -> dict:
+    """A run kept by :func:`save_run`, with the types :func:`one` returns."""
+    with np.load(path) as z:
+        return {k: (z[k] if z[k].ndim else z[k].item()) for k in z.files}
+
+
 def warm(filters: tuple[str, ...], config: Path) -> None:
     """Pool initializer: one short run of each filter, static and moving, so that no timed run pays for loading (or
     compiling) the compiled kernels."""
@@ -130,6 +154,8 @@ def main() -> None:
     ap.add_argument("--set", dest="sets", action="append", default=[], help="override a setting of every run: key=value")
     ap.add_argument("--sim", dest="sim_sets", action="append", default=[], help="a setting of the scenario: key=value (e.g. steps=400)")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--report-only", action="store_true", help="print the figures of the runs already kept, run nothing")
+    ap.add_argument("--out", type=Path, default=None, help="keep every run here as it ends; the runs already there are read back")
     ap.add_argument("--csv", type=Path, default=None, help="every run's summary figures, one row per run")
     ap.add_argument("--figure", type=Path, default=None, help="the mean OSPA curves (PNG)")
     a = ap.parse_args()
@@ -137,9 +163,18 @@ def main() -> None:
         (p, c, f, r, a.config, tuple(a.sets), tuple(a.sim_sets))
         for p in a.paths.split(",") for c in a.cases.split(",") for f in a.filters.split(",") for r in ints(a.runs)
     ]
-    print(f"CPUs {os.cpu_count()}, load average {'/'.join(f'{x:.1f}' for x in os.getloadavg())}; {len(jobs)} runs on {a.workers} workers", flush=True)
-    with Pool(a.workers, initializer=warm, initargs=(tuple(a.filters.split(",")), a.config)) as pool:
-        out = pool.map(one, jobs, chunksize=4)
+    out = [load_run(f) for j in jobs if a.out is not None and (f := run_file(a.out, j)).exists()]
+    todo = [j for j in jobs if a.out is None or not run_file(a.out, j).exists()]
+    todo = [] if a.report_only else todo
+    back = f" ({len(out)} of {len(jobs)} read back from {a.out})" if out else ""
+    print(f"CPUs {os.cpu_count()}, load average {'/'.join(f'{x:.1f}' for x in os.getloadavg())}; {len(todo)} runs on {a.workers} workers{back}", flush=True)
+    if todo:
+        with Pool(a.workers, initializer=warm, initargs=(tuple(a.filters.split(",")), a.config)) as pool:
+            for o in pool.imap_unordered(one, todo, chunksize=1):
+                out.append(o)
+                if a.out is not None:
+                    save_run(a.out, o)
+    out.sort(key=lambda o: (o["path"], o["case"], o["filter"], o["run"]))
     if a.csv is not None:
         keys = [k for k in out[0] if not isinstance(out[0][k], np.ndarray)]
         with a.csv.open("w", newline="") as fh:

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import csv
+import io
+import os
 from pathlib import Path
 
 import yaml
@@ -31,3 +33,46 @@ def write_rows(path: Path, rows: list[dict]) -> None:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
+
+
+def read_rows(path: Path, fields: list[str] | None = None) -> list[dict]:
+    """The complete rows of a CSV written by :func:`append_row` (values read as YAML scalars: ints and floats come back as
+    such); [] when the file is absent. A last line a stopped run cut short (no line end) is left out; a file whose
+    columns are not ``fields`` (when given) is refused, so runs of another layout are never mixed in."""
+    if not path.exists():
+        return []
+    text = path.read_text()
+    if not text.endswith("\n"):
+        text = text[: text.rfind("\n") + 1]
+    r = csv.DictReader(io.StringIO(text, newline=""))
+    if fields is not None and r.fieldnames is not None and r.fieldnames != fields:
+        raise SystemExit(f"{path}: its columns {r.fieldnames} are not this benchmark's {fields}; give another --csv")
+    return [{k: _scalar(v) for k, v in row.items()} for row in r if None not in row and None not in row.values()]
+
+
+def _scalar(text: str) -> object:
+    """A CSV field back as the int or float it was written from ("nan" included), else the text."""
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def append_row(path: Path, row: dict) -> None:
+    """Add one run's row to ``path`` (the header first when the file is new) and flush it to disk, so a stopped
+    benchmark keeps every run that ended; the next start reads them back with :func:`read_rows` and skips them."""
+    if path.exists():
+        data = path.read_bytes()
+        if data and not data.endswith(b"\n"):  # a line cut by a stopped run: dropped, as read_rows drops it
+            with path.open("r+b") as fh:
+                fh.truncate(data.rfind(b"\n") + 1)
+    new = not path.exists() or path.stat().st_size == 0
+    with path.open("a", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(row))
+        if new:
+            w.writeheader()
+        w.writerow(row)
+        fh.flush()
+        os.fsync(fh.fileno())
