@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import resource
 from pathlib import Path
 
 import pytest
@@ -13,6 +14,58 @@ ROOT = Path(__file__).resolve().parents[1]
 #: the real logs: beside the repository, or where $DETCAL_SHARED_DATA says (a checkout elsewhere)
 SHARED_DATA = Path(os.environ.get("DETCAL_SHARED_DATA") or ROOT.parent / "shared" / "data")
 VENDORED = Path(__file__).resolve().parent / "data"
+
+
+def _cpu_seconds() -> float:
+    """User + system CPU of this process (all its threads) and of its children already waited for."""
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def pytest_addoption(parser):
+    parser.addoption(
+        "--cpu-durations",
+        type=int,
+        default=None,
+        metavar="N",
+        help="list the N tests that used the most CPU (setup + call + teardown, subprocesses included; "
+        "unlike --durations, independent of how busy the machine is); 0 lists all",
+    )
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
+    item.stash[_CPU_START] = _cpu_seconds()
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    outcome = yield
+    if call.when == "teardown" and _CPU_START in item.stash:
+        # user_properties travel from an xdist worker to the controller with the report
+        outcome.get_result().user_properties.append(("cpu_s", _cpu_seconds() - item.stash[_CPU_START]))
+
+
+def pytest_runtest_logreport(report):
+    if report.when == "teardown":
+        cpu = dict(report.user_properties).get("cpu_s")
+        if cpu is not None:
+            _CPU_BY_TEST[report.nodeid] = cpu
+
+
+def pytest_terminal_summary(terminalreporter, config):
+    n = config.getoption("--cpu-durations")
+    if n is None or not _CPU_BY_TEST:
+        return
+    rows = sorted(_CPU_BY_TEST.items(), key=lambda kv: -kv[1])
+    tr = terminalreporter
+    tr.write_sep("=", f"CPU per test, most first (total {sum(_CPU_BY_TEST.values()):.1f} s in {len(rows)} tests, process start-up not included)")
+    for nodeid, cpu in rows if n == 0 else rows[:n]:
+        tr.write_line(f"{cpu:8.2f} s  {nodeid}")
+
+
+_CPU_START = pytest.StashKey[float]()
+_CPU_BY_TEST: dict[str, float] = {}
 
 
 def shared(rel: str) -> Path:

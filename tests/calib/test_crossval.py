@@ -25,6 +25,7 @@ def test_halves_split_frames_and_odometry():
     assert len(first.detections) == int((cam.detections.frame < 100).sum())
 
 
+@pytest.mark.slow  # end to end: whole simulated runs, tens of CPU seconds; make test-slow (CI) runs it
 def test_camera_sensors_cross_validate():
     logs = [camera_log(s, robot=s) for s in (1, 2, 3)]
     cv = cross_validate(logs, "robots")

@@ -112,6 +112,7 @@ def test_the_readme_the_tutorial_and_every_log_format_have_runnable_blocks_and_e
         assert "../shared/data" not in runnable_script(page), f"{page}: a runnable block reads a real log without a small stand-in"
 
 
+@pytest.mark.slow  # each page's commands end to end in a fresh interpreter: calibrations, SLAM runs (tens of CPU seconds)
 @pytest.mark.parametrize("page", runnable_pages())
 def test_runnable_blocks_run(page, tmp_path):
     """Every runnable block of the page, in order, as one bash script (set -euo pipefail) in a scratch folder that sees

@@ -530,6 +530,7 @@ class _Last:
         return 0.0
 
 
+@pytest.mark.slow  # end to end: whole simulated runs, tens of CPU seconds; make test-slow (CI) runs it
 def test_seen_mean_is_a_filtering_estimate_best_a_smoothing_draw():
     """The two placements of one run's map against the true landmarks (glmb-paper, delta-GLMB, 50 particles
     with the optimal proposal, the benchmark config otherwise, filter seeds 0-3). World 1 at 5 false alarms
@@ -591,6 +592,7 @@ def test_islands_average_beats_each_islands_own_estimate():
     assert min(gain_traj) > 0 and min(gain_map) > 0 and np.mean(gain_traj) >= 0.01 and np.mean(gain_map) >= 0.01, (gain_traj, gain_map)
 
 
+@pytest.mark.slow  # end to end: whole simulated runs, tens of CPU seconds; make test-slow (CI) runs it
 def test_islands_pair_one_landmarks_labels_by_position_under_clutter():
     """Under heavy clutter the islands often bear one landmark from different measurements, so its label differs
     between their estimates and the label-by-label average leaves it the reference island's alone. glmb-paper world 2
@@ -688,6 +690,7 @@ def _poses_given(kind: str, draws: str) -> tuple[float, int]:
     return float(np.mean(scores)), missed
 
 
+@pytest.mark.slow  # end to end: whole simulated runs, tens of CPU seconds; make test-slow (CI) runs it
 def test_with_the_poses_given_delta_glmb_maps_better_than_lmb_under_clutter():
     """The map filters alone (:func:`_poses_given`; the 5 particles of one filter hold the same poses and draw the
     same uniforms, so each run is one map filter), both filters on the same runs. delta-GLMB keeps the joint
@@ -703,6 +706,7 @@ def test_with_the_poses_given_delta_glmb_maps_better_than_lmb_under_clutter():
     assert gap >= 0.005 and glmb_missed < lmb_missed, (gap, glmb_missed, lmb_missed)
 
 
+@pytest.mark.slow  # end to end: whole simulated runs, tens of CPU seconds; make test-slow (CI) runs it
 def test_with_the_poses_given_a_seed_per_particle_lets_the_weights_select_lmbs_maps():
     """Why LMB misses fewer landmarks in full SLAM than with the poses given: there the particles' different paths
     give their maps different association draws, among which the weights (each particle's normalisation constant)
@@ -716,6 +720,7 @@ def test_with_the_poses_given_a_seed_per_particle_lets_the_weights_select_lmbs_m
     assert common - own >= 0.004 and own_missed < common_missed, (common, own, common_missed, own_missed)
 
 
+@pytest.mark.slow  # end to end: whole simulated runs, tens of CPU seconds; make test-slow (CI) runs it
 def test_with_the_poses_given_the_calibrated_pd_maps_the_park_better_in_delta_glmb():
     """The profile's P_D works in delta-GLMB as in RB-PHD, shown on the map update alone: delta-GLMB with every
     particle on the simulator's path (``poses: ground_truth``) over the park of the comparison

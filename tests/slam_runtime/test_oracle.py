@@ -99,6 +99,7 @@ def test_the_oracles_posterior_covers_the_truth_as_it_states_rfs_sim():
     assert 0.88 <= np.mean(ratio) <= 1.12
 
 
+@pytest.mark.slow  # end to end: whole simulated runs, tens of CPU seconds; make test-slow (CI) runs it
 def test_the_oracles_posterior_covers_the_truth_as_it_states_glmb_paper():
     """Ackermann controls (glmb-paper, 10 worlds): the same chi-square(2) check of the last position (the
     mean of 10 has a standard deviation of 0.63: [0.45, 3.55] is 2.5 of them either way) and the landmarks'
@@ -282,6 +283,7 @@ def test_the_clutter_oracles_information_is_the_mixtures_curvature():
         assert np.linalg.norm(blk - num) <= 0.05 * np.linalg.norm(num), (j, blk, num)
 
 
+@pytest.mark.slow  # end to end: whole simulated runs, tens of CPU seconds; make test-slow (CI) runs it
 def test_the_clutter_oracles_posterior_covers_the_truth_as_it_states():
     """8 glmb-paper worlds under 15 false alarms per scan, the associations not given: the detected landmarks'
     squared Mahalanobis error over its degrees of freedom has mean 1 if the stated posterior is right (46 or so

@@ -11,6 +11,7 @@ from slam_runtime.run import evaluate, run_slam
 from tests.conftest import small_street_config
 
 
+@pytest.mark.slow  # end to end: whole simulated runs, tens of CPU seconds; make test-slow (CI) runs it
 def test_rbphd_with_planes_halves_the_odometry_error(street_profile):
     """40 frames of a street with noisy odometry (sigma 0.3 m/s, 0.08 rad/s): the filter's trajectory RMSE is at
     most half of dead reckoning's (the issue's target), the map planes it keeps match true landmarks within
@@ -25,6 +26,7 @@ def test_rbphd_with_planes_halves_the_odometry_error(street_profile):
     assert res.trajectory.shape == (40, 3) and np.isfinite(res.trajectory).all()
 
 
+@pytest.mark.slow  # end to end: whole simulated runs, tens of CPU seconds; make test-slow (CI) runs it
 @pytest.mark.parametrize("kind", ["glmb", "lmb"])
 def test_labelled_filters_with_planes(street_profile, kind):
     """The same 40 frames through delta-GLMB and LMB (the plane feature and detection models only use the

@@ -108,6 +108,7 @@ def test_no_nan_over_a_full_run_at_50_clutter_per_scan():
         assert np.isfinite(slam.trajectory()).all() and np.isfinite(slam.mean_pose()).all()
 
 
+@pytest.mark.slow  # end to end: whole simulated runs, tens of CPU seconds; make test-slow (CI) runs it
 def test_rbphd_on_a_cluttered_park_beats_odometry_and_the_profile_maps_better_than_constant_pd():
     """The park of the comparison (benchmarks/configs/small_park.yaml: bushes that fit circles,
     walls, posts, dust), world seed 1, the whole run, filter seeds 0-2. Truth: the simulator's poses and trees.
@@ -145,6 +146,7 @@ def test_rbphd_on_a_cluttered_park_beats_odometry_and_the_profile_maps_better_th
     assert ospa["profile"] < 0.95 * ospa["constant"], ospa
 
 
+@pytest.mark.slow  # end to end: whole simulated runs, tens of CPU seconds; make test-slow (CI) runs it
 def test_the_optimal_proposal_keeps_three_particles_on_the_path():
     """rfs-sim, 300 steps, only 3 particles, 4 filter seeds: drawing each pose from the motion prior updated
     by the measurements the particle's map explains keeps it within 5 cm of the true path, and closer on

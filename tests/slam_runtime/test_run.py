@@ -140,6 +140,7 @@ def test_gps_is_compared_at_the_point_it_locates():
     assert evaluate(at_axle, res)["trajectory_rmse_vs_gps_m"] > 1.0
 
 
+@pytest.mark.slow  # end to end: whole simulated runs, tens of CPU seconds; make test-slow (CI) runs it
 def test_a_turned_sensor_is_corrected_by_mount_yaw_and_the_log_evidence_finds_it():
     """The rfs-sim detections as a sensor turned 0.1 rad to the left sees them (every bearing 0.1 rad smaller):
     with ``mount_yaw`` = 0.1 the filter gets back the path it has with the straight sensor; without it, the map

@@ -3,6 +3,7 @@ import json
 import re
 
 import numpy as np
+import pytest
 import yaml
 
 from calib.io.native import write_native
@@ -10,6 +11,7 @@ from tests.calib.test_calibrate import park
 from tests.detcal.cli.test_cli import assert_one_line_error, run
 
 
+@pytest.mark.slow  # end to end: whole simulated runs, tens of CPU seconds; make test-slow (CI) runs it
 def test_calibrate_validate_and_profile_commands(tmp_path, capsys):
     a = write_native(park(41, 1.0), tmp_path / "a.dlog")
     b = write_native(park(42, 1.0), tmp_path / "b.dlog")

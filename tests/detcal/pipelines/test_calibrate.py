@@ -147,6 +147,7 @@ def test_records_outside_the_truth_span(capsys, tmp_path):
     assert yaml.safe_load((tmp_path / "r/summary.yaml").read_text())["scans"] == len(log.scans) - first_kept
 
 
+@pytest.mark.slow  # end to end: whole simulated runs, tens of CPU seconds; make test-slow (CI) runs it
 def test_the_bundled_profile_is_reproduced_from_the_embedded_default(tmp_path, capsys):
     """What `make demo` and `make builtin-profile` do, on this machine's freshly simulated default log.
 
