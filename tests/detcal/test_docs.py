@@ -104,7 +104,7 @@ def test_the_readme_the_tutorial_and_every_log_format_have_runnable_blocks_and_e
     from calib.io.registry import READERS
 
     pages = runnable_pages()
-    how_to = {"native": "native", "carmen": "carmen", "rosbag": "rosbag", "victoria": "victoria-park", "utias": "utias", "kitti": "kitti"}
+    how_to = {"native": "native", "carmen": "carmen", "rosbag": "rosbag", "victoria": "victoria-park", "utias": "utias", "kitti": "kitti", "rfsslam": "rfsslam"}
     assert sorted(how_to) == sorted(READERS.names()), "a log format without its how-to page"
     expected = ["README.md", "docs/tutorial.md", *(f"docs/how-to/{page}.md" for page in how_to.values())]
     assert [p for p in expected if p not in pages] == [], pages

@@ -10,30 +10,11 @@ from calib.io.rfsslam import read_rfsslam, scenario
 from calib.sim.rfs import simulate_rfs
 from profiles.errors import DataError, UsageError
 from profiles.parameters import RfsSimConfig
-
-XML = """<config>
-  <logging><logResultsToFile>1</logResultsToFile><logTimingToFile>0</logTimingToFile><logDirPrefix>x/</logDirPrefix></logging>
-  <timesteps>{steps}</timesteps><sec_per_timestep>0.1</sec_per_timestep>
-  <trajectory><vardx>0.002</vardx><vardy>0.002</vardy><vardz>0.002</vardz></trajectory>
-  <landmarks><nLandmarks>{landmarks}</nLandmarks></landmarks>
-  <measurements><rangeLimitMax>2.5</rangeLimitMax><rangeLimitMin>0.5</rangeLimitMin><probDetection>0.99</probDetection>
-    <clutterIntensity>0.0001</clutterIntensity><varzr>0.0005</varzr><varzb>0.00005</varzb></measurements>
-</config>"""
-
+from tests.data.rfsslam_export import SHIPPED, shipped_export, write_export
 
 def export(tmp_path, log, steps, landmarks):
-    """The simulator's files ('%f' columns, as it prints them) of a detcal rfs-sim log."""
-    d = tmp_path / "export"
-    d.mkdir()
-    t = log.odometry.stamp / 1e9
-    poses = log.reference["ground_truth"].poses
-    np.savetxt(d / "gtPose.dat", np.column_stack([t, poses]), fmt="%f")
-    np.savetxt(d / "odometry.dat", np.column_stack([t, log.odometry.values]), fmt="%f")
-    det = log.detections
-    np.savetxt(d / "measurement.dat", np.column_stack([det.frame_stamp[det.frame] / 1e9, det.range, det.bearing]), fmt="%f")
-    np.savetxt(d / "gtLandmark.dat", np.column_stack([log.landmarks.xy, np.zeros(landmarks)]), fmt="%f")
-    (d / "simSettings.xml").write_text(XML.format(steps=steps, landmarks=landmarks))
-    return d
+    """The simulator's files of a detcal rfs-sim log, in ``tmp_path/export``."""
+    return write_export(tmp_path / "export", log, steps, landmarks)
 
 
 @pytest.fixture()
@@ -99,3 +80,11 @@ def test_the_stated_odometry_noise_survives_the_native_format(tmp_path):
     assert log.odometry.sigma is not None
     p = write_native(log, tmp_path / "l.dlog")
     assert read_native(p).odometry.sigma == log.odometry.sigma
+
+
+def test_the_shipped_export_is_the_one_its_script_writes(tmp_path):
+    """tests/data/rfsslam-sim (read by the log-format how-to) is rebuilt by its script to the same bytes."""
+    d = shipped_export(tmp_path / "again")
+    for f in sorted(SHIPPED.iterdir()):
+        assert (d / f.name).read_bytes() == f.read_bytes(), f.name
+    assert sorted(p.name for p in d.iterdir()) == sorted(p.name for p in SHIPPED.iterdir())

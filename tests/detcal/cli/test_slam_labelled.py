@@ -29,7 +29,7 @@ def test_labelled_run_folder_is_reproducible(tmp_path, capsys, paper):
     names = sorted(p.name for p in (tmp_path / "a").iterdir())
     assert names == [
         ".detcal-output", "config.yaml", "hypotheses.png", "labels.csv", "map.csv", "metrics.yaml", "ospa.png", "steps.csv", "timing.png",
-        "trajectory.csv", "trajectory_map.png",
+        "trajectory.csv", "trajectory_map.png", "warnings.yaml",
     ]  # fmt: skip
     cfg = yaml.safe_load((tmp_path / "a/config.yaml").read_text())
     assert cfg["settings"]["filter"]["kind"] == kind
