@@ -44,6 +44,7 @@ def test_camera_sensors_cross_validate():
         cross_validate(logs, "time", adapt=10.0)
 
 
+@pytest.mark.slow  # a calibration per fold and its figures
 def test_cv_command_writes_a_table_and_a_figure_per_fold(tmp_path, capsys):
     paths = [write_native(camera_log(s, n=6000), tmp_path / f"cam{s}.dlog") for s in (1, 2)]
     code, out, err = run(capsys, "validate", "--cv", "robots", *map(str, paths), "--out", str(tmp_path / "cv"))

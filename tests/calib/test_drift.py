@@ -91,6 +91,7 @@ def _table(train: pd.DataFrame):
     return with_effective_counts(t, train, train["observed"].to_numpy(), train["landmark"].to_numpy())
 
 
+@pytest.mark.slow  # many simulated logs for a uniformity test
 def test_pd_p_values_are_uniform_when_the_log_comes_from_the_calibration_process():
     rng = np.random.default_rng(1)
 

@@ -15,6 +15,7 @@ def small_log():
     return simulate_park(cfg, 51).log
 
 
+@pytest.mark.slow  # ICP and the pose graph over a whole simulated log
 def test_icp_recovers_the_true_trajectory(small_log):
     log = small_log
     ref = log.reference["ground_truth"]

@@ -138,6 +138,7 @@ def refusing_address() -> tuple[str, object]:
     return f"tcp://127.0.0.1:{s.getsockname()[1]}", s
 
 
+@pytest.mark.slow  # a local Dask cluster of two worker processes
 def test_sweep_on_two_local_workers_gives_the_serial_bytes(tmp_path, capsys, park_log, serial):
     code, out, err = run(capsys, "slam", "sweep", str(park_log), *SWEEP, "--workers", "2", "--out", str(tmp_path / "sw"))
     assert code == 0, err
@@ -152,6 +153,7 @@ def test_sweep_on_two_local_workers_gives_the_serial_bytes(tmp_path, capsys, par
     assert "ms_per_step_mean" not in (tmp_path / "sw/runs.csv").read_text()
 
 
+@pytest.mark.slow  # a local Dask cluster, one worker killed
 def test_a_killed_worker_is_retried_and_the_sweep_finishes(tmp_path, capsys, park_log, serial, cluster):
     c, client = cluster
     victim = "00_park_seed71_sim-park-laser@1.0.0_rbphd_profile_p5_s1"
@@ -163,6 +165,7 @@ def test_a_killed_worker_is_retried_and_the_sweep_finishes(tmp_path, capsys, par
     assert not (tmp_path / "sw/failed.yaml").exists()
 
 
+@pytest.mark.slow  # a local Dask cluster, one worker killed
 def test_without_retries_the_lost_run_is_named_and_a_rerun_does_only_it(tmp_path, capsys, park_log, serial, cluster):
     c, client = cluster
     victim = "00_park_seed71_sim-park-laser@1.0.0_rbphd_constant_p5_s2"
@@ -311,6 +314,7 @@ def unstated_sigma_logs(tmp_path_factory) -> list[Path]:
     return out
 
 
+@pytest.mark.slow  # a local Dask cluster calibrating several logs
 def test_a_calibration_of_several_logs_on_workers_gives_the_serial_bytes(tmp_path, capsys, unstated_sigma_logs, cluster, monkeypatch):
     c, _ = cluster
     logs = [str(p) for p in unstated_sigma_logs]

@@ -88,6 +88,7 @@ def test_without_noise_the_oracle_is_the_truth():
     np.testing.assert_allclose(res.landmarks[res.detected], log.landmarks.xy[res.detected], atol=1e-6)
 
 
+@pytest.mark.slow  # a batch solve over a whole rfs-sim run, several seeds
 def test_the_oracles_posterior_covers_the_truth_as_it_states_rfs_sim():
     """20 seeded rfs-sim worlds of 300 steps: the true final position's squared Mahalanobis distance from the
     MAP under the stated covariance is chi-square(2) if the posterior is right (mean 2; the mean of 20 has a

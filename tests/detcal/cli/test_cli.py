@@ -87,6 +87,7 @@ def test_convert_round_trip_and_no_silent_overwrite(tmp_path, capsys):
     assert len(read_log(tmp_path / "u.dlog").detections) == 49
 
 
+@pytest.mark.slow  # the installed console script in fresh interpreters
 def test_simulate_and_info_through_the_console_script(tmp_path):
     cfg = tmp_path / "small.yaml"
     cfg.write_text("width: 40\nheight: 30\ntrees: {count: 10}\nbushes: {count: 2}\nwalls: {count: 1, max_length: 6}\nposts: {count: 2}\npath: {margin: 6}\n")

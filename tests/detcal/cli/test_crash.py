@@ -63,6 +63,7 @@ def logs(tmp_path_factory):
     return d, a, b, (d / "ref/crash@1.0.0.yaml").read_bytes()
 
 
+@pytest.mark.slow  # a calibration killed at several points in fresh interpreters (tens of CPU seconds)
 def test_calibrate_killed_at_several_points(tmp_path, logs):
     d, a, b, ref = logs
     profiles, run = tmp_path / "profiles", tmp_path / "run"
@@ -116,6 +117,7 @@ def test_profile_export_killed(tmp_path, logs):
     assert out.read_bytes() == src.read_bytes() and leftovers(tmp_path) == []
 
 
+@pytest.mark.slow  # a SLAM run killed in a fresh interpreter
 def test_forced_slam_run_killed(tmp_path, logs):
     d, a, *_ = logs
     run, ref = tmp_path / "run", tmp_path / "ref"

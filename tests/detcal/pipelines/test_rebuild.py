@@ -30,6 +30,7 @@ def _has_commit(commit: str | None) -> bool:
 BUNDLED = sorted(BUILTIN.glob("*.yaml"))
 
 
+@pytest.mark.slow  # a clone at the recorded commit and a whole calibration
 @pytest.mark.parametrize("path", BUNDLED, ids=[p.stem for p in BUNDLED])
 def test_every_bundled_profile_is_rebuilt_from_its_provenance_to_the_same_bytes(path, tmp_path, capsys):
     commit = yaml.safe_load(path.read_text())["provenance"].get("commit")
