@@ -27,6 +27,7 @@ import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from benchmarks.common import ints  # noqa: E402
 
 from calib.io.registry import ReadOptions, read_log  # noqa: E402
 from calib.sim.rfs import simulate_rfs, truth_profile  # noqa: E402
@@ -38,14 +39,6 @@ from slam_runtime.run import evaluate, run_slam  # noqa: E402
 #: the shared data beside the repository (or beside the folder of its worktrees)
 VP = next((p / "shared/data/victoria_park" for p in (ROOT.parent, ROOT.parent.parent) if (p / "shared/data/victoria_park").is_dir()), ROOT.parent / "shared/data/victoria_park")
 VP_PROFILE = ROOT / "benchmarks/profiles/victoria-park-selfcal@1.2.0.yaml"
-
-
-def numbers(spec: str) -> list[int]:
-    out: list[int] = []
-    for part in spec.split(","):
-        a, _, b = part.partition("-")
-        out += list(range(int(a), int(b or a) + 1))
-    return out
 
 
 def one(log, prof, request: SettingsRequest, seed: int, frames: int | None = None) -> dict:
@@ -73,9 +66,9 @@ def main() -> None:
         prof = truth_profile(sc)
         for label, req in (("no config", SettingsRequest()), ("rfs_sim.yaml", SettingsRequest(config=ROOT / "benchmarks/configs/rfs_sim.yaml"))):
             rows = []
-            for w in numbers(a.worlds):
+            for w in ints(a.worlds):
                 log = simulate_rfs(sc, w)
-                for s in numbers(a.seeds):
+                for s in ints(a.seeds):
                     m = one(log, prof, req, s)
                     rows.append(m)
                     print(
@@ -99,7 +92,7 @@ def main() -> None:
             ("no config", SettingsRequest(particles=10, filter="rbphd")),
             ("victoria_park.yaml", SettingsRequest(config=ROOT / "benchmarks/configs/victoria_park.yaml", particles=10)),
         ):
-            for s in numbers(a.vp_seeds):
+            for s in ints(a.vp_seeds):
                 m = one(log, prof, req, s, a.frames)
                 print(
                     f"VP {label:<18} seed {s}: RMSE vs GPS {m['trajectory_rmse_vs_gps_m']:.2f} m (odometry {m['odometry_rmse_vs_gps_m']:.2f}), "

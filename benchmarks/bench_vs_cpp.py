@@ -36,6 +36,7 @@ import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from benchmarks.common import ints  # noqa: E402
 
 from calib.config import load_yaml_model  # noqa: E402
 from calib.io.rfsslam import read_rfsslam, scenario  # noqa: E402
@@ -46,14 +47,6 @@ from slam_runtime.config import SlamConfig, override  # noqa: E402
 from slam_runtime.run import evaluate, run_slam  # noqa: E402
 
 DETCAL = [sys.executable, "-m", "detcal"]
-
-
-def numbers(spec: str) -> list[int]:
-    out: list[int] = []
-    for part in spec.split(","):
-        a, _, b = part.partition("-")
-        out += list(range(int(a), int(b or a) + 1))
-    return out
 
 
 def cpp_config(template: Path, out: Path, steps: int, particles: int, export: bool, folder: Path) -> None:
@@ -105,8 +98,8 @@ def main() -> None:
     a = ap.parse_args()
     work = a.work or Path(tempfile.mkdtemp(prefix="bench_vs_cpp_"))
     work.mkdir(parents=True, exist_ok=True)
-    counts, worlds, seeds = numbers(a.particles), numbers(a.worlds), numbers(a.seeds)
-    whole = set(numbers(a.whole)) if a.whole else set()
+    counts, worlds, seeds = ints(a.particles), ints(a.worlds), ints(a.seeds)
+    whole = set(ints(a.whole)) if a.whole else set()
     print("load average:", " ".join(f"{x:.2f}" for x in os.getloadavg()), "| settings:", a.config or "none (derived)", flush=True)
     rows = []
     for w in worlds:
