@@ -138,7 +138,8 @@ def pose_proposal_numpy(fm, xbar, q, z, rz, mu_s, cov_s, w_s, kappa, *, gate: fl
 
 
 @numba.njit(cache=True, nogil=True)
-def _wrap(a):
+def wrap_scalar(a):  # pragma: no cover - compiled
+    """One angle to (-pi, pi], one conditional shift each way: the compiled kernels' :func:`slam_runtime.features.wrap`."""
     if a > np.pi:
         a -= TWO_PI
     if a <= -np.pi:
@@ -183,7 +184,7 @@ def _observe(x, mount, lx, ly, hx):
     dsy = c * mount[0] - s * mount[1]
     hx[0, 0], hx[0, 1], hx[0, 2] = -h00, -h01, -(h00 * dsx + h01 * dsy)
     hx[1, 0], hx[1, 1], hx[1, 2] = -h10, -h11, -(h10 * dsx + h11 * dsy) - 1.0
-    return rr, _wrap(np.arctan2(dy, dx) - (x[2] + mount[2])), h00, h01, h10, h11
+    return rr, wrap_scalar(np.arctan2(dy, dx) - (x[2] + mount[2])), h00, h01, h10, h11
 
 
 @numba.njit(cache=True, nogil=True)
@@ -244,7 +245,7 @@ def _compiled(xbar, q, z, r, mount, mu, cov, w, kappa, gate, share, iterations):
                 if w[i, j] <= 0.0:
                     continue
                 n0 = z[k, 0] - zr[j]
-                n1 = _wrap(z[k, 1] - zb[j])
+                n1 = wrap_scalar(z[k, 1] - zb[j])
                 m2 = sa[j, 0] * n0 * n0 + 2.0 * sa[j, 1] * n0 * n1 + sa[j, 2] * n1 * n1
                 if m2 <= gate:
                     lik = np.exp(-0.5 * m2) * sa[j, 3] * w[i, j]
@@ -271,7 +272,7 @@ def _compiled(xbar, q, z, r, mount, mu, cov, w, kappa, gate, share, iterations):
                 rr, bb, _, _, _, _ = _observe(x, mount, mu[i, j, 0], mu[i, j, 1], hx)
                 i00, i01, i11 = si[j, 0], si[j, 1], si[j, 2]
                 r0 = z[k, 0] - rr + hx[0, 0] * d0 + hx[0, 1] * d1 + hx[0, 2] * d2
-                r1 = _wrap(z[k, 1] - bb) + hx[1, 0] * d0 + hx[1, 1] * d1 + hx[1, 2] * d2
+                r1 = wrap_scalar(z[k, 1] - bb) + hx[1, 0] * d0 + hx[1, 1] * d1 + hx[1, 2] * d2
                 for a in range(3):
                     ga0 = hx[0, a] * i00 + hx[1, a] * i01  # (H_x^T S^-1)[a, :]
                     ga1 = hx[0, a] * i01 + hx[1, a] * i11

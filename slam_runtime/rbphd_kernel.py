@@ -17,17 +17,9 @@ import math
 import numba
 import numpy as np
 
+from slam_runtime.proposal import wrap_scalar
+
 TWO_PI = 2.0 * math.pi
-
-
-@numba.njit(cache=True, nogil=True)
-def _wrap(a):  # pragma: no cover - compiled
-    """(-pi, pi], one conditional shift each way (slam_runtime.features.wrap)."""
-    if a > math.pi:
-        a -= TWO_PI
-    if a <= -math.pi:
-        a += TWO_PI
-    return a
 
 
 @numba.njit(cache=True, nogil=True)
@@ -68,7 +60,7 @@ def update_points(w, mu, cov, pd, buf, sp, z, r, kappa, gate, prune):  # pragma:
             q = max(dx * dx + dy * dy, 1e-12)
             rr = math.sqrt(q)
             zhat[i, k, 0] = rr
-            zhat[i, k, 1] = _wrap(math.atan2(dy, dx) - sp[i, 2])
+            zhat[i, k, 1] = wrap_scalar(math.atan2(dy, dx) - sp[i, 2])
             h00, h01, h10, h11 = dx / rr, dy / rr, -dy / q, dx / q
             c = cov[i, k]
             # P H^T (2, 2), H P H^T + R

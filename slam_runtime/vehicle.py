@@ -218,6 +218,17 @@ class OdometryIncrement(VehicleModel):
 
 
 @numba.njit(cache=True, nogil=True)
+def _left_product(f, c, out):  # pragma: no cover - compiled
+    """out = F C for 3 x 3 matrices, the first half of a covariance's linearised propagation F C F^T + ..."""
+    for m in range(3):
+        for n in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += f[m, k] * c[k, n]
+            out[m, n] = acc
+
+
+@numba.njit(cache=True, nogil=True)
 def _increment_gaussian(x, controls, sig):  # pragma: no cover - compiled
     """Mean motion and linearised covariance of pose increments through control rows (R, 3) of noise sigmas (R, 3).
 
@@ -240,12 +251,7 @@ def _increment_gaussian(x, controls, sig):  # pragma: no cover - compiled
             g[0, 0], g[0, 1] = c * sig[r, 0], -s * sig[r, 1]
             g[1, 0], g[1, 1] = s * sig[r, 0], c * sig[r, 1]
             g[2, 2] = sig[r, 2]
-            for m in range(3):
-                for n in range(3):
-                    acc = 0.0
-                    for k in range(3):
-                        acc += f[m, k] * cov[i, k, n]
-                    tmp[m, n] = acc
+            _left_product(f, cov[i], tmp)
             for m in range(3):
                 for n in range(3):
                     acc = 0.0
@@ -418,12 +424,7 @@ def _ackermann_gaussian(x, controls, dts, wheelbase, h, s_v, s_g, offset, scale)
             g_[0, 1] = dt * dvc * ct * s_g
             g_[1, 1] = dt * dvc * st * s_g
             g_[2, 1] = dt / wheelbase * (dvc * t + vc * sec2) * s_g
-            for m in range(3):
-                for n in range(3):
-                    acc = 0.0
-                    for k in range(3):
-                        acc += f[m, k] * cov[i, k, n]
-                    tmp[m, n] = acc
+            _left_product(f, cov[i], tmp)
             for m in range(3):
                 for n in range(3):
                     acc = 0.0
