@@ -91,3 +91,8 @@ def read_yaml_mapping(path: Path) -> dict:
 def dump_yaml(data: object) -> str:
     """Deterministic YAML (sorted keys, exact floats)."""
     return yaml.safe_dump(data, sort_keys=True, default_flow_style=None, width=120)
+
+
+def dump_yaml_ordered(data: object) -> str:
+    """As :func:`dump_yaml`, the mappings' keys in their own order (a run's settings and metrics as written)."""
+    return yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=120)

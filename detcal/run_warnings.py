@@ -17,9 +17,11 @@ from pathlib import Path
 
 import yaml
 
+from calib.config import dump_yaml, dump_yaml_ordered
+
 _RECORDED: list[str] = []
-#: the files that summarise a run folder (the first found gets the warnings), and whether their writer sorts keys
-SUMMARIES = {"summary.yaml": True, "metrics.yaml": False}
+#: the files that summarise a run folder (the first found gets the warnings), each with its writer's YAML dumper
+SUMMARIES = {"summary.yaml": dump_yaml, "metrics.yaml": dump_yaml_ordered}
 
 
 def record(line: str) -> None:
@@ -40,8 +42,6 @@ def clear() -> None:
 def add_to_run_folder(folder: Path) -> None:
     """``warnings.yaml`` and the summary's ``warnings`` in a run folder about to be moved into place (one with a
     ``summary.yaml`` or ``metrics.yaml`` mapping; any other folder output, such as a ROS 2 bag, is left alone)."""
-    from calib.config import dump_yaml
-
     summary_file = next((Path(folder) / n for n in SUMMARIES if (Path(folder) / n).is_file()), None)
     if summary_file is None:
         return
@@ -51,5 +51,4 @@ def add_to_run_folder(folder: Path) -> None:
         return
     summary = yaml.safe_load(summary_file.read_text())
     if isinstance(summary, dict) and "warnings" not in summary:  # written again as its writer wrote it
-        sort = SUMMARIES[summary_file.name]
-        summary_file.write_text(yaml.safe_dump({**summary, "warnings": lines}, sort_keys=sort, default_flow_style=None, width=120))
+        summary_file.write_text(SUMMARIES[summary_file.name]({**summary, "warnings": lines}))

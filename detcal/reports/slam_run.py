@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from calib.config import dump_yaml_ordered
 from detectors.geometry import compose, interpolate_poses, rigid_transform
 from detectors.sensor_log import SensorLog
 from profiles.atomic import atomic_output
@@ -40,17 +41,13 @@ def _table(path: Path, header: list[str], cols: list[np.ndarray], fmts: list[str
     path.write_text("\n".join(rows) + "\n")
 
 
-def _yaml(data: dict) -> str:
-    return yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=120)
-
-
 def write_slam_run(log: SensorLog, res: SlamResult, out: Path, config: dict, *, overwrite: bool = False, labels=None) -> list[str]:
     """Write the run folder; returns the figure names. ``labels``: the run's
     :class:`slam_runtime.labels.LabelHistory` (labelled filters), written as ``labels.csv``."""
     with atomic_output(out, overwrite=overwrite, directory=True) as tmp:
         tmp.mkdir()
-        (tmp / "config.yaml").write_text(_yaml(config))
-        (tmp / "metrics.yaml").write_text(_yaml({k: (float(v) if isinstance(v, np.floating) else v) for k, v in res.metrics.items()}))
+        (tmp / "config.yaml").write_text(dump_yaml_ordered(config))
+        (tmp / "metrics.yaml").write_text(dump_yaml_ordered({k: (float(v) if isinstance(v, np.floating) else v) for k, v in res.metrics.items()}))
         odo = res.odometry if res.odometry is not None else np.full_like(res.trajectory, np.nan)
         _table(
             tmp / "trajectory.csv",
