@@ -72,7 +72,7 @@ from scipy.special import expit, logit
 
 from slam_runtime.features import FeatureModel
 from slam_runtime.gibbs import detection_costs
-from slam_runtime.gm import det, inv, matmul, matvec, quad, transpose
+from slam_runtime.gm import birth_gaussians, det, ekf_update, inv, matmul, quad, transpose
 from slam_runtime.kbest import kbest_batch
 from slam_runtime.mapfilter import MAP_FILTERS, MapFilter, Measurements
 
@@ -121,17 +121,6 @@ class FastSLAMMaps:
     def best(self) -> np.ndarray:
         """(P,) each particle's heaviest hypothesis."""
         return np.argmax(self.logw, axis=1)
-
-
-def ekf_update(fm: FeatureModel, sp: np.ndarray, m0: np.ndarray, c0: np.ndarray, z: np.ndarray, rz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """EKF updates of landmarks (m0 (N, dx), c0 (N, dx, dx), world frame) seen from sensor poses sp (N, 3) with
-    measurements z (N, dz) of noise rz (N, dz, dz): K = P H^T S^-1, S = H P H^T + R, m = m0 + K nu,
-    P = (I - K H) P0 (symmetrised)."""
-    zhat, h = fm.predict_sensor(sp, m0)
-    ph = matmul(c0, transpose(h))
-    k = matmul(ph, inv(matmul(h, ph) + rz))
-    c1 = c0 - matmul(k, transpose(ph))
-    return m0 + matvec(k, fm.innovation(z, zhat)), 0.5 * (c1 + transpose(c1))
 
 
 def _logsumexp(x: np.ndarray, axis: int) -> np.ndarray:
@@ -379,7 +368,7 @@ class MHFastSLAM(MapFilter):
             shadow = (gated & (buf_a & (pd_a == 0.0))[..., None]).any(axis=1)
             score = l_det - l_miss[..., None]
             score = np.where(score > 0.0, score, -np.inf)
-            assign, total, count = kbest_batch(np.ascontiguousarray(score), nact.astype(np.int64), int(cfg.hypotheses), float(cfg.max_loglik_diff))
+            assign, total, _ = kbest_batch(np.ascontiguousarray(score), nact.astype(np.int64), int(cfg.hypotheses), float(cfg.max_loglik_diff))
             # children: (p, parent h, k); their log weights, the particles' likelihoods, the kept children
             k = assign.shape[1]
             child = np.full((p, hmax, k), -np.inf)
@@ -431,8 +420,7 @@ class MHFastSLAM(MapFilter):
             born[di, dj] = False
             born &= ~shadow[crow]
             if m:
-                b_mu, g = fm.inverse_sensor(sp[:, None, :], z[None, :, :])  # (P, M, dx), (P, M, dx, dz)
-                b_cov = matmul(matmul(g, np.broadcast_to(rz, (p,) + rz.shape)), transpose(g)) + np.eye(d) * 1e-6
+                b_mu, b_cov = birth_gaussians(fm, sp, z, rz, 1e-6)
             else:
                 b_mu, b_cov = np.zeros((p, 0, d)), np.zeros((p, 0, d, d))
         with tm("merge"):

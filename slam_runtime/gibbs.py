@@ -76,7 +76,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from slam_runtime.kernels import BIG, argsort_stable, grow, hungarian, log_norm, logaddexp, prune_cap
+from slam_runtime.kernels import BIG, argsort_stable, grow, hungarian, log_norm, logaddexp, prune_cap, wrap_scalar
 
 @numba.njit(cache=True, nogil=True)
 def _splitmix(x):  # pragma: no cover - compiled
@@ -506,10 +506,7 @@ def detection_costs(zhat, hph, z, rz, own_cov, r, logdet_r, wrap_bearing, gate, 
                 x = z[j, 0] - zhat[p, a, 0]
                 y = z[j, 1] - zhat[p, a, 1]
                 if wrap_bearing:
-                    if y > np.pi:
-                        y = y - 2 * np.pi
-                    if y <= -np.pi:
-                        y = y + 2 * np.pi
+                    y = wrap_scalar(y)
                 m2 = i00 * x * x + 2.0 * i01 * x * y + i11 * y * y
                 if m2 <= gate:
                     gated[p, a, j] = True

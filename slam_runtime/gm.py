@@ -16,8 +16,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from typing import TYPE_CHECKING
+
 import numba
 import numpy as np
+
+if TYPE_CHECKING:
+    from slam_runtime.features import FeatureModel
 
 
 def det(c: np.ndarray) -> np.ndarray:
@@ -69,6 +74,26 @@ def matvec(a: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def transpose(a: np.ndarray) -> np.ndarray:
     return np.swapaxes(a, -1, -2)
+
+
+def ekf_update(fm: FeatureModel, sp: np.ndarray, m0: np.ndarray, c0: np.ndarray, z: np.ndarray, rz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """EKF updates of features (m0 (N, dx), c0 (N, dx, dx), world frame) seen from sensor poses sp (N, 3) with
+    measurements z (N, dz) of noise rz (N, dz, dz) through the feature model fm: K = P H^T S^-1, S = H P H^T + R,
+    m = m0 + K nu, P = (I - K H) P0 (symmetrised)."""
+    zhat, h = fm.predict_sensor(sp, m0)
+    ph = matmul(c0, transpose(h))
+    k = matmul(ph, inv(matmul(h, ph) + rz))
+    c1 = c0 - matmul(k, transpose(ph))
+    return m0 + matvec(k, fm.innovation(z, zhat)), 0.5 * (c1 + transpose(c1))
+
+
+def birth_gaussians(fm: FeatureModel, sp: np.ndarray, z: np.ndarray, rz: np.ndarray, jitter: float) -> tuple[np.ndarray, np.ndarray]:
+    """The features measurements z (M, dz) of noise rz (M, dz, dz) put in the world from each of the sensor poses sp
+    (P, 3): means (P, M, dx) by the inverse sensor model, covariances G R G^T + jitter I (P, M, dx, dx), G its Jacobian
+    in the measurement (the adaptive birth of every map filter)."""
+    pos, g = fm.inverse_sensor(sp[:, None, :], z[None, :, :])  # (P, M, dx), (P, M, dx, dz)
+    cov = matmul(matmul(g, np.broadcast_to(rz, (sp.shape[0],) + rz.shape)), transpose(g)) + np.eye(fm.dim_x) * jitter
+    return pos, cov
 
 
 def moment_match(key: np.ndarray, w: np.ndarray, mu: np.ndarray, cov: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -12,7 +12,7 @@ more than ``max_diff`` below the best (the C++ RFS-SLAM library's ``maxDataAssoc
 How: the admissible pairs split the landmarks and measurements into clusters that share no pair (connected
 components of the bipartite gate graph); an association is a choice of one association per cluster, its score the
 sum of theirs. Each cluster's own k best come from Murty's partitioning (Murty 1968; Cox & Miller 1995) over
-the shortest-augmenting-path solver :func:`slam_runtime.gibbs.hungarian` (each landmark has its own 'missed' column
+the shortest-augmenting-path solver :func:`slam_runtime.kernels.hungarian` (each landmark has its own 'missed' column
 of score 0, so every subproblem is square-feasible); a cluster of one landmark and one measurement has the two
 solutions taken or left without a solve. The clusters' sorted lists are then merged into the k best totals by a
 best-first search over index vectors in which each vector is made from exactly one parent (the one with its last
@@ -28,15 +28,12 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from slam_runtime.gibbs import hungarian
-
-#: a forbidden pair in the cost matrices handed to the solver (a cost this large or more means infeasible)
-_BIG = 1e15
+from slam_runtime.kernels import BIG, hungarian  # BIG: a forbidden pair (a total of BIG / 2 or more: infeasible)
 
 
 @numba.njit(cache=True, nogil=True)
 def _solve(cost):  # pragma: no cover - compiled
-    """(columns (n,), total cost) of the minimum-cost assignment of the rows of ``cost``; total >= _BIG / 2: infeasible."""
+    """(columns (n,), total cost) of the minimum-cost assignment of the rows of ``cost``; total >= BIG / 2: infeasible."""
     cols = hungarian(cost)
     tot = 0.0
     for i in range(cost.shape[0]):
@@ -54,7 +51,7 @@ def murty(score, k, max_diff):  # pragma: no cover - compiled
     (r, s_r) for r < i; the next best is the best unexpanded child."""
     a, m = score.shape
     w = m + a
-    base = np.full((a, w), _BIG)
+    base = np.full((a, w), BIG)
     for i in range(a):
         for j in range(m):
             if score[i, j] > -np.inf:
@@ -89,9 +86,9 @@ def murty(score, k, max_diff):  # pragma: no cover - compiled
         for i in range(a):
             si = sols[cur, i]
             child = work.copy()
-            child[i, si] = _BIG
+            child[i, si] = BIG
             ccols, ctot = _solve(child)
-            if ctot < _BIG / 2 and used < cap:
+            if ctot < BIG / 2 and used < cap:
                 mats[used] = child
                 sols[used] = ccols
                 costs[used] = ctot
@@ -100,10 +97,10 @@ def murty(score, k, max_diff):  # pragma: no cover - compiled
             # force (i, si) in the later children: row i takes only column si, no other row takes si
             for j in range(w):
                 if j != si:
-                    work[i, j] = _BIG
+                    work[i, j] = BIG
             for r in range(a):
                 if r != i:
-                    work[r, si] = _BIG
+                    work[r, si] = BIG
         # the next best: the cheapest open node (ties: the earliest made)
         nxt = -1
         for q in range(used):

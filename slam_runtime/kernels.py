@@ -1,6 +1,6 @@
 """Compiled helpers the labelled filters' kernels share (:mod:`slam_runtime.gibbs`, :mod:`slam_runtime.hypotheses`).
 
-The optimal assignment (:func:`hungarian`: a shortest-augmenting-path solver
+One angle's wrap (:func:`wrap_scalar`), the optimal assignment (:func:`hungarian`: a shortest-augmenting-path solver
 checked against ``scipy.optimize.linear_sum_assignment`` in the tests), a stable
 argsort, growing output buffers, the squared Mahalanobis distance of two
 Gaussians, and the last steps both kernels take on a particle's weighted
@@ -15,6 +15,16 @@ import numba
 import numpy as np
 
 BIG = 1e15  # a forbidden pair in the assignment (every row has a finite option: its own dummy column)
+
+
+@numba.njit(cache=True, nogil=True)
+def wrap_scalar(a):  # pragma: no cover - compiled
+    """One angle to (-pi, pi], one conditional shift each way: the compiled kernels' :func:`slam_runtime.features.wrap`."""
+    if a > np.pi:
+        a -= 2 * np.pi
+    if a <= -np.pi:
+        a += 2 * np.pi
+    return a
 
 
 @numba.njit(cache=True, nogil=True)

@@ -29,7 +29,7 @@ from profiles.errors import UsageError
 from slam_runtime.cv_transition import ConstantVelocity, MovingPoint, PositionView
 from slam_runtime.features import FeatureModel, RangeBearing, lookup, mean_by_label
 from slam_runtime.gibbs import detection_costs, joint_update
-from slam_runtime.gm import det, inv, matmul, matvec, moment_match, quad, transpose
+from slam_runtime.gm import birth_gaussians, det, ekf_update, inv, matmul, moment_match, quad, transpose
 from slam_runtime.mapfilter import MapFilter, Measurements
 
 #: bits of a label that hold the measurement index: label = (step << LABEL_BITS) + measurement
@@ -235,6 +235,9 @@ class LabelledFilter(MapFilter):
         self.r = feature.r * cfg.noise_inflation
         #: planar features (the plane metric's duplicate test, which also sees tracks in the buffer zone)
         self._plane_features = type(feature).plane_gap is not FeatureModel.plane_gap
+        #: the plane metric's limits (normal angle, offset): duplicate_sigmas x sqrt(2) x R's normal and offset sigmas
+        sig, lim = np.sqrt(np.diag(self.r)), cfg.duplicate_sigmas * np.sqrt(2.0)
+        self._plane_limits = (lim * max(sig[0], sig[1]), lim * sig[2]) if self._plane_features else None
         #: P_S of a possible second track (survival_duplicate; null: the feature model's own)
         self.survival_duplicate = feature.survival_duplicate if cfg.survival_duplicate is None else cfg.survival_duplicate
         self.rng, self.groups = rng, 1
@@ -343,12 +346,10 @@ class LabelledFilter(MapFilter):
         """(...) bool: planes za, zb (..., 3) (sensor-frame charts, broadcast) one landmark could give, the normals
         within duplicate_sigmas x sqrt(2) x R's normal sigma and the offsets within as many offset sigmas
         (:meth:`_duplicates`); None for features that are not planes."""
-        gap = self.feature.plane_gap(za, zb)
-        if gap is None:
+        if self._plane_limits is None:
             return None
-        sig = np.sqrt(np.diag(self.r))
-        lim = self.cfg.duplicate_sigmas * np.sqrt(2.0)
-        return (gap[0] <= lim * max(sig[0], sig[1])) & (gap[1] <= lim * sig[2])
+        gap = self.feature.plane_gap(za, zb)
+        return (gap[0] <= self._plane_limits[0]) & (gap[1] <= self._plane_limits[1])
 
     def _duplicates(self, lab: np.ndarray, cand: np.ndarray, exist: np.ndarray, zhat: np.ndarray, hph: np.ndarray) -> np.ndarray:
         """(P, A) the candidates cand (P, A) that an older candidate of their particle lies near: a possible second
@@ -437,7 +438,7 @@ class LabelledFilter(MapFilter):
         upd = np.flatnonzero(res.slot_a > 0)
         if upd.size:
             jj = res.slot_a[upd] - 1
-            mu[upd], cov[upd] = self._ekf(sp[sp_[upd]], mu[upd], cov[upd], z[jj], rz[jj])
+            mu[upd], cov[upd] = ekf_update(self.feature, sp[sp_[upd]], mu[upd], cov[upd], z[jj], rz[jj])
         return sp_, sk, mu, cov, label
 
     @staticmethod
@@ -445,16 +446,6 @@ class LabelledFilter(MapFilter):
         """(P, S) the model's P_D that a miss of each slot weighs, for learning its factor: 0 in the buffer zone (thesis
         eq. 3.21: a miss there tells nothing, as in the costs) and for an empty slot."""
         return np.where(sl.valid & ~(buf & ~sl.birth), np.minimum(pd_model, 1.0 - 1e-9), 0.0)
-
-    def _ekf(self, sp: np.ndarray, m0: np.ndarray, c0: np.ndarray, z: np.ndarray, rz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """EKF updates (eqs. 17, 30) of the Gaussians (m0, c0) (N, dx), (N, dx, dx) seen from sensor poses sp with
-        measurements z (N, dz) of noise rz (N, dz, dz)."""
-        fm = self.feature
-        zhat, h = fm.predict_sensor(sp, m0)
-        ph = matmul(c0, transpose(h))
-        k = matmul(ph, inv(matmul(h, ph) + rz))
-        c1 = c0 - matmul(k, transpose(ph))
-        return m0 + matvec(k, fm.innovation(z, zhat)), 0.5 * (c1 + transpose(c1))
 
     def _independent(self, sl: _Slots, sp: np.ndarray, z: np.ndarray, rz: np.ndarray, c: _Costs):
         """The exact Bernoulli update of the held candidates that are not idle births: (particle (K,), candidate
@@ -465,7 +456,7 @@ class LabelledFilter(MapFilter):
         hs = c.act[hp, ha]
         mu0, cov0, lh = sl.mu[hp, hs], sl.cov[hp, hs], c.l_held[hp, ha]
         q, j = np.nonzero(np.isfinite(c.l_det[hp, ha]))
-        m_det, c_det = self._ekf(sp[hp[q]], mu0[q], cov0[q], z[j], rz[j]) if q.size else (mu0[:0], cov0[:0])
+        m_det, c_det = ekf_update(self.feature, sp[hp[q]], mu0[q], cov0[q], z[j], rz[j]) if q.size else (mu0[:0], cov0[:0])
         # the versions: detected by each gated measurement, then missed (the prior)
         r, mean, cov = moment_match(
             np.concatenate([q, np.arange(hp.size)]), np.exp(np.concatenate([c.l_det[hp[q], ha[q], j] - lh[q], c.l_miss[hp, ha] - lh])),
@@ -480,8 +471,7 @@ class LabelledFilter(MapFilter):
         d = self.feature.dim_x
         if m == 0:
             return Births.empty(p, d)
-        pos, g = self.feature.inverse_sensor(sp[:, None, :], z[None, :, :])  # (P, M, dx), (P, M, dx, dz)
-        cov = matmul(matmul(g, np.broadcast_to(rz, (p,) + rz.shape)), transpose(g)) + np.eye(d) * 1e-6
+        pos, cov = birth_gaussians(self.feature, sp, z, rz, 1e-6)
         if self.transition is not None:  # the velocity's prior, which G R G^T of the position cannot give
             cov = cov + self.feature.birth_cov
         r = np.where(explained, self.cfg.birth_associated, self.cfg.birth_unassociated)

@@ -37,6 +37,7 @@ import numpy as np
 from profiles.errors import UsageError
 from slam_runtime.features import FeatureModel, RangeBearing
 from slam_runtime.gm import det, inv, matmul, quad, transpose
+from slam_runtime.kernels import wrap_scalar
 
 TWO_PI = 2.0 * np.pi
 
@@ -135,16 +136,6 @@ def pose_proposal_numpy(fm, xbar, q, z, rz, mu_s, cov_s, w_s, kappa, *, gate: fl
     none = n_used == 0  # no measurement explained: the motion prior itself
     x[none], cov[none] = xbar[none], q[none]
     return x, cov, n_used
-
-
-@numba.njit(cache=True, nogil=True)
-def wrap_scalar(a):  # pragma: no cover - compiled
-    """One angle to (-pi, pi], one conditional shift each way: the compiled kernels' :func:`slam_runtime.features.wrap`."""
-    if a > np.pi:
-        a -= TWO_PI
-    if a <= -np.pi:
-        a += TWO_PI
-    return a
 
 
 @numba.njit(cache=True, nogil=True)

@@ -48,7 +48,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from slam_runtime.features import FeatureModel, RangeBearing
-from slam_runtime.gm import GMBatch, det, gaussian, inv, matmul, matvec, prune_merge, quad, transpose
+from slam_runtime.gm import GMBatch, birth_gaussians, det, gaussian, inv, matmul, matvec, prune_merge, quad, transpose
 from slam_runtime.mapfilter import MAP_FILTERS, MapFilter, Measurements
 from slam_runtime.rbphd_kernel import update_points
 
@@ -326,8 +326,7 @@ class RBPHD(MapFilter):
         p, m = sp.shape[0], z.shape[0]
         if m == 0:
             return GMBatch.empty(p, 0, self.feature.dim_x)
-        pos, g = self.feature.inverse_sensor(sp[:, None, :], z[None, :, :])  # (P, M, dx), (P, M, dx, dz)
-        cov = matmul(matmul(g, np.broadcast_to(rz, (p, m) + rz.shape[1:])), transpose(g)) + np.eye(self.feature.dim_x) * 1e-4
+        pos, cov = birth_gaussians(self.feature, sp, z, rz, 1e-4)
         w = np.full((p, m), self.cfg.birth_weight)
         if unexplained is not None:
             w = w * unexplained

@@ -17,7 +17,7 @@ import math
 import numba
 import numpy as np
 
-from slam_runtime.proposal import wrap_scalar
+from slam_runtime.kernels import wrap_scalar
 
 TWO_PI = 2.0 * math.pi
 
