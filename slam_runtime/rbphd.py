@@ -163,79 +163,30 @@ class RBPHD(MapFilter):
 
     # ------------------------------------------------------------------ update
     def update(self, maps: PHDMaps, poses: np.ndarray, meas: Measurements) -> tuple[PHDMaps, np.ndarray]:
-        if self.compiled and meas.cov is None and type(self.feature) is RangeBearing and self.cfg.update_rule == "phd":
-            # the compiled kernel holds the PHD's update (eqs. 3.17-3.18) only; the existence rule runs in numpy
-            return self._update_compiled(maps, poses, meas)
         cfg, fm, tm = self.cfg, self.feature, self.timers
-        dz = fm.dim_z
         z, rz = self.measurements(meas)
         m = z.shape[0]
         sp = fm.sensor_pose(poses)
         n_map = maps.gm.shape[1]
         prior = maps.gm.concat(maps.birth)  # eq. 3.16: previous map + birth from the previous measurements
         w, mu, cov = prior.w, prior.mu, prior.cov
-        p, j = w.shape
+        p = w.shape[0]
         with tm("pd"):
             pd, buf = self.detection.pd_features(sp, mu, cov, meas, w)
             buf[:, n_map:] = False  # the rule protects map features, not this step's birth hypotheses
         kappa = self.clutter(z, meas)
         with tm("update"):
-            # only the features that can be seen take part: the others keep their weight (P_D = 0)
-            seen = (pd > 0) & (w > 0)
-            js = int(seen.sum(axis=1).max()) if j else 0
-            sel = np.argsort(~seen, axis=1, kind="stable")[:, :js]  # (P, Js) seen ones first
-            rows = np.arange(p)[:, None]
-            in_s = seen[rows, sel]
-            w_s, mu_s, cov_s, pd_s = np.where(in_s, w[rows, sel], 0.0), mu[rows, sel], cov[rows, sel], np.where(in_s, pd[rows, sel], 0.0)
-            zhat, h = fm.predict_sensor(sp[:, None, :], mu_s)  # (P, Js, dz), (P, Js, dz, dx)
-            ph = matmul(cov_s, transpose(h))  # P H^T (P, Js, dx, dz)
-            hph = matmul(h, ph)
-            nu = _Innovations(fm, z, zhat)
-            if meas.cov is None:  # one noise for every measurement: S and its inverse per component, not per pair
-                s_c = hph + self.r
-                sinv_c, det_c = inv(s_c), det(s_c)
-                m2 = nu.quad(sinv_c[:, :, None])  # (P, Js, M)
-                det_pair = np.broadcast_to(det_c[:, :, None], m2.shape)
-            else:  # each measurement its own noise: S per (component, measurement) pair
-                s_pair = hph[:, :, None] + rz[None, None]
-                sinv_pair, det_pair = inv(s_pair), det(s_pair)
-                m2 = nu.quad(sinv_pair)
-            gated = m2 <= cfg.gate
-            q = np.zeros(m2.shape)
-            q[gated] = gaussian(m2[gated], det_pair[gated], dz)
-            existence = cfg.update_rule == "existence"
-            if existence:  # each component a Bernoulli of existence r: the weight, capped
-                w_s = np.minimum(w_s, cfg.existence_max)
-            num = (pd_s * w_s)[..., None] * q  # (P, Js, M)
-            den = kappa[None, :] + num.sum(axis=1)  # (P, M)
-            w_det = num / np.where(den > 0, den, 1.0)[:, None, :]
-            missed = w.copy()
-            if existence:
-                # the probability rho that the component made one of the measurements (its shares, eq. 3.18, at most 1 in
-                # all); otherwise it was missed, and a Bernoulli's existence after a miss is r (1 - P_D) / (1 - r P_D)
-                rho = w_det.sum(axis=2)
-                w_det = w_det / np.maximum(rho, 1.0)[..., None]
-                rho = np.minimum(rho, 1.0)
-                missed_s = (1.0 - rho) * w_s * (1.0 - pd_s) / np.maximum(1.0 - w_s * pd_s, 1e-12)
+            # point features under the filter's one noise: every particle in one compiled call
+            # (:func:`slam_runtime.rbphd_kernel.update_points`, the numpy pairs' numbers), which holds the PHD's
+            # update (eqs. 3.17-3.18) only; the existence rule and every other feature model take the numpy pairs
+            if self.compiled and meas.cov is None and type(fm) is RangeBearing and cfg.update_rule == "phd":
+                missed, w_kept, mu_det, cov_det, j_kept, den, wsum = update_points(
+                    w, np.ascontiguousarray(mu), np.ascontiguousarray(cov), np.ascontiguousarray(pd, dtype=np.float64), np.ascontiguousarray(buf),
+                    np.ascontiguousarray(sp), z, np.ascontiguousarray(self.r), kappa, float(cfg.gate), float(cfg.prune),
+                )
+                seen, pd_kept = (pd > 0) & (w > 0), np.take_along_axis(pd, j_kept, axis=1)
             else:
-                missed_s = (1.0 - pd_s) * w_s
-            buf_s = buf[rows, sel] & in_s
-            gained = w_det.sum(axis=2)
-            protect = np.minimum(w_s, 1.0)
-            short = buf_s & (gained + missed_s < protect)
-            missed_s = np.where(short, protect - gained, missed_s)
-            missed[rows, sel] = np.where(in_s, missed_s, missed[rows, sel])
-            # EKF-updated components (eqs. 3.17-3.18) only for the pairs whose weight survives pruning
-            keep = (w_det > cfg.prune).reshape(p, js * m)
-            k = int(keep.sum(axis=1).max()) if js * m else 0
-            pick = np.argsort(~keep, axis=1, kind="stable")[:, :k]  # (P, K) flat (j, m) indices, kept ones first
-            jj, mm = np.divmod(pick, max(m, 1))
-            sinv = sinv_c[rows, jj] if meas.cov is None else sinv_pair[rows, jj, mm]
-            gain = matmul(ph[rows, jj], sinv)  # (P, K, dx, dz)
-            mu_det = mu_s[rows, jj] + matvec(gain, nu.at(rows, jj, mm))
-            cov_det = cov_s[rows, jj] - matmul(gain, transpose(ph[rows, jj]))
-            cov_det = 0.5 * (cov_det + transpose(cov_det))
-            w_kept = np.where(np.take_along_axis(keep, pick, axis=1), w_det[rows, jj, mm], 0.0)
+                missed, w_kept, mu_det, cov_det, pd_kept, den, wsum, seen = self._pairs(w, mu, cov, pd, buf, sp, z, rz, kappa, meas)
             upd = GMBatch(missed, mu, cov).concat(GMBatch(w_kept, mu_det, cov_det))
             # what this step touched: the map features in view, the ones the last merge formed (their moments
             # changed), this step's births and every detection update; the rest was tested at the last merge
@@ -243,7 +194,6 @@ class RBPHD(MapFilter):
             if cfg.merge_scope == "fresh" and maps.merged is not None:
                 fresh = np.ones(upd.shape, dtype=np.bool_)
                 fresh[:, :n_map] = seen[:, :n_map] | maps.merged
-            pd_upd = np.concatenate([pd, pd_s[rows, jj]], axis=1)
         with tm("weight"):
             if cfg.weighting == "marginal":
                 # p(Z | x, Z_1:k-1) when the predicted map is Poisson with intensity v^- (the
@@ -251,7 +201,7 @@ class RBPHD(MapFilter):
                 lw = np.log(np.where(kappa > 0, den / np.maximum(kappa, 1e-300), 1.0)).sum(axis=1) if m else np.zeros(p)
                 loglik = lw - (pd * w).sum(axis=1)
             else:
-                loglik = self._log_weight(prior, upd, pd_upd, sp, z, kappa, rz)
+                loglik = self._log_weight(prior, upd, np.concatenate([pd, pd_kept], axis=1), sp, z, kappa, rz)
         with tm("merge"):
             gm, capped, merged = prune_merge(
                 upd, prune=cfg.prune, merge=cfg.merge, cap=cfg.cap, inflate=cfg.merge_inflation, mutual=cfg.merge_rule == "mutual", fresh=fresh, groups=True
@@ -260,46 +210,76 @@ class RBPHD(MapFilter):
             if cfg.update_rule == "existence":  # duplicates of one feature merged: still one feature
                 gm = GMBatch(np.minimum(gm.w, cfg.existence_max), gm.mu, gm.cov)
         # adaptive birth: a measurement the map already explains gives birth to little
-        birth = self._birth(sp, z, rz, 1.0 - np.clip(w_det.sum(axis=1), 0.0, 1.0) if cfg.adaptive_birth else None)
-        return PHDMaps(gm, birth, merged), loglik
-
-    def _update_compiled(self, maps: PHDMaps, poses: np.ndarray, meas: Measurements) -> tuple[PHDMaps, np.ndarray]:
-        """:meth:`update` for range-bearing points under the filter's one noise: the update of every particle in one
-        compiled call (:func:`slam_runtime.rbphd_kernel.update_points`), the rest as in :meth:`update`."""
-        cfg, tm = self.cfg, self.timers
-        z, rz = self.measurements(meas)
-        sp = self.feature.sensor_pose(poses)
-        n_map = maps.gm.shape[1]
-        prior = maps.gm.concat(maps.birth)  # eq. 3.16
-        w, mu, cov = prior.w, prior.mu, prior.cov
-        with tm("pd"):
-            pd, buf = self.detection.pd_features(sp, mu, cov, meas, w)
-            buf[:, n_map:] = False
-        kappa = self.clutter(z, meas)
-        with tm("update"):
-            missed, w_kept, mu_kept, cov_kept, j_kept, den, wsum = update_points(
-                w, np.ascontiguousarray(mu), np.ascontiguousarray(cov), np.ascontiguousarray(pd, dtype=np.float64), np.ascontiguousarray(buf),
-                np.ascontiguousarray(sp), z, np.ascontiguousarray(self.r), kappa, float(cfg.gate), float(cfg.prune),
-            )
-            upd = GMBatch(missed, mu, cov).concat(GMBatch(w_kept, mu_kept, cov_kept))
-            fresh = None
-            if cfg.merge_scope == "fresh" and maps.merged is not None:
-                fresh = np.ones(upd.shape, dtype=np.bool_)
-                fresh[:, :n_map] = ((pd > 0) & (w > 0))[:, :n_map] | maps.merged
-        with tm("weight"):
-            if cfg.weighting == "marginal":  # as in update()
-                lw = np.log(np.where(kappa > 0, den / np.maximum(kappa, 1e-300), 1.0)).sum(axis=1) if z.shape[0] else np.zeros(w.shape[0])
-                loglik = lw - (pd * w).sum(axis=1)
-            else:
-                pd_upd = np.concatenate([pd, np.take_along_axis(pd, j_kept, axis=1)], axis=1)
-                loglik = self._log_weight(prior, upd, pd_upd, sp, z, kappa, rz)
-        with tm("merge"):
-            gm, capped, merged = prune_merge(
-                upd, prune=cfg.prune, merge=cfg.merge, cap=cfg.cap, inflate=cfg.merge_inflation, mutual=cfg.merge_rule == "mutual", fresh=fresh, groups=True
-            )
-            self.capped_steps += int(capped)
         birth = self._birth(sp, z, rz, 1.0 - np.clip(wsum, 0.0, 1.0) if cfg.adaptive_birth else None)
         return PHDMaps(gm, birth, merged), loglik
+
+    def _pairs(self, w, mu, cov, pd, buf, sp, z, rz, kappa, meas):
+        """The numpy update of the prior mixtures w (P, J), mu (P, J, dx), cov (P, J, dx, dx) by the measurements z
+        (M, dz): (missed-detection weights (P, J) with the buffer zone's floor (eqs. 3.17, 3.21), the kept
+        detection-updated components' weights (P, K), means and covariances (eq. 3.18), their P_D (P, K),
+        kappa + sum_j P_D w_j q_j (P, M), the share of each measurement the map took (P, M), the components in view
+        (P, J))."""
+        cfg, fm = self.cfg, self.feature
+        dz = fm.dim_z
+        m = z.shape[0]
+        p, j = w.shape
+        # only the features that can be seen take part: the others keep their weight (P_D = 0)
+        seen = (pd > 0) & (w > 0)
+        js = int(seen.sum(axis=1).max()) if j else 0
+        sel = np.argsort(~seen, axis=1, kind="stable")[:, :js]  # (P, Js) seen ones first
+        rows = np.arange(p)[:, None]
+        in_s = seen[rows, sel]
+        w_s, mu_s, cov_s, pd_s = np.where(in_s, w[rows, sel], 0.0), mu[rows, sel], cov[rows, sel], np.where(in_s, pd[rows, sel], 0.0)
+        zhat, h = fm.predict_sensor(sp[:, None, :], mu_s)  # (P, Js, dz), (P, Js, dz, dx)
+        ph = matmul(cov_s, transpose(h))  # P H^T (P, Js, dx, dz)
+        hph = matmul(h, ph)
+        nu = _Innovations(fm, z, zhat)
+        if meas.cov is None:  # one noise for every measurement: S and its inverse per component, not per pair
+            s_c = hph + self.r
+            sinv_c, det_c = inv(s_c), det(s_c)
+            m2 = nu.quad(sinv_c[:, :, None])  # (P, Js, M)
+            det_pair = np.broadcast_to(det_c[:, :, None], m2.shape)
+        else:  # each measurement its own noise: S per (component, measurement) pair
+            s_pair = hph[:, :, None] + rz[None, None]
+            sinv_pair, det_pair = inv(s_pair), det(s_pair)
+            m2 = nu.quad(sinv_pair)
+        gated = m2 <= cfg.gate
+        q = np.zeros(m2.shape)
+        q[gated] = gaussian(m2[gated], det_pair[gated], dz)
+        existence = cfg.update_rule == "existence"
+        if existence:  # each component a Bernoulli of existence r: the weight, capped
+            w_s = np.minimum(w_s, cfg.existence_max)
+        num = (pd_s * w_s)[..., None] * q  # (P, Js, M)
+        den = kappa[None, :] + num.sum(axis=1)  # (P, M)
+        w_det = num / np.where(den > 0, den, 1.0)[:, None, :]
+        missed = w.copy()
+        if existence:
+            # the probability rho that the component made one of the measurements (its shares, eq. 3.18, at most 1 in
+            # all); otherwise it was missed, and a Bernoulli's existence after a miss is r (1 - P_D) / (1 - r P_D)
+            rho = w_det.sum(axis=2)
+            w_det = w_det / np.maximum(rho, 1.0)[..., None]
+            rho = np.minimum(rho, 1.0)
+            missed_s = (1.0 - rho) * w_s * (1.0 - pd_s) / np.maximum(1.0 - w_s * pd_s, 1e-12)
+        else:
+            missed_s = (1.0 - pd_s) * w_s
+        buf_s = buf[rows, sel] & in_s
+        gained = w_det.sum(axis=2)
+        protect = np.minimum(w_s, 1.0)
+        short = buf_s & (gained + missed_s < protect)
+        missed_s = np.where(short, protect - gained, missed_s)
+        missed[rows, sel] = np.where(in_s, missed_s, missed[rows, sel])
+        # EKF-updated components (eqs. 3.17-3.18) only for the pairs whose weight survives pruning
+        keep = (w_det > cfg.prune).reshape(p, js * m)
+        k = int(keep.sum(axis=1).max()) if js * m else 0
+        pick = np.argsort(~keep, axis=1, kind="stable")[:, :k]  # (P, K) flat (j, m) indices, kept ones first
+        jj, mm = np.divmod(pick, max(m, 1))
+        sinv = sinv_c[rows, jj] if meas.cov is None else sinv_pair[rows, jj, mm]
+        gain = matmul(ph[rows, jj], sinv)  # (P, K, dx, dz)
+        mu_det = mu_s[rows, jj] + matvec(gain, nu.at(rows, jj, mm))
+        cov_det = cov_s[rows, jj] - matmul(gain, transpose(ph[rows, jj]))
+        cov_det = 0.5 * (cov_det + transpose(cov_det))
+        w_kept = np.where(np.take_along_axis(keep, pick, axis=1), w_det[rows, jj, mm], 0.0)
+        return missed, w_kept, mu_det, cov_det, pd_s[rows, jj], den, w_det.sum(axis=1), seen
 
     def pose_proposal(
         self, maps: PHDMaps, xbar: np.ndarray, q: np.ndarray, meas: Measurements, *, share: float = 0.5, iterations: int = 3

@@ -18,14 +18,14 @@ def test_the_compiled_update_gives_the_numpy_batchs_numbers(monkeypatch, weighti
     terms in other orders (numpy's pairwise sums), a few ulps; 1e-9 relative is far below any effect on the run."""
     sc = RfsSimConfig(steps=120, clutter_intensity=0.02)
     log, prof = simulate_rfs(sc, 4), truth_profile(sc)
-    numpy_update = RBPHD.update
+    update = RBPHD.update  # the compiled kernel when RBPHD.compiled, the numpy pairs otherwise
     steps = []
 
     def both(self, maps, poses, meas):
         monkeypatch.setattr(RBPHD, "compiled", False)
-        ref_maps, ref_ll = numpy_update(self, maps, poses, meas)
+        ref_maps, ref_ll = update(self, maps, poses, meas)
         monkeypatch.setattr(RBPHD, "compiled", True)
-        got_maps, got_ll = self._update_compiled(maps, poses, meas)
+        got_maps, got_ll = update(self, maps, poses, meas)
         np.testing.assert_allclose(got_ll, ref_ll, rtol=1e-9, atol=1e-9)
         for a, b in ((got_maps.gm, ref_maps.gm), (got_maps.birth, ref_maps.birth)):
             assert a.w.shape == b.w.shape
