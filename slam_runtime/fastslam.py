@@ -71,8 +71,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.special import expit, logit
 
 from slam_runtime.features import FeatureModel
-from slam_runtime.gibbs import detection_costs
-from slam_runtime.gm import birth_gaussians, det, ekf_update, inv, matmul, quad, transpose
+from slam_runtime.gm import birth_gaussians, ekf_update, inv, matmul, quad, transpose
 from slam_runtime.kbest import kbest_batch
 from slam_runtime.mapfilter import MAP_FILTERS, MapFilter, Measurements
 
@@ -304,26 +303,11 @@ class MHFastSLAM(MapFilter):
 
     def _scores(self, sp, mu_a, cov_a, z, rz, own_cov: bool, l_base, log_kappa, in_a, pd_pos):
         """log(r P_D g(z | a) / kappa(z)) of every (row, active landmark, measurement) (-inf outside the gate or
-        where P_D = 0), and the gate (in it, active): :func:`slam_runtime.gibbs.detection_costs` for 2-d
-        measurements, else vectorised."""
-        fm = self.feature
-        zhat, h = fm.predict_sensor(sp[:, None, :], mu_a)
+        where P_D = 0), and the gate (in it, active): :meth:`MapFilter._det_costs` of the landmarks' predicted
+        measurements."""
+        zhat, h = self.feature.predict_sensor(sp[:, None, :], mu_a)
         hph = matmul(h, matmul(cov_a, transpose(h)))
-        dz = z.shape[1]
-        if dz == 2 and fm.angular in ((), (1,)):
-            l_det, gated = detection_costs(
-                np.ascontiguousarray(zhat), np.ascontiguousarray(hph), np.ascontiguousarray(z), np.ascontiguousarray(rz) if own_cov else np.zeros((0, 2, 2)),
-                bool(own_cov), np.ascontiguousarray(self.r), np.zeros((0, 0)) if own_cov else np.log(np.maximum(det(hph + self.r), 1e-300)),
-                fm.angular == (1,), float(self.cfg.gate), float(dz * np.log(2 * np.pi)), np.ascontiguousarray(l_base),
-                np.ascontiguousarray(log_kappa), np.ascontiguousarray(in_a), np.ascontiguousarray(pd_pos),
-            )  # fmt: skip
-            return l_det, gated
-        nu = fm.innovation(z[None, None, :, :], zhat[:, :, None, :])
-        s = hph[:, :, None] + (rz[None, None] if own_cov else self.r)
-        m2 = quad(inv(s), nu)
-        lq = -0.5 * m2 - 0.5 * (dz * np.log(2 * np.pi) + np.log(np.maximum(det(s), 1e-300)))
-        gated = (m2 <= self.cfg.gate) & in_a[..., None]
-        return np.where(gated & pd_pos[..., None], l_base[..., None] + lq - log_kappa[None, None, :], -np.inf), gated
+        return self._det_costs(zhat, hph, z, rz, own_cov, l_base, log_kappa, in_a, pd_pos)
 
     def update(self, maps: FastSLAMMaps, poses: np.ndarray, meas: Measurements) -> tuple[FastSLAMMaps, np.ndarray]:
         cfg, fm, tm = self.cfg, self.feature, self.timers

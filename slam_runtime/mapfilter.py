@@ -38,6 +38,8 @@ import numpy as np
 from detectors.kinds import Measurements
 from profiles.registry import Registry
 from slam_runtime.features import FeatureModel
+from slam_runtime.gibbs import detection_costs
+from slam_runtime.gm import det, inv, quad
 from slam_runtime.proposal import pose_proposal
 
 
@@ -108,6 +110,37 @@ class MapFilter(ABC):
         if meas.ratio is not None:
             kappa = kappa / np.maximum(np.asarray(meas.ratio, dtype=np.float64), 1e-300)
         return kappa
+
+    def _det_costs(self, zhat, hph, z, rz, own_cov: bool, l_base, log_kappa, in_a, pd_pos, compiled: bool = True):
+        """log eta of the detections (P, A, M) (-inf outside the gate or where P_D = 0) and the gate (P, A, M) of the
+        active candidates: predicted measurements zhat (P, A, dz), H P H^T (P, A, dz, dz), measurements z (M, dz),
+        their own covariances rz (M, dz, dz) when own_cov (else the model's R), l_base (P, A) log(r P_S P_D).
+
+        The labelled filters' and MH-FastSLAM's association scores. Point landmarks (dz = 2) take :func:`slam_runtime.gibbs.detection_costs`, the same arithmetic fused in one
+        compiled pass: at 300 particles, ~45 candidates and 15-20 measurements per scan the vectorised form made some
+        twenty (P, A, M) temporaries and was the step's second cost after the sampler. compiled=False: the vectorised
+        form (other dz, and the tests' reference)."""
+        cfg, fm = self.cfg, self.feature
+        dz = z.shape[1]
+        if compiled and dz == 2 and fm.angular in ((), (1,)):
+            return detection_costs(
+                np.ascontiguousarray(zhat), np.ascontiguousarray(hph), np.ascontiguousarray(z, dtype=np.float64),
+                np.ascontiguousarray(rz, dtype=np.float64) if own_cov else np.zeros((0, 2, 2)), bool(own_cov), np.ascontiguousarray(self.r),
+                np.zeros((0, 0)) if own_cov else np.log(np.maximum(det(hph + self.r), 1e-300)), fm.angular == (1,), float(cfg.gate),
+                float(dz * np.log(2 * np.pi)), np.ascontiguousarray(l_base), np.ascontiguousarray(log_kappa, dtype=np.float64),
+                np.ascontiguousarray(in_a), np.ascontiguousarray(pd_pos),
+            )
+        nu = fm.innovation(z[None, None, :, :], zhat[:, :, None, :])  # (P, A, M, dz)
+        if own_cov:
+            sm = hph[:, :, None] + rz[None, None]
+            m2, logdet = quad(inv(sm), nu), np.log(np.maximum(det(sm), 1e-300))
+        else:
+            sm = hph + self.r
+            m2, logdet = quad(inv(sm)[:, :, None], nu), np.log(np.maximum(det(sm), 1e-300))[:, :, None]
+        gated = (m2 <= cfg.gate) & in_a[..., None]
+        ok = gated & pd_pos[..., None]
+        lq = -0.5 * m2 - 0.5 * (dz * np.log(2 * np.pi) + logdet)
+        return np.where(ok, l_base[..., None] + lq - log_kappa[None, None, :], -np.inf), gated
 
     def _proposal(
         self, xbar: np.ndarray, q: np.ndarray, meas: Measurements, mu: np.ndarray, cov: np.ndarray, ex: np.ndarray,
