@@ -24,7 +24,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial import cKDTree
 
-from detectors.geometry import compose, interpolate_poses, relative, rigid_align  # noqa: F401  (re-exported)
+from detectors.geometry import compose, increment_poses, interpolate_poses, relative, rigid_align  # noqa: F401  (re-exported)
 from detectors.sensor_log import SensorLog
 from profiles.errors import DataError
 
@@ -68,14 +68,7 @@ def odometry_poses(log: SensorLog) -> np.ndarray:
     if o.kind == "pose":
         path, stamp = o.values, o.stamp
     elif o.kind == "increment":
-        # compose all increments at once: heading is their running sum, and each
-        # translation is rotated by the heading before it
-        inc = o.values
-        th = np.concatenate([[0.0], np.cumsum(inc[:, 2])])
-        c, s = np.cos(th[:-1]), np.sin(th[:-1])
-        x = np.concatenate([[0.0], np.cumsum(c * inc[:, 0] - s * inc[:, 1])])
-        y = np.concatenate([[0.0], np.cumsum(s * inc[:, 0] + c * inc[:, 1])])
-        path = np.column_stack([x, y, np.mod(th + np.pi, 2 * np.pi) - np.pi])
+        path = np.vstack([np.zeros((1, 3)), increment_poses(o.values)])  # the origin, then after each increment
         stamp = np.concatenate([[o.stamp[0] - 1], o.stamp])
     elif o.kind == "velocity":
         dt = np.diff(o.stamp, prepend=o.stamp[0]) / 1e9

@@ -30,6 +30,18 @@ def relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.stack([c * dx + s * dy, -s * dx + c * dy, th], axis=-1)
 
 
+def increment_poses(inc: np.ndarray) -> np.ndarray:
+    """(N, 3) running poses (x, y, theta) after each of N odometry increments (dx, dy, dtheta), each in the vehicle
+    frame of the row before it, starting at the origin: all at once, the heading their running sum and each
+    translation rotated by the heading before it (theta wrapped to [-pi, pi))."""
+    th = np.cumsum(inc[:, 2])
+    before = np.concatenate([[0.0], th[:-1]])
+    c, s = np.cos(before), np.sin(before)
+    x = np.cumsum(c * inc[:, 0] - s * inc[:, 1])
+    y = np.cumsum(s * inc[:, 0] + c * inc[:, 1])
+    return np.column_stack([x, y, np.mod(th + np.pi, 2 * np.pi) - np.pi])
+
+
 def ray_circles(origin: np.ndarray, directions: np.ndarray, centres: np.ndarray, radii: np.ndarray) -> np.ndarray:
     """Distance along each ray to the first crossing of each circle.
 

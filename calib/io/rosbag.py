@@ -35,6 +35,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from calib.io.atomic import atomic_output
 from calib.io.common import DEFAULT_MAX_BACKSTEP, file_digest, time_order
+from detectors.geometry import increment_poses
 from detectors.sensor_log import (
     BeamGeometry,
     Detections,
@@ -410,17 +411,6 @@ def _scan_meta(s: ScanBatch) -> dict:
     if s.geometry is not None:  # only for a laser of several beam layouts: other bags keep their metadata
         meta["geometry"] = True
     return meta
-
-
-def increment_poses(inc: np.ndarray) -> np.ndarray:
-    """(N, 3) running odometry-frame poses (x, y, theta) after each of N increments (dx, dy, dtheta), each in the
-    vehicle frame of the row before it, starting at the origin (as ``calib.icp.odometry_poses`` composes them)."""
-    th = np.cumsum(inc[:, 2])
-    before = np.concatenate([[0.0], th[:-1]])
-    c, s = np.cos(before), np.sin(before)
-    x = np.cumsum(c * inc[:, 0] - s * inc[:, 1])
-    y = np.cumsum(s * inc[:, 0] + c * inc[:, 1])
-    return np.column_stack([x, y, np.mod(th + np.pi, 2 * np.pi) - np.pi])
 
 
 def _truth_poses(log: SensorLog) -> np.ndarray | None:
