@@ -38,12 +38,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from benchmarks.common import ints  # noqa: E402
 
-from calib.config import load_yaml_model  # noqa: E402
 from calib.io.rfsslam import read_rfsslam, scenario  # noqa: E402
 from calib.sim.rfs import truth_profile  # noqa: E402
 from detcal.pipelines.slam_run import SettingsRequest  # noqa: E402
 from profiles.store import dump_profile  # noqa: E402
-from slam_runtime.config import SlamConfig, override  # noqa: E402
 from slam_runtime.run import evaluate, run_slam  # noqa: E402
 
 DETCAL = [sys.executable, "-m", "detcal"]

@@ -177,3 +177,10 @@ def _emit(model: BaseModel, data: dict, indent: int, lines: list[str]) -> None:
             lines.extend(f"{pad}- {_flow(row)}" for row in value)
         else:
             lines.append(f"{pad}{_flow(key)}: {_flow(value)}{_comment(unit(cls, key, data))}")
+
+
+def body(text: str) -> str:
+    """The document below any comment lines above it (a comment added by hand, or the schema-3 header)."""
+    lines = text.splitlines(keepends=True)
+    i = next((k for k, line in enumerate(lines) if line.strip() and not line.lstrip().startswith("#")), len(lines))
+    return "".join(lines[i:])

@@ -110,11 +110,18 @@ def parse_profile(data: object, where: str, *, migrate: bool = True, notify: boo
     if notify:
         for line in suspicions(prof):
             notice(f"{where}: {line}")
-    if migrate and prof.schema_version < SCHEMA_VERSION:
-        old = prof.schema_version
-        prof = DetectorProfile.model_validate(migrate_document(prof.model_dump(mode="json"), SCHEMA_VERSION))
-        if notify:
-            migration_notice(where, old, SCHEMA_VERSION)
+    return migrated(prof, where, notify=notify) if migrate else prof
+
+
+def migrated(prof: DetectorProfile, where: str, *, notify: bool = True) -> DetectorProfile:
+    """``prof`` (read from ``where``) as the current schema: migrated when it is an earlier schema's (said in one
+    notice unless ``notify`` is False), else itself."""
+    if prof.schema_version >= SCHEMA_VERSION:
+        return prof
+    old = prof.schema_version
+    prof = DetectorProfile.model_validate(migrate_document(prof.model_dump(mode="json"), SCHEMA_VERSION))
+    if notify:
+        migration_notice(where, old, SCHEMA_VERSION)
     return prof
 
 
@@ -124,13 +131,6 @@ def load_profile_file(path: str | Path, *, migrate: bool = True, notify: bool = 
     if not path.is_file():
         raise UsageError(f"{path}: no such profile file")
     return parse_profile(read_document(path), str(path), migrate=migrate, notify=notify)
-
-
-def schema_of(path: str | Path) -> int | None:
-    """The schema_version a profile file says (None when it says none that is an integer)."""
-    data = read_document(Path(path))
-    v = data.get("schema_version") if isinstance(data, dict) else None
-    return v if isinstance(v, int) and not isinstance(v, bool) else None
 
 
 def read_document(path: Path) -> object:

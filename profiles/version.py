@@ -13,6 +13,9 @@ __version__ = "0.1.0"
 #: the packages a profile's numbers depend on (fits, ray tracing, compiled kernels), recorded with their versions
 NUMERIC_PACKAGES = ("numpy", "scipy", "pandas", "numba", "opencv-python-headless", "scikit-image", "gtsam")
 
+#: the source tree of the detcal that runs (a git checkout when run from one)
+SOURCE_ROOT = Path(__file__).resolve().parent.parent
+
 #: the top-level folders of detcal's source: a change in them makes a checkout "dirty" for the recorded commit
 SOURCE_PARTS = ("calib", "detcal", "detectors", "profiles", "slam_runtime", "pyproject.toml")
 
@@ -21,11 +24,10 @@ SOURCE_PARTS = ("calib", "detcal", "detectors", "profiles", "slam_runtime", "pyp
 def source_commit() -> str | None:
     """The git commit of the detcal source that runs, ``+dirty`` when its source has uncommitted changes;
     None when detcal does not run from a git checkout (an installed wheel) or git is not there."""
-    root = Path(__file__).resolve().parent.parent
-    if not (root / ".git").exists():
+    if not (SOURCE_ROOT / ".git").exists():
         return None
     try:
-        run = functools.partial(subprocess.run, cwd=root, capture_output=True, text=True, timeout=10, check=True)
+        run = functools.partial(subprocess.run, cwd=SOURCE_ROOT, capture_output=True, text=True, timeout=10, check=True)
         sha = run(["git", "rev-parse", "HEAD"]).stdout.strip()
         changed = run(["git", "status", "--porcelain", "--untracked-files=no", "--", *SOURCE_PARTS]).stdout.strip()
     except (OSError, subprocess.SubprocessError):

@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import math
 import os
 import shlex
 from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.table import Table
 
 from detcal.cli.common import ReaderArgs, fresh, input_refs, out, reader_options, summary_table, warn
 from profiles.errors import UsageError

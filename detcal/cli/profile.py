@@ -118,10 +118,10 @@ def _cell(v) -> str:
 @app.command("validate")
 def profile_validate(path: Annotated[Path, typer.Argument(metavar="FILE", help="A profile file (YAML or JSON).")]) -> None:
     """Check a profile file against the schema; errors name the field path."""
-    from profiles.store import load_profile_file
+    from profiles.store import load_profile_file, migrated
 
-    p = load_profile_file(path)  # an earlier schema's: validated as it is, then migrated (said in one warning)
-    written = load_profile_file(path, migrate=False, notify=False).schema_version
+    as_written = load_profile_file(path, migrate=False)  # an earlier schema's: validated as it is, then migrated
+    p, written = migrated(as_written, str(path)), as_written.schema_version  # (the migration said in one warning)
     out.print(f"{path}: valid profile {p.ref} (schema {written}" + (f", migrated to {p.schema_version} when loaded)" if written != p.schema_version else ")"))
 
 
@@ -138,13 +138,13 @@ def profile_migrate(
     migration"); the numbers and the recorded provenance are kept."""
     from profiles.atomic import atomic_output
     from profiles.profile import SCHEMA_VERSION
-    from profiles.store import dump_profile, load_profile_file, profile_filename, same_content
+    from profiles.store import dump_profile, load_profile_file, migrated, profile_filename, same_content
 
     old = load_profile_file(path, migrate=False)
     if old.schema_version == SCHEMA_VERSION:
         out.print(f"{path}: already schema {SCHEMA_VERSION}; nothing to migrate, nothing written")
         return
-    new = load_profile_file(path, notify=False)
+    new = migrated(old, str(path), notify=False)
     if dest is None:
         dest = path.with_name(f"{path.stem}.migrated{path.suffix or '.yaml'}")
     if dest.suffix == ".yaml" and "@" in dest.stem and dest.name != profile_filename(new):
@@ -153,7 +153,7 @@ def profile_migrate(
         raise UsageError(f"{dest}: exists; a migrated profile is never written over a file: give another --out")
     text = dump_profile(new, "json" if dest.suffix == ".json" else "yaml")
     if dest.suffix != ".json":  # a comment a person wrote above the document is kept above it
-        from detcal.pipelines.rebuild import body
+        from profiles.document import body
 
         original = path.read_text(encoding="utf-8")
         text = original[: len(original) - len(body(original))] + text

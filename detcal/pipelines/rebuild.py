@@ -35,13 +35,12 @@ from datetime import datetime
 from pathlib import Path
 
 from profiles.errors import DataError, UsageError
-from profiles.store import diff_profiles, load_profile_file, same_content
+from profiles.document import body
+from profiles.store import diff_profiles, load_profile_file, migrated, same_content
+from profiles.version import SOURCE_ROOT
 
 #: the options naming a command's outputs: they land in the staging folder, as typed
 OUTPUT_OPTIONS = ("--out", "--profiles-dir")
-
-#: the source tree of the detcal that runs (a git checkout when run from one)
-SOURCE_ROOT = Path(__file__).resolve().parents[2]
 
 
 @dataclass
@@ -55,17 +54,6 @@ class Rebuilt:
     verdict: str
     differences: list[tuple[str, object, object]] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
-
-    @property
-    def same_bytes(self) -> bool:
-        return self.verdict.startswith("same bytes")
-
-
-def body(text: str) -> str:
-    """The document below any comment lines above it (a comment added by hand, or the schema-3 header)."""
-    lines = text.splitlines(keepends=True)
-    i = next((k for k, line in enumerate(lines) if line.strip() and not line.lstrip().startswith("#")), len(lines))
-    return "".join(lines[i:])
 
 
 def _epoch(created: str, where: Path) -> int:
@@ -103,6 +91,16 @@ def _values(words: list[str]) -> list[str]:
     return [w.partition("=")[2] if w.startswith("--") and "=" in w else w for w in words]
 
 
+def _outputs(words: list[str]) -> dict[str, str]:
+    """The command's output options (:data:`OUTPUT_OPTIONS`) and their values, as typed."""
+    found = {}
+    for i, w in enumerate(words):
+        opt, eq, value = w.partition("=")
+        if opt in OUTPUT_OPTIONS:
+            found[opt] = value if eq else (words[i + 1] if i + 1 < len(words) else "")
+    return found
+
+
 def _workdir(words: list[str], root: Path) -> Path:
     """The working folder the command runs in: inside ``root``, nested deep enough for its ``..`` paths."""
     depth = max((_ups(v) for v in _values(words) if v and not v.startswith("-")), default=0)
@@ -114,11 +112,7 @@ def _stage(words: list[str], origin: Path, cwd: Path, root: Path, where: Path) -
     checkout of the recorded commit holds the repository's own files as they were), as it lay from ``origin``."""
     values = _values(words)
     cwd.mkdir(parents=True, exist_ok=True)
-    outputs = set()
-    for i, w in enumerate(words):
-        opt, eq, value = w.partition("=")
-        if opt in OUTPUT_OPTIONS:
-            outputs.add(value if eq else (words[i + 1] if i + 1 < len(words) else ""))
+    outputs = set(_outputs(words).values())
     for v in values:
         if not v or v.startswith("-") or v in outputs:
             continue
@@ -140,11 +134,7 @@ def _stage(words: list[str], origin: Path, cwd: Path, root: Path, where: Path) -
 
 def _result(words: list[str], cwd: Path, user: Path, ref: str) -> Path | None:
     """The profile the command wrote: in its --profiles-dir (or the user profile folder), else its run folder's."""
-    opts = {}
-    for i, w in enumerate(words):
-        opt, eq, value = w.partition("=")
-        if opt in OUTPUT_OPTIONS:
-            opts[opt] = value if eq else words[i + 1]
+    opts = _outputs(words)
     for candidate in (cwd / opts.get("--profiles-dir", str(user)) / f"{ref}.yaml", cwd / opts.get("--out", "-") / "profile.yaml"):
         if candidate.is_file():
             return candidate
@@ -193,9 +183,9 @@ def rebuild(path: Path, *, origin: Path, timeout: float | None = None) -> Rebuil
     elif body(text) == body(original):
         verdict, diffs = "same bytes below the header comment", []
     else:
-        migrated = load_profile_file(path, notify=False)
-        diffs = diff_profiles(migrated, rebuilt)
-        verdict = "same content" if same_content(migrated, rebuilt) else "differs"
+        current = migrated(recorded, str(path), notify=False)
+        diffs = diff_profiles(current, rebuilt)
+        verdict = "same content" if same_content(current, rebuilt) else "differs"
     return Rebuilt(path, text, verdict, diffs, notes)
 
 

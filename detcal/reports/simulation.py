@@ -157,7 +157,6 @@ def plot_rfs_overview(log: SensorLog, path) -> None:
 
 def _finish(fig, ax, path, title: str, legend: str) -> None:
     """A detection-level scenario's overview: equal axes in metres, its title and legend, saved without a date."""
-    import matplotlib.pyplot as plt
 
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")

@@ -24,7 +24,6 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from calib.config import dump_yaml_ordered
 from detectors.geometry import compose, interpolate_poses, rigid_transform

@@ -129,6 +129,7 @@ def test_degenerate_data_are_refused_with_their_counts():
 
 
 def test_the_gate_refuses_a_calibration_on_corrupted_icp_poses(park_two_laps, monkeypatch):
+    import calib.groundtruth  # noqa: F401  before the patch (it binds icp_ground_truth by name; see tests/detcal/cli/test_ground_truth.py)
     import calib.icp
 
     log = park_two_laps
