@@ -27,7 +27,7 @@ import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from benchmarks.common import ints  # noqa: E402
+from benchmarks.common import VP_PROFILES, ints  # noqa: E402
 
 from calib.io.registry import ReadOptions, read_log  # noqa: E402
 from calib.sim.rfs import simulate_rfs, truth_profile  # noqa: E402
@@ -38,7 +38,6 @@ from slam_runtime.run import evaluate, run_slam  # noqa: E402
 
 #: the shared data beside the repository (or beside the folder of its worktrees)
 VP = next((p / "shared/data/victoria_park" for p in (ROOT.parent, ROOT.parent.parent) if (p / "shared/data/victoria_park").is_dir()), ROOT.parent / "shared/data/victoria_park")
-VP_PROFILE = ROOT / "benchmarks/profiles/victoria-park-selfcal@1.2.0.yaml"
 
 
 def one(log, prof, request: SettingsRequest, seed: int, frames: int | None = None) -> dict:
@@ -87,7 +86,7 @@ def main() -> None:
             print(f"Victoria Park skipped: {VP} not found")
             return
         log = read_log(VP, None, ReadOptions())
-        prof = load_profile_file(VP_PROFILE)
+        prof = load_profile_file(VP_PROFILES["rbphd"])
         for label, req in (
             ("no config", SettingsRequest(particles=10, filter="rbphd")),
             ("victoria_park.yaml", SettingsRequest(config=ROOT / "benchmarks/configs/victoria_park.yaml", particles=10)),

@@ -10,7 +10,7 @@ Run: ``python benchmarks/bench_fastslam.py [--data ../shared/data] [--parts rfs,
   (``--park-worlds``), the bundled laser profile ``sim-park-laser``, 20 particles (the park comparisons of
   docs/results/labelled-real.md); map OSPA c = 1 m against the trees;
 * vp: Victoria Park, ``benchmarks/configs/victoria_park.yaml`` (10 particles), RB-PHD's self-calibrated profile
-  ``victoria-park-selfcal@1.2.0`` for RB-PHD and MH-FastSLAM, delta-GLMB's own (``-glmb@1.1.0``) for delta-GLMB, as in
+  ``benchmarks.common.VP_PROFILES``: RB-PHD's for RB-PHD and MH-FastSLAM, delta-GLMB's own for delta-GLMB, as in
   bench_real_filters.py; RMSE against GPS after a rigid fit (no landmark truth);
 * utias: UTIAS dataset 1 robot 1, its camera profile calibrated on robots 2-5, ``benchmarks/configs/utias_mrclam/robot1.yaml``;
   map OSPA c = 1 m against the 15 surveyed landmarks;
@@ -43,11 +43,10 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.common import append_row, ints, parse_set, read_rows  # noqa: E402
+from benchmarks.common import VP_PROFILES, append_row, ints, parse_set, read_rows  # noqa: E402
 
 DATA = ROOT.parent / "shared/data"
 RATES = (1.0, 5.0, 10.0, 15.0)
-VP_PROFILE = {"glmb": "victoria-park-selfcal-glmb@1.1.0.yaml", "lmb": "victoria-park-selfcal-lmb@1.1.0.yaml"}
 
 
 def configured(cfg, kind: str):
@@ -98,7 +97,7 @@ def scenario(part: str, world: float, clutter: float | None):
         g = GlmbPaperConfig(clutter=clutter)
         return simulate_glmb_paper(g, int(world)), truth_profile(g), load_yaml_model(SlamConfig, ROOT / "benchmarks/configs/glmb_paper_optimal.yaml"), 0.5
     if part == "vp":
-        return _vp(), load_profile_file(ROOT / "benchmarks/profiles/victoria-park-selfcal@1.2.0.yaml"), load_yaml_model(SlamConfig, ROOT / "benchmarks/configs/victoria_park.yaml"), 1.0
+        return _vp(), load_profile_file(VP_PROFILES["rbphd"]), load_yaml_model(SlamConfig, ROOT / "benchmarks/configs/victoria_park.yaml"), 1.0
     if part == "utias":
         log, prof = _utias(int(world))
         return log, prof, load_yaml_model(SlamConfig, ROOT / f"benchmarks/configs/utias_mrclam/robot{int(world)}.yaml"), 1.0
@@ -112,8 +111,8 @@ def one(job: tuple) -> dict:
     from slam_runtime.run import evaluate, run_slam
 
     log, prof, cfg, c = scenario(part, world, clutter)
-    if part == "vp" and kind in VP_PROFILE:
-        prof = load_profile_file(ROOT / "benchmarks/profiles" / VP_PROFILE[kind])
+    if part == "vp" and kind in ("lmb", "glmb"):
+        prof = load_profile_file(VP_PROFILES[kind])
     cfg = configured(cfg, kind)
     if sets:
         cfg = override(cfg, **dict(parse_set(x) for x in sets))

@@ -11,8 +11,7 @@ Run: ``python benchmarks/bench_real_filters.py [--data ../shared/data] [--filter
   and how far the RMSE lies below dead reckoning.
 * Victoria Park: ``benchmarks/configs/victoria_park.yaml`` (10 particles, optimal proposal) and, per filter, the
   profile self-calibrated with that filter's own map, the measurements of several runs averaged
-  (``benchmarks/profiles/victoria-park-selfcal@1.2.0.yaml`` for RB-PHD, ``victoria-park-selfcal-lmb@1.1.0.yaml``,
-  ``victoria-park-selfcal-glmb@1.1.0.yaml``); with
+  (``benchmarks.common.VP_PROFILES``); with
   ``--vp-profiles shared`` every filter takes RB-PHD's. Scored against GPS after a rigid fit
   (there is no landmark truth), at the laser's position, the point the data set's GPS locates (``calib.io.victoria``).
 
@@ -40,7 +39,7 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.common import ints, parse_set  # noqa: E402
+from benchmarks.common import VP_PROFILES, ints, parse_set  # noqa: E402
 
 
 def load() -> str:
@@ -113,14 +112,6 @@ def utias(root: Path, robots: list[int], filters: list[str], seeds: list[int], s
             row(f, ms, "trajectory_rmse_vs_ground_truth_m", extra)
 
 
-#: Victoria Park profiles: self-calibrated with RB-PHD's map, and with each labelled filter's own map
-VP_PROFILES = {
-    "rbphd": "victoria-park-selfcal@1.2.0.yaml",
-    "lmb": "victoria-park-selfcal-lmb@1.1.0.yaml",
-    "glmb": "victoria-park-selfcal-glmb@1.1.0.yaml",
-}
-
-
 def victoria(root: Path, filters: list[str], seeds: list[int], survival: float | None, profiles: str = "own") -> None:
     from calib.config import load_yaml_model
     from calib.io.registry import read_log
@@ -131,8 +122,9 @@ def victoria(root: Path, filters: list[str], seeds: list[int], survival: float |
     base = load_yaml_model(SlamConfig, ROOT / "benchmarks/configs/victoria_park.yaml")
     print(f"\nVictoria Park, full run ({len(list(log.frames()))} frames), 10 particles; seeds {seeds}; RMSE vs GPS at the laser after a rigid fit")
     for f in filters:
-        name = VP_PROFILES[f if profiles == "own" else "rbphd"]
-        prof = load_profile_file(ROOT / "benchmarks/profiles" / name)
+        path = VP_PROFILES[f if profiles == "own" else "rbphd"]
+        name = path.name
+        prof = load_profile_file(path)
         ms = [run(log, prof, labelled(base, f, survival), s) for s in seeds]
         row(f, ms, "trajectory_rmse_vs_gps_m", f", odometry {ms[0]['odometry_rmse_vs_gps_m']:.1f}; features {statistics.mean(m['map_features'] for m in ms):.0f}; profile {name}")
 

@@ -24,6 +24,7 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.common import VP_PROFILES  # noqa: E402
 from calib.config import load_yaml_model  # noqa: E402
 from calib.io.registry import ReadOptions, read_log  # noqa: E402
 from calib.sim.rfs import RfsSimConfig, simulate_rfs, truth_profile  # noqa: E402
@@ -106,7 +107,7 @@ def victoria_park(quick: bool) -> None:
         print(f"Victoria Park skipped: {VP} not found")
         return
     vp = read_log(VP, None, ReadOptions())
-    prof = load_profile_file(ROOT / "benchmarks/profiles/victoria-park-selfcal@1.2.0.yaml")
+    prof = load_profile_file(VP_PROFILES["rbphd"])
     cfg = load_yaml_model(SlamConfig, ROOT / "benchmarks/configs/victoria_park.yaml")
     for n in (10, 50, 200):
         frames = None if n == 10 and not quick else 1500

@@ -1,8 +1,8 @@
-"""Victoria Park, RB-PHD, 10 particles: the laser's mount yaw chosen on a prefix of the log with seeds that are not
-reported, then the reported seeds on the full run.
+"""Victoria Park, 10 particles, one map filter (``--filter``, RB-PHD by default): the laser's mount yaw chosen on a
+prefix of the log with seeds that are not reported, then the reported seeds on the full run.
 
-Run: ``python benchmarks/bench_vp_seeds.py [--data ../shared/data] [--prefix 2000] [--choose-seeds 100,101]
-[--yaws -0.03,-0.025,-0.02,-0.015,-0.01,-0.005,0] [--seeds 0-9] [--set key=value ...]``.
+Run: ``python benchmarks/bench_vp_seeds.py [--data ../shared/data] [--filter rbphd|lmb|glmb] [--prefix 2000]
+[--choose-seeds 100,101] [--yaws -0.03,-0.025,-0.02,-0.015,-0.01,-0.005,0] [--seeds 0-9] [--set key=value ...]``.
 
 1. Choice: for every candidate yaw, runs of the first ``--prefix`` frames with the ``--choose-seeds`` (never the
    reported ones); the yaw of the largest mean log evidence (``slam_runtime.run.LogEvidence``: no GPS) is taken.
@@ -12,7 +12,7 @@ Run: ``python benchmarks/bench_vp_seeds.py [--data ../shared/data] [--prefix 200
    the worst seed.
 
 Settings: ``benchmarks/configs/victoria_park.yaml`` with its ``mount_yaw`` replaced by the chosen one, and the
-profile ``benchmarks/profiles/victoria-park-selfcal@1.2.0.yaml``; ``--set`` overrides any other setting
+filter's own self-calibrated profile (``benchmarks.common.VP_PROFILES``); ``--set`` overrides any other setting
 (values parsed as YAML). One process on one core (BLAS pinned to one thread).
 """
 
@@ -31,12 +31,13 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.common import ints, parse_set  # noqa: E402
+from benchmarks.common import VP_PROFILES, ints, parse_set  # noqa: E402
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--data", type=Path, default=ROOT.parent / "shared/data")
+    ap.add_argument("--filter", choices=("rbphd", "lmb", "glmb"), default="rbphd", help="map filter (with its own profile)")
     ap.add_argument("--prefix", type=int, default=2000, help="frames of the choice runs")
     ap.add_argument("--choose-seeds", default="100,101", help="seeds of the choice runs (not the reported ones)")
     ap.add_argument("--yaws", default="-0.03,-0.025,-0.02,-0.015,-0.01,-0.005,0", help="candidate mount yaws [rad]")
@@ -51,7 +52,7 @@ def main() -> None:
     from calib.config import load_yaml_model
     from calib.io.registry import read_log
     from profiles.store import load_profile_file
-    from slam_runtime.config import SlamConfig, with_settings
+    from slam_runtime.config import SlamConfig, with_filter, with_settings
     from slam_runtime.run import LogEvidence, evaluate, run_slam
 
     vp = a.data / "victoria_park"
@@ -59,13 +60,16 @@ def main() -> None:
         print(f"Victoria Park not found at {vp}: nothing to run")
         return
     log = read_log(vp)
-    prof = load_profile_file(ROOT / "benchmarks/profiles/victoria-park-selfcal@1.2.0.yaml")
-    base = load_yaml_model(SlamConfig, ROOT / "benchmarks/configs/victoria_park.yaml")
+    prof = load_profile_file(VP_PROFILES[a.filter])
+    base = with_filter(load_yaml_model(SlamConfig, ROOT / "benchmarks/configs/victoria_park.yaml"), a.filter)
     sets = dict(parse_set(x) for x in a.sets)
     if sets:
         base = with_settings(base, sets)
     yaws = [float(y) for y in a.yaws.split(",")]
-    print(f"CPUs {os.cpu_count()}, load average {'/'.join(f'{x:.1f}' for x in os.getloadavg())}" + (f"; settings {sets}" if sets else ""))
+    print(
+        f"CPUs {os.cpu_count()}, load average {'/'.join(f'{x:.1f}' for x in os.getloadavg())}; filter {a.filter}, profile {VP_PROFILES[a.filter].name}"
+        + (f"; settings {sets}" if sets else "")
+    )
     if len(yaws) > 1 or a.choose_only:
         choose = ints(a.choose_seeds)
         print(f"choice of the mount yaw: first {a.prefix} frames, seeds {choose}, mean log evidence")

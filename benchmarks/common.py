@@ -1,4 +1,5 @@
-"""What the benchmark scripts share: their integer-list and ``--set key=value`` arguments, their per-run CSV."""
+"""What the benchmark scripts share: their integer-list and ``--set key=value`` arguments, their per-run CSV, the
+self-calibrated Victoria Park profiles."""
 
 from __future__ import annotations
 
@@ -8,6 +9,16 @@ import os
 from pathlib import Path
 
 import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: the self-calibrated Victoria Park profile of each map filter (``detcal selfcal`` from the nominal profile with
+#: ``benchmarks/configs/victoria_park.yaml``; RB-PHD's also serves MH-FastSLAM); each rebuilt by ``make rebuild-profiles``
+VP_PROFILES = {
+    "rbphd": ROOT / "benchmarks/profiles/victoria-park-selfcal@2.0.0.yaml",
+    "lmb": ROOT / "benchmarks/profiles/victoria-park-selfcal-lmb@2.0.0.yaml",
+    "glmb": ROOT / "benchmarks/profiles/victoria-park-selfcal-glmb@2.0.0.yaml",
+}
 
 
 def ints(text: str) -> list[int]:
