@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed-stamp
 DOCS_STAMP := $(VENV)/.docs-stamp
 DEMO   := runs/demo
 
-.PHONY: demo test test-slow test-busy docs bench clean builtin-profile rebuild-profiles lock
+.PHONY: demo test test-slow test-busy test-alone docs bench clean builtin-profile rebuild-profiles lock
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -42,6 +42,13 @@ docs: $(DOCS_STAMP)
 # `make test`'s set beside two CPU-burning processes, three times in a row (CI on a shared machine): prints wall and CPU time.
 test-busy: $(STAMP)
 	$(BIN)/python -m tests.beside_busy --busy 2 --repeat 3 -- -n 2 -q -m "not slow"
+
+# Every fast test file alone, one process each (a test that passes only after another file ran first fails here);
+# about 10 minutes of CPU; prints one line per file and exits 1 if any file fails.
+test-alone: $(STAMP)
+	@status=0; for f in $$(find tests -name 'test_*.py' | sort); do \
+	  r=$$($(BIN)/python -m pytest -q -m "not slow" -p no:cacheprovider $$f 2>&1 | tail -n 1); \
+	  echo "$$f: $$r"; case "$$r" in *failed*|*error*) status=1;; esac; done; exit $$status
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_readers.py
