@@ -10,8 +10,9 @@ For planar landmarks on simulated streets (``--kind street``) and circle landmar
   filter sees (every frame, the simulator's true poses and labels): what a perfect calibration of this model
   class would give, so ``calibrated - truth`` is the calibration's error and ``constant - truth`` what calibration
   can win at best;
-* ablations (street; ``--variants``): ``truth_pd`` (the calibrated profile with the truth's P_D table, grid and slab
-  ratio), ``truth_clutter`` (with the truth's clutter), ``calibrated_poisson`` / ``truth_poisson`` (the profile's
+* ablations (``--variants``): ``truth_pd`` (the calibrated profile with the truth's P_D table, grid and slab
+  ratio), ``truth_clutter`` (with the truth's clutter), ``truth_noise`` (with the truth's measurement noise and Hotelling
+  gate), ``calibrated_poisson`` / ``truth_poisson`` (the profile's
   clutter count model forced to Poisson, to isolate the negative-binomial clutter term); a ``+ext`` suffix bounds
   the map planes by their detections' outlines (``detection.plane_extents``), ``+dup`` lowers the survival of a
   track an older one lies near (``filter.survival_duplicate: 0.9``; ``+dupwide``: 0.5 within a squared Mahalanobis
@@ -160,6 +161,8 @@ def variant_profile(variant: str, cal, truth):
         return updated(cal, ch), "profile"
     if variant == "truth_clutter":
         return updated(cal, {"clutter": truth.clutter.model_dump()}), "profile"
+    if variant == "truth_noise":
+        return updated(cal, {k: getattr(truth, k).model_dump() for k in ("noise", "hotelling") if getattr(truth, k) is not None}), "profile"
     if variant in ("calibrated_poisson", "truth_poisson"):
         p = cal if variant.startswith("calibrated") else truth
         return updated(p, {"clutter.count_model": "poisson", "clutter.size": None}), "profile"
