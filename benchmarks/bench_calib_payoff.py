@@ -4,7 +4,9 @@ For planar landmarks on simulated streets (``--kind street``) and circle landmar
 (``--kind park``), every map filter asked for (``--filter``) runs with
 
 * ``calibrated``: the profile calibrated on another log (street 100, every second frame; the park: the default
-  log's calibration, ``detcal calibrate`` with the default config on park seed 1 -- the bundled ``sim-park-laser``);
+  log's calibration, ``detcal calibrate`` with the default config on park seed 1 -- the bundled ``sim-park-laser``;
+  with ``--park-calibration SEED`` the calibration of world SEED of the benchmark's own park configuration, another
+  world of the same kind, as the streets' street 100);
 * ``constant``: the same profile with a constant P_D (``detection.pd_mode: constant``, 0.9 in view);
 * ``truth``: the truth statistics of the log itself -- the same calibration run in-sample on the very log the
   filter sees (every frame, the simulator's true poses and labels): what a perfect calibration of this model
@@ -353,6 +355,10 @@ def main() -> None:
         help="streets: a plane detector setting for every calibration (the street-100 profile, the truth) and so the runtime, "
         "which reads it from the profile; the runs' variants get the suffix +NAME of --tag",
     )
+    ap.add_argument(
+        "--park-calibration", type=int, default=None, metavar="SEED",
+        help="park: the calibrated profile from world SEED of the same configuration (default: the bundled sim-park-laser, calibrated on the default park)",
+    )
     ap.add_argument("--tag", default="", help="with --detector: the suffix of the variants and the cache files")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
@@ -374,6 +380,9 @@ def main() -> None:
         cal = cache / f"street100-every2{tag}.yaml"
         if not cal.is_file():
             calibrated("street", simulated("street", 100, None), cal, "street100-every2" + tag, 2, detector)  # not kept: used once
+    elif args.park_calibration is not None:  # calibrated on another world of the benchmark's own park configuration
+        k = args.park_calibration
+        cal = calibrated("park", simulated("park", k, args.frames, cache), cache / f"park{k}-cal.yaml", f"park{k}-cal")
     else:
         cal = calibrated("park", None, cache / "sim-park-laser.yaml", "sim-park-laser")
     done: list[dict] = []
