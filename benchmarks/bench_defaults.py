@@ -27,7 +27,7 @@ import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from benchmarks.common import VP_PROFILES, ints  # noqa: E402
+from benchmarks.common import SHARED_DATA, VP_PROFILES, ints  # noqa: E402
 
 from calib.io.registry import ReadOptions, read_log  # noqa: E402
 from calib.sim.rfs import simulate_rfs, truth_profile  # noqa: E402
@@ -37,7 +37,7 @@ from profiles.store import load_profile_file  # noqa: E402
 from slam_runtime.run import evaluate, run_slam  # noqa: E402
 
 #: the shared data beside the repository (or beside the folder of its worktrees)
-VP = next((p / "shared/data/victoria_park" for p in (ROOT.parent, ROOT.parent.parent) if (p / "shared/data/victoria_park").is_dir()), ROOT.parent / "shared/data/victoria_park")
+VP = SHARED_DATA / "victoria_park"
 
 
 def one(log, prof, request: SettingsRequest, seed: int, frames: int | None = None) -> dict:

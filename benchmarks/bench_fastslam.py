@@ -43,9 +43,9 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.common import VP_PROFILES, append_row, ints, parse_set, read_rows  # noqa: E402
+from benchmarks.common import SHARED_DATA, VP_PROFILES, append_row, ints, parse_set, read_rows  # noqa: E402
 
-DATA = ROOT.parent / "shared/data"
+DATA = SHARED_DATA
 RATES = (1.0, 5.0, 10.0, 15.0)
 
 

@@ -39,7 +39,7 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.common import VP_PROFILES, ints, parse_set  # noqa: E402
+from benchmarks.common import SHARED_DATA, VP_PROFILES, ints, parse_set  # noqa: E402
 
 
 def load() -> str:
@@ -131,7 +131,7 @@ def victoria(root: Path, filters: list[str], seeds: list[int], survival: float |
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--data", type=Path, default=ROOT.parent / "shared/data", help="folder holding utias_mrclam/ and victoria_park/")
+    ap.add_argument("--data", type=Path, default=SHARED_DATA, help="folder holding utias_mrclam/ and victoria_park/")
     ap.add_argument("--filters", default="rbphd,lmb,glmb")
     ap.add_argument("--seeds", default="0-2", help="filter seeds: 0-2, or 0,3")
     ap.add_argument("--robots", default="1-5", help="UTIAS robots held out in turn")

@@ -24,7 +24,7 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.common import VP_PROFILES  # noqa: E402
+from benchmarks.common import SHARED_DATA, VP_PROFILES  # noqa: E402
 from calib.config import load_yaml_model  # noqa: E402
 from calib.io.registry import ReadOptions, read_log  # noqa: E402
 from calib.sim.rfs import RfsSimConfig, simulate_rfs, truth_profile  # noqa: E402
@@ -32,7 +32,7 @@ from profiles.store import load_profile_file  # noqa: E402
 from slam_runtime.config import SlamConfig, override  # noqa: E402
 from slam_runtime.run import evaluate, run_slam  # noqa: E402
 
-VP = ROOT.parent / "shared/data/victoria_park"
+VP = SHARED_DATA / "victoria_park"
 STAGES = ("predict", "proposal", "pd", "update", "weight", "merge", "resample", "detect")
 
 

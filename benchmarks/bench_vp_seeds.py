@@ -31,12 +31,12 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.common import VP_PROFILES, ints, parse_set  # noqa: E402
+from benchmarks.common import SHARED_DATA, VP_PROFILES, ints, parse_set  # noqa: E402
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--data", type=Path, default=ROOT.parent / "shared/data")
+    ap.add_argument("--data", type=Path, default=SHARED_DATA)
     ap.add_argument("--filter", choices=("rbphd", "lmb", "glmb"), default="rbphd", help="map filter (with its own profile)")
     ap.add_argument("--prefix", type=int, default=2000, help="frames of the choice runs")
     ap.add_argument("--choose-seeds", default="100,101", help="seeds of the choice runs (not the reported ones)")

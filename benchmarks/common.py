@@ -11,6 +11,8 @@ from pathlib import Path
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
+#: the shared real logs: beside the repository (or beside the folder of its worktrees), the first that exists
+SHARED_DATA = next((p / "shared/data" for p in (ROOT.parent, ROOT.parent.parent) if (p / "shared/data").is_dir()), ROOT.parent / "shared/data")
 
 #: the self-calibrated Victoria Park profile of each map filter (``detcal selfcal`` from the nominal profile with
 #: ``benchmarks/configs/victoria_park.yaml``; RB-PHD's also serves MH-FastSLAM); each rebuilt by ``make rebuild-profiles``

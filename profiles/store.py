@@ -28,9 +28,9 @@ from profiles.atomic import atomic_output
 from profiles.errors import DataError, DetcalError, UsageError
 from profiles.document import columns_from_bins, render, written
 from profiles.migrate import migrate_document
+from profiles.migrate import notify as migration_notice
 from profiles.notices import notice
 from profiles.plausibility import refusal, suspicions
-from profiles.migrate import notify as migration_notice
 from profiles.profile import DETECTOR_KINDS, LATER_OPTIONAL, SCHEMA_VERSION, SUPPORTED_SCHEMAS, V2_FIELDS, V3_FIELDS, DetectorProfile, semver_key
 from profiles.provenance import parameter_models
 

@@ -181,8 +181,6 @@ def profile_rebuild(
     from detcal.pipelines.rebuild import rebuild
     from profiles.errors import DataError
 
-    if not path.is_file():
-        raise UsageError(f"{path}: no such profile file")
     if keep is not None and os.path.lexists(keep):
         raise UsageError(f"{keep}: exists; a rebuilt profile is never written over a file")
     done = rebuild(path, origin=origin)
