@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from calib.io.atomic import atomic_output
 from calib.io.common import file_digest
-from profiles.atomic import atomic_output
 from detectors.sensor_log import PointClouds, SensorLog, SensorModel
 from profiles.errors import DataError, UsageError
 

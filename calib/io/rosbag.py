@@ -384,13 +384,10 @@ def write_ros2(log: SensorLog, path: str | Path, *, overwrite: bool = False) -> 
                         if s.odom_pose is not None:
                             put("/detcal/scan/odom_pose", ev.stamp, array(s.odom_pose[i], ("row", "x_y_theta")))
                     elif ev.stream == "odometry":
-                        o = log.odometry
-                        put("/detcal/odometry", ev.stamp, array(o.values[i], ("row", "_".join(o.columns))))
-                        if "/odom" in conn:  # standard odometry for ROS tools (see _topics)
-                            if odom_poses is None:
-                                put("/odom", ev.stamp, _odom_msg(T, header(ev.stamp, "odom"), o.values, o.kind, i))
-                            else:
-                                put("/odom", ev.stamp, _odom_msg(T, header(ev.stamp, "odom"), odom_poses, "pose", i))
+                        put("/detcal/odometry", ev.stamp, array(odom.values[i], ("row", "_".join(odom.columns))))
+                        if "/odom" in conn:  # standard odometry for ROS tools (see _topics); increments as their poses
+                            vals, kind = (odom.values, odom.kind) if odom_poses is None else (odom_poses, "pose")
+                            put("/odom", ev.stamp, _odom_msg(T, header(ev.stamp, "odom"), vals, kind, i))
                     elif ev.stream.startswith("reference:"):
                         k = ev.stream.split(":", 1)[1]
                         put(f"/detcal/reference/{k}", ev.stamp, array(log.reference[k].poses[i], ("row", "x_y_theta")))
