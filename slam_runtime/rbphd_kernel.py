@@ -81,8 +81,7 @@ def update_points(w, mu, cov, pd, buf, sp, z, r, kappa, gate, prune):  # pragma:
             a = pd[i, k] * w[i, k]
             for mm in range(m):
                 x = z[mm, 0] - zhat[i, k, 0]
-                y = z[mm, 1] - zhat[i, k, 1]
-                y -= TWO_PI * np.rint(y / TWO_PI)
+                y = wrap_scalar(z[mm, 1] - zhat[i, k, 1])  # the numpy pairs' features.wrap
                 m2 = i00 * x * x + 2.0 * i01 * x * y + i11 * y * y
                 if m2 <= gate:
                     wdet[i, k, mm] = a * (math.exp(-0.5 * m2) / g0)
@@ -121,8 +120,7 @@ def update_points(w, mu, cov, pd, buf, sp, z, r, kappa, gate, prune):  # pragma:
                 if not (wdet[i, k, mm] > prune):
                     continue
                 x = z[mm, 0] - zhat[i, k, 0]
-                y = z[mm, 1] - zhat[i, k, 1]
-                y -= TWO_PI * np.rint(y / TWO_PI)
+                y = wrap_scalar(z[mm, 1] - zhat[i, k, 1])  # the numpy pairs' features.wrap
                 i00, i01, i10, i11 = sinv[i, k, 0], sinv[i, k, 1], sinv[i, k, 2], sinv[i, k, 3]
                 p00, p01, p10, p11 = ph[i, k, 0, 0], ph[i, k, 0, 1], ph[i, k, 1, 0], ph[i, k, 1, 1]
                 k00 = p00 * i00 + p01 * i10  # K = P H^T S^-1
