@@ -3,7 +3,9 @@
 For planar landmarks on simulated streets (``--kind street``) and circle landmarks in the simulated park
 (``--kind park``), every map filter asked for (``--filter``) runs with
 
-* ``calibrated``: the profile calibrated on another log (street 100, every second frame; the park: the default
+* ``calibrated``: the profile calibrated on another log (street 100, every second frame; with
+  ``--street-calibration 100-107`` one profile pooled over those streets, every second frame of each, its runs'
+  variants ending in ``+cal100-107``; the park: the default
   log's calibration, ``detcal calibrate`` with the default config on park seed 1 -- the bundled ``sim-park-laser``;
   with ``--park-calibration SEED`` the calibration of world SEED of the benchmark's own park configuration, another
   world of the same kind, as the streets' street 100);
@@ -106,9 +108,10 @@ def simulated(kind: str, seed: int, frames: int | None, cache: Path | None = Non
 
 
 def calibrated(kind: str, log, out: Path, name: str, every: int = 1, detector: dict | None = None) -> Path:
-    """The calibration of one log, cached as YAML: the plane calibration (every ``every``-th frame; ``detector``:
-    plane detector settings changed from the defaults, which the profile then carries to the runtime) of a street,
-    the laser calibration (default config) of a park; ``log`` None for the park: the bundled sim-park-laser."""
+    """The calibration of one log (streets: or a list of logs, pooled), cached as YAML: the plane calibration (every
+    ``every``-th frame; ``detector``: plane detector settings changed from the defaults, which the profile then
+    carries to the runtime) of a street, the laser calibration (default config) of a park; ``log`` None for the park:
+    the bundled sim-park-laser."""
     if out.is_file():
         return out
     if kind == "street":
@@ -116,7 +119,7 @@ def calibrated(kind: str, log, out: Path, name: str, every: int = 1, detector: d
         from profiles.planes import PlaneDetectorParams
 
         cfg = PlaneCalibConfig(every=every, detector=PlaneDetectorParams(**(detector or {})))
-        prof = calibrate_planes([log], cfg, name=name, version="1.0.0").profile
+        prof = calibrate_planes(log if isinstance(log, list) else [log], cfg, name=name, version="1.0.0").profile
     elif log is None:
         from profiles.store import bundled
 
@@ -251,7 +254,7 @@ def run_task(task: dict) -> list[dict]:
         c0 = time.process_time()
         res = run_slam(log, prof, cfg, seed)
         m = evaluate(log, res, 1.0, 1.0, cfg)
-        row = {"kind": kind, "street": task["street"], "poses": poses, "filter": filt, "variant": variant + (f"+{task['tag'][1:]}" if tag else ""), "seed": seed}
+        row = {"kind": kind, "street": task["street"], "poses": poses, "filter": filt, "variant": variant + task["vsuffix"], "seed": seed}
         row |= {k: (float(v) if isinstance(v, (int, float, np.floating, np.integer)) else v) for k, v in m.items() if np.isscalar(v)}
         row["filter_key"] = filt  # the metrics name the filter ("delta-GLMB"); the key (glmb) is what a resumed run asks for
         if kind == "street":
@@ -321,7 +324,7 @@ def summarise(rows: list[dict], variants: list[str] | None = None) -> None:
         print("|---|---|---|")
         pairs = list(PAIRS) + [(v, "calibrated") for v in have if v not in BASE and "+" not in v]
         for mod in dict.fromkeys(v.split("+", 1)[1] for v in have if "+" in v):  # the same pairs with a modifier on both sides
-            pairs += [(f"{a}+{mod}", f"{b}+{mod}") for a, b in PAIRS] + [(f"calibrated+{mod}", "constant")]
+            pairs += [(f"{a}+{mod}", f"{b}+{mod}") for a, b in PAIRS] + [(f"calibrated+{mod}", "constant"), (f"calibrated+{mod}", "calibrated"), (f"calibrated+{mod}", "truth")]
         for a, b in pairs:
             if a not in have or b not in have:
                 continue
@@ -359,6 +362,10 @@ def main() -> None:
         "--park-calibration", type=int, default=None, metavar="SEED",
         help="park: the calibrated profile from world SEED of the same configuration (default: the bundled sim-park-laser, calibrated on the default park)",
     )
+    ap.add_argument(
+        "--street-calibration", default="100", metavar="SEEDS",
+        help="streets: the calibrated profile pooled over these streets (every second frame of each); other than 100 the runs' variants end in +calSEEDS",
+    )
     ap.add_argument("--tag", default="", help="with --detector: the suffix of the variants and the cache files")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--cache", type=Path, default=ROOT / ".bench-cache")
@@ -376,10 +383,14 @@ def main() -> None:
     if detector and not args.tag:
         raise SystemExit("--detector needs --tag (the variants' suffix and the cache files')")
     tag = f"-{args.tag}" if args.tag else ""
+    cal_streets = ints(args.street_calibration)
+    ctag = "" if cal_streets == [100] else f"cal{args.street_calibration}"
     if args.kind == "street":
-        cal = cache / f"street100-every2{tag}.yaml"
-        if not cal.is_file():
-            calibrated("street", simulated("street", 100, None), cal, "street100-every2" + tag, 2, detector)  # not kept: used once
+        cname = ("street100" if not ctag else f"streets{args.street_calibration}") + "-every2" + tag
+        cal = cache / f"{cname}.yaml"
+        if not cal.is_file():  # not kept: used once
+            logs = [simulated("street", s, None) for s in cal_streets]
+            calibrated("street", logs if ctag else logs[0], cal, cname, 2, detector)
     elif args.park_calibration is not None:  # calibrated on another world of the benchmark's own park configuration
         k = args.park_calibration
         cal = calibrated("park", simulated("park", k, args.frames, cache), cache / f"park{k}-cal.yaml", f"park{k}-cal")
@@ -390,7 +401,7 @@ def main() -> None:
         done = [json.loads(x) for x in args.out.read_text().splitlines() if x.strip()]
     names = {"delta-GLMB": "glmb", "LMB": "lmb", "RB-PHD": "rbphd"}  # rows written before they carried filter_key
     have = {(r["kind"], r["street"], r["poses"], r.get("filter_key", names.get(r["filter"], r["filter"])), r["variant"], r["seed"]) for r in done}
-    suffix = f"+{args.tag}" if args.tag else ""
+    suffix = "".join(f"+{t}" for t in (args.tag, ctag if args.kind == "street" else "") if t)
     def applies(f: str, v: str) -> bool:  # a modifier of the labelled filters' settings does not apply to RB-PHD
         from profiles.errors import DetcalError
 
@@ -413,7 +424,7 @@ def main() -> None:
             if runs:
                 tasks.append({"kind": args.kind, "street": s, "frames": args.frames, "cache": str(cache), "calibrated": str(cal), "runs": runs,
                               "particles": args.particles, "sets": dict(parse_set(x) for x in args.set), "out": str(args.out) if args.out else None,
-                              "detector": detector, "tag": tag})
+                              "detector": detector, "tag": tag, "vsuffix": suffix})
     rows = list(done)
     with ProcessPoolExecutor(max_workers=args.workers) if args.workers > 1 else _Serial() as ex:
         for res in ex.map(run_task, tasks):
