@@ -21,7 +21,8 @@ For planar landmarks on simulated streets (``--kind street``) and circle landmar
   the map planes by their detections' outlines (``detection.plane_extents``), ``+dup`` lowers the survival of a
   track an older one lies near (``filter.survival_duplicate: 0.9``; ``+dupwide``: 0.5 within a squared Mahalanobis
   distance of 1000), ``+nobuf`` turns the buffer zone off, ``+ba`` makes births from measurements a track could
-  explain rare (``filter.birth_associated: 1e-4``).
+  explain rare (``filter.birth_associated: 1e-4``), ``+fc`` takes each frame's clutter rate from the profile's
+  negative binomial (``detection.frame_clutter``).
 
 ``--detector KEY=VALUE`` (with ``--tag NAME``) changes a plane detector setting in every calibration (the street-100
 profile and the truth; the runtime reads the detector from the profile, so calibration and filter count the same
@@ -137,6 +138,7 @@ def calibrated(kind: str, log, out: Path, name: str, every: int = 1, detector: d
 #: settings a variant adds with ``+name`` (``calibrated+ext``: the calibrated profile with bounded map planes)
 MODIFIERS = {
     "ext": {"detection.plane_extents": True},
+    "fc": {"detection.frame_clutter": True},
     "dup": {"filter.survival_duplicate": 0.9},
     "nobuf": {"detection.buffer_zone": False},
     "ba": {"filter.birth_associated": 1e-4},

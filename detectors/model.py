@@ -80,6 +80,7 @@ class DetectionModel:
     buffer_sigmas: float = 2.0
     landmark_radius: float | None = None
     phase_average: bool = True
+    frame_clutter: bool = False
     occluder_radius: float | None = None
     occluder_weight: float = 0.5
 
@@ -127,6 +128,7 @@ class DetectionModel:
             buffer_sigmas=o.buffer_sigmas,
             landmark_radius=o.landmark_radius,
             phase_average=o.phase_average,
+            frame_clutter=o.frame_clutter,
             **({} if o.occlusion else {"occluder_radius": None}),
             **({} if k_sigma is None else {"k_sigma": k_sigma}),
         )

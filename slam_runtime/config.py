@@ -65,6 +65,10 @@ class DetectionOptions(_Strict):
         default=None, gt=0.0, description="radius the n_p ray tracer gives map features [m]; default: the profile's typical true radius"
     )
     phase_average: bool = Field(default=True, description="n_p averaged over where the beams fall, not the integer count")
+    frame_clutter: bool = Field(
+        default=False,
+        description="negative-binomial clutter: each frame's rate from its measurements beyond the map's expected detections",
+    )
     descriptor_likelihood: bool = Field(default=True, description="weigh detections by their descriptors' likelihood ratio (eqs. 2.26, 5.6) when the profile has one")
     occlusion_sigmas: Annotated[float, AllowInfNan(True)] | Literal["profile"] | None = Field(default=None, description="range sigmas a return must fall short to occlude a map feature ('profile', .inf; null: the filter's)")
     occlusion: bool = Field(

@@ -220,6 +220,8 @@ class GLMB(LabelledFilter):
             ex = np.concatenate([self._slot_existence(maps), maps.free_r, maps.births.r], axis=1)
             pd, buf = self.detection.pd_features(sp, sl.mu, sl.cov, meas, ex)
             self._note_seen(sl, pd)
+            if getattr(self.detection, "frame_clutter", False):
+                log_kappa = log_kappa + np.log(self._frame_scale(z, pd, ex, sl.valid))
             pd_model, ab = pd, None
             if cfg.learn_pd:
                 ab = self._factors(maps).get(sl.label, prior_ab(cfg))

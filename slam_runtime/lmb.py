@@ -132,6 +132,8 @@ class LMB(LabelledFilter):
         with tm("pd"):
             pd, buf = self.detection.pd_features(sp, sl.mu, sl.cov, meas, sl.r)
             self._note_seen(sl, pd)
+            if getattr(self.detection, "frame_clutter", False):
+                log_kappa = log_kappa + np.log(self._frame_scale(z, pd, sl.r, sl.valid))
         with tm("costs"):
             pd_model = pd
             if ab is not None:

@@ -111,6 +111,22 @@ class MapFilter(ABC):
             kappa = kappa / np.maximum(np.asarray(meas.ratio, dtype=np.float64), 1e-300)
         return kappa
 
+    def frame_clutter_scale(self, m: int, expected: float) -> float:
+        """lambda_k / lambda: this frame's clutter rate over the profile's mean when ``detection.frame_clutter`` is on
+        and the profile's clutter counts are negative binomial, else 1.
+
+        The negative binomial of the profile (mean ``rate``, variance rate + rate^2 / ``size``) is a Poisson count
+        whose rate is gamma(shape size, rate size / lambda) from frame to frame. Given c false alarms in the frame, the
+        rate's posterior mean is (size + c) / (size / lambda + 1); c is taken as the frame's m measurements less the
+        map's expected detections ``expected`` (sum of P_D times existence or weight, averaged over particles), at
+        least 0. The filter then scores the frame's measurements against kappa(z) lambda_k / lambda: a frame with
+        many unexplained measurements takes more of them for clutter, one with few fewer."""
+        cl = self.detection.clutter
+        if not getattr(self.detection, "frame_clutter", False) or cl.count_model != "negative_binomial" or not cl.size or cl.rate <= 0.0:
+            return 1.0
+        c = max(float(m) - float(expected), 0.0)
+        return (cl.size + c) / (cl.size / cl.rate + 1.0) / cl.rate
+
     def _det_costs(self, zhat, hph, z, rz, own_cov: bool, l_base, log_kappa, in_a, pd_pos, compiled: bool = True):
         """log eta of the detections (P, A, M) (-inf outside the gate or where P_D = 0) and the gate (P, A, M) of the
         active candidates: predicted measurements zhat (P, A, dz), H P H^T (P, A, dz, dz), measurements z (M, dz),
