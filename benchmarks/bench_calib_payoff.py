@@ -139,6 +139,8 @@ def calibrated(kind: str, log, out: Path, name: str, every: int = 1, detector: d
 MODIFIERS = {
     "ext": {"detection.plane_extents": True},
     "fc": {"detection.frame_clutter": True},
+    "fc20": {"detection.frame_clutter": True, "detection.clutter_memory": 20.0},
+    "fc100": {"detection.frame_clutter": True, "detection.clutter_memory": 100.0},
     "dup": {"filter.survival_duplicate": 0.9},
     "nobuf": {"detection.buffer_zone": False},
     "ba": {"filter.birth_associated": 1e-4},

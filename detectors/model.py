@@ -81,6 +81,7 @@ class DetectionModel:
     landmark_radius: float | None = None
     phase_average: bool = True
     frame_clutter: bool = False
+    clutter_memory: float = 0.0
     occluder_radius: float | None = None
     occluder_weight: float = 0.5
 
@@ -129,6 +130,7 @@ class DetectionModel:
             landmark_radius=o.landmark_radius,
             phase_average=o.phase_average,
             frame_clutter=o.frame_clutter,
+            clutter_memory=o.clutter_memory,
             **({} if o.occlusion else {"occluder_radius": None}),
             **({} if k_sigma is None else {"k_sigma": k_sigma}),
         )

@@ -84,6 +84,7 @@ class PlaneDetectionModel:
     range_max: float = 120.0
     extents: bool = False
     frame_clutter: bool = False
+    clutter_memory: float = 0.0
     extent_gate: float = 0.15
     metric_length: float = 10.0
 
@@ -102,13 +103,13 @@ class PlaneDetectionModel:
         o = options
         return cls.from_profile(
             profile, constant_pd=o.constant_pd if o.pd_mode == "constant" else None, buffer=o.buffer_zone, buffer_sigmas=o.buffer_sigmas,
-            extents=o.plane_extents, frame_clutter=o.frame_clutter,
+            extents=o.plane_extents, frame_clutter=o.frame_clutter, clutter_memory=o.clutter_memory,
         )
 
     @classmethod
     def from_profile(
         cls, profile, *, constant_pd: float | None = None, buffer: bool = True, buffer_sigmas: float = 2.0, extents: bool = False,
-        frame_clutter: bool = False, **_ignored
+        frame_clutter: bool = False, clutter_memory: float = 0.0, **_ignored
     ) -> PlaneDetectionModel:
         """The runtime model of a ``lidar3d-planes`` :class:`profiles.profile.DetectorProfile`."""
         st = profile.planes
@@ -132,6 +133,7 @@ class PlaneDetectionModel:
             range_max=float(profile.sensor.range_max or 120.0),
             extents=extents,
             frame_clutter=frame_clutter,
+            clutter_memory=clutter_memory,
         )
 
     @property

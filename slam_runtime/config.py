@@ -69,6 +69,7 @@ class DetectionOptions(_Strict):
         default=False,
         description="negative-binomial clutter: each frame's rate from its measurements beyond the map's expected detections",
     )
+    clutter_memory: float = Field(default=0.0, ge=0.0, description="frame_clutter: frames over which earlier frames' counts are remembered (0: none)")
     descriptor_likelihood: bool = Field(default=True, description="weigh detections by their descriptors' likelihood ratio (eqs. 2.26, 5.6) when the profile has one")
     occlusion_sigmas: Annotated[float, AllowInfNan(True)] | Literal["profile"] | None = Field(default=None, description="range sigmas a return must fall short to occlude a map feature ('profile', .inf; null: the filter's)")
     occlusion: bool = Field(

@@ -120,11 +120,22 @@ class MapFilter(ABC):
         rate's posterior mean is (size + c) / (size / lambda + 1); c is taken as the frame's m measurements less the
         map's expected detections ``expected`` (sum of P_D times existence or weight, averaged over particles), at
         least 0. The filter then scores the frame's measurements against kappa(z) lambda_k / lambda: a frame with
-        many unexplained measurements takes more of them for clutter, one with few fewer."""
+        many unexplained measurements takes more of them for clutter, one with few fewer.
+
+        With ``detection.clutter_memory`` T > 0 the counts of earlier frames count too, each frame's with the weight
+        (1 - 1/T) per frame since (the rate drifting from place to place): (size + sum w c) / (size / lambda + sum w),
+        the run's own clutter rate where the place changes slowly. Called once per frame (it keeps the sums)."""
         cl = self.detection.clutter
         if not getattr(self.detection, "frame_clutter", False) or cl.count_model != "negative_binomial" or not cl.size or cl.rate <= 0.0:
             return 1.0
         c = max(float(m) - float(expected), 0.0)
+        memory = float(getattr(self.detection, "clutter_memory", 0.0))
+        if memory > 0.0:
+            keep = 1.0 - 1.0 / max(memory, 1.0)
+            a, b = getattr(self, "_clutter_sums", (0.0, 0.0))
+            a, b = keep * a + c, keep * b + 1.0
+            self._clutter_sums = (a, b)
+            return (cl.size + a) / (cl.size / cl.rate + b) / cl.rate
         return (cl.size + c) / (cl.size / cl.rate + 1.0) / cl.rate
 
     def _det_costs(self, zhat, hph, z, rz, own_cov: bool, l_base, log_kappa, in_a, pd_pos, compiled: bool = True):
