@@ -67,9 +67,9 @@ class DetectionOptions(_Strict):
     phase_average: bool = Field(default=True, description="n_p averaged over where the beams fall, not the integer count")
     frame_clutter: bool = Field(
         default=False,
-        description="negative-binomial clutter: each frame's rate from its measurements beyond the map's expected detections",
+        description="RB-PHD, LMB, delta-GLMB: a negative-binomial profile's clutter rate per frame, from its unexplained measurements",
     )
-    clutter_memory: float = Field(default=0.0, ge=0.0, description="frame_clutter: frames over which earlier frames' counts are remembered (0: none)")
+    clutter_memory: float = Field(default=0.0, ge=0.0, description="with frame_clutter: frames over which earlier frames' counts are remembered (0 or 1: none)")
     descriptor_likelihood: bool = Field(default=True, description="weigh detections by their descriptors' likelihood ratio (eqs. 2.26, 5.6) when the profile has one")
     occlusion_sigmas: Annotated[float, AllowInfNan(True)] | Literal["profile"] | None = Field(default=None, description="range sigmas a return must fall short to occlude a map feature ('profile', .inf; null: the filter's)")
     occlusion: bool = Field(

@@ -226,6 +226,10 @@ class MHFastSLAM(MapFilter):
 
     def __init__(self, feature: FeatureModel, detection, cfg: MHFastSLAMConfig) -> None:
         super().__init__(feature, detection)
+        if getattr(detection, "frame_clutter", False):
+            from profiles.errors import UsageError
+
+            raise UsageError("detection.frame_clutter: MH-FastSLAM scores clutter with the profile's rate; RB-PHD, LMB and delta-GLMB take it")
         self.cfg = cfg
         self.r = feature.r * cfg.noise_inflation
 

@@ -124,7 +124,10 @@ class MapFilter(ABC):
 
         With ``detection.clutter_memory`` T > 0 the counts of earlier frames count too, each frame's with the weight
         (1 - 1/T) per frame since (the rate drifting from place to place): (size + sum w c) / (size / lambda + sum w),
-        the run's own clutter rate where the place changes slowly. Called once per frame (it keeps the sums)."""
+        the run's own clutter rate where the place changes slowly. Called once per frame (it keeps the sums). The
+        scale is the particles' plain mean, and the log evidence of a run leaves out the clutter's per-frame
+        constant: compare runs by evidence only with the same setting. RB-PHD, LMB and delta-GLMB take it
+        (MH-FastSLAM refuses it)."""
         cl = self.detection.clutter
         if not getattr(self.detection, "frame_clutter", False) or cl.count_model != "negative_binomial" or not cl.size or cl.rate <= 0.0:
             return 1.0

@@ -40,8 +40,10 @@ def test_the_frame_rate_recovers_each_frames_true_clutter_rate_better_than_the_m
     est = np.array([scale(int(k), 5.0) for k in m]) * RATE
     assert float(np.mean((est - lam) ** 2)) <= 0.85 * mse_const
     assert 2.95 <= est.mean() <= 3.35, est.mean()
-    # a frame the map explains entirely takes the rate of no false alarm: size / (size / rate + 1) = 1.2 here
+    # a frame the map explains entirely, or with fewer measurements than the map expects, takes the rate of no
+    # false alarm: size / (size / rate + 1) = 1.2 here
     assert scale(5, 5.0) == pytest.approx(SIZE / (SIZE / RATE + 1.0) / RATE)
+    assert scale(2, 5.0) == scale(5, 5.0)
 
 
 def test_with_memory_the_rate_learns_each_places_rate():
@@ -64,6 +66,20 @@ def test_with_memory_the_rate_learns_each_places_rate():
     assert mse(with_memory) <= 0.25 * mse(frame_only)
 
 
+def test_mh_fastslam_refuses_the_setting():
+    """MH-FastSLAM scores clutter with the profile's rate only: the setting is refused with a message naming it."""
+    from detectors.model import DetectionModel
+    from profiles.errors import UsageError
+    from profiles.schema import PdTable, SensorModel
+    from slam_runtime.fastslam import MHFastSLAM, MHFastSLAMConfig
+    from slam_runtime.features import RangeBearing
+
+    nb = ClutterParams(rate=RATE, volume=1.0, count_model="negative_binomial", size=SIZE)
+    det = DetectionModel(PdTable(covariate="range", edges=[0.0, 20.0], pd=[0.8]), nb, SensorModel(kind="camera", fov=np.pi, range_max=20.0), frame_clutter=True)
+    with pytest.raises(UsageError, match="detection.frame_clutter"):
+        MHFastSLAM(RangeBearing(np.eye(2) * 0.01), det, MHFastSLAMConfig())
+
+
 def test_poisson_profiles_and_the_default_keep_the_profiles_rate():
     """A Poisson profile has no frame-to-frame rate to estimate, and the setting off changes nothing."""
     poisson = ClutterParams(rate=RATE, volume=1.0)
@@ -73,6 +89,7 @@ def test_poisson_profiles_and_the_default_keep_the_profiles_rate():
         assert _scale(nb, on=False)(m, 2.0) == 1.0
 
 
+@pytest.mark.slow  # the park simulated and run four times per filter: make test-slow (CI) runs it
 @pytest.mark.parametrize("filt", ["lmb", "glmb", "rbphd"])
 def test_the_setting_reaches_every_map_filter(filt):
     """The simulated park with the bundled profile (negative-binomial clutter), the path given, 40 frames: the map
