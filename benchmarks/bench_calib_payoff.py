@@ -388,13 +388,12 @@ def main() -> None:
         raise SystemExit("--detector needs --tag (the variants' suffix and the cache files')")
     tag = f"-{args.tag}" if args.tag else ""
     cal_streets = ints(args.street_calibration)
-    ctag = "" if cal_streets == [100] else f"cal{args.street_calibration}"
+    ctag = f"cal{args.street_calibration}" if args.kind == "street" and cal_streets != [100] else ""
     if args.kind == "street":
         cname = ("street100" if not ctag else f"streets{args.street_calibration}") + "-every2" + tag
         cal = cache / f"{cname}.yaml"
         if not cal.is_file():  # not kept: used once
-            logs = [simulated("street", s, None) for s in cal_streets]
-            calibrated("street", logs if ctag else logs[0], cal, cname, 2, detector)
+            calibrated("street", [simulated("street", s, None) for s in cal_streets], cal, cname, 2, detector)
     elif args.park_calibration is not None:  # calibrated on another world of the benchmark's own park configuration
         k = args.park_calibration
         cal = calibrated("park", simulated("park", k, args.frames, cache), cache / f"park{k}-cal.yaml", f"park{k}-cal")
@@ -405,7 +404,7 @@ def main() -> None:
         done = [json.loads(x) for x in args.out.read_text().splitlines() if x.strip()]
     names = {"delta-GLMB": "glmb", "LMB": "lmb", "RB-PHD": "rbphd"}  # rows written before they carried filter_key
     have = {(r["kind"], r["street"], r["poses"], r.get("filter_key", names.get(r["filter"], r["filter"])), r["variant"], r["seed"]) for r in done}
-    suffix = "".join(f"+{t}" for t in (args.tag, ctag if args.kind == "street" else "") if t)
+    suffix = "".join(f"+{t}" for t in (args.tag, ctag) if t)
     def applies(f: str, v: str) -> bool:  # a modifier of the labelled filters' settings does not apply to RB-PHD
         from profiles.errors import DetcalError
 

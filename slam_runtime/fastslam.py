@@ -70,6 +70,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.special import expit, logit
 
+from profiles.errors import UsageError
 from slam_runtime.features import FeatureModel
 from slam_runtime.gm import birth_gaussians, ekf_update, inv, matmul, quad, transpose
 from slam_runtime.kbest import kbest_batch
@@ -226,9 +227,7 @@ class MHFastSLAM(MapFilter):
 
     def __init__(self, feature: FeatureModel, detection, cfg: MHFastSLAMConfig) -> None:
         super().__init__(feature, detection)
-        if getattr(detection, "frame_clutter", False):
-            from profiles.errors import UsageError
-
+        if self.frame_clutter:
             raise UsageError("detection.frame_clutter: MH-FastSLAM scores clutter with the profile's rate; RB-PHD, LMB and delta-GLMB take it")
         self.cfg = cfg
         self.r = feature.r * cfg.noise_inflation

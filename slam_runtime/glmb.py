@@ -224,8 +224,8 @@ class GLMB(LabelledFilter):
             if cfg.learn_pd:
                 ab = self._factors(maps).get(sl.label, prior_ab(cfg))
                 pd = pd * mean_factor(ab)
-            if getattr(self.detection, "frame_clutter", False):  # the expected detections with the learned P_D
-                log_kappa = log_kappa + np.log(self._frame_scale(z, pd, ex, sl.valid))
+            if self.frame_clutter:  # the expected detections with the learned P_D
+                log_kappa = log_kappa + np.log(self.frame_clutter_scale(z.shape[0], self.expected_detections(pd, ex, sl.valid)))
         with tm("costs"):
             shared = np.concatenate([np.zeros((p, t), dtype=bool), fr.valid, np.ones((p, s - t - f), dtype=bool)], axis=1)
             c = self._costs(sl, sp, z, rz, meas.cov is not None, log_kappa, pd, buf, shared if cfg.factor_independent else None, ex)

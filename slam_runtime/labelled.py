@@ -266,13 +266,6 @@ class LabelledFilter(MapFilter):
         return np.repeat(self.rng.integers(0, 2**62, size=self.groups), p // self.groups)
 
     # ------------------------------------------------------------------ pieces of a step
-    def _frame_scale(self, z: np.ndarray, pd: np.ndarray, r: np.ndarray, valid: np.ndarray) -> float:
-        """:meth:`MapFilter.frame_clutter_scale` of this frame (called when ``detection.frame_clutter`` is on): the
-        map's expected detections the sum over the valid slots (tracks and births) of P_D times existence, averaged
-        over particles."""
-        expected = float(np.mean(np.sum(np.where(valid, pd * r, 0.0), axis=1))) if pd.shape[0] else 0.0
-        return self.frame_clutter_scale(z.shape[0], expected)
-
     def _log_kappa(self, z: np.ndarray, meas: Measurements) -> np.ndarray:
         return np.log(np.maximum(self.clutter(z, meas), 1e-300))
 

@@ -136,8 +136,8 @@ class LMB(LabelledFilter):
             pd_model = pd
             if ab is not None:
                 pd = pd * mean_factor(ab)
-            if getattr(self.detection, "frame_clutter", False):  # the expected detections with the learned P_D
-                log_kappa = log_kappa + np.log(self._frame_scale(z, pd, sl.r, sl.valid))
+            if self.frame_clutter:  # the expected detections with the learned P_D
+                log_kappa = log_kappa + np.log(self.frame_clutter_scale(z.shape[0], self.expected_detections(pd, sl.r, sl.valid)))
             # one hypothesis: every candidate is a candidate of every hypothesis, with the same options
             c = self._costs(sl, sp, z, rz, meas.cov is not None, log_kappa, pd, buf, np.ones((p, s), dtype=bool) if self.cfg.factor_independent else None)
             member = np.zeros((p, 1, s), dtype=bool)

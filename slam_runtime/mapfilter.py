@@ -83,6 +83,8 @@ class MapFilter(ABC):
         self.feature = feature
         self.detection = detection
         self.timers = Timers()
+        #: detection.frame_clutter: the filters scale the frame's clutter by :meth:`frame_clutter_scale`
+        self.frame_clutter = bool(getattr(detection, "frame_clutter", False))
         #: steps at which a component cap bound (reported by the runner)
         self.capped_steps = 0
 
@@ -132,14 +134,20 @@ class MapFilter(ABC):
         if not getattr(self.detection, "frame_clutter", False) or cl.count_model != "negative_binomial" or not cl.size or cl.rate <= 0.0:
             return 1.0
         c = max(float(m) - float(expected), 0.0)
-        memory = float(getattr(self.detection, "clutter_memory", 0.0))
-        if memory > 0.0:
-            keep = 1.0 - 1.0 / max(memory, 1.0)
-            a, b = getattr(self, "_clutter_sums", (0.0, 0.0))
-            a, b = keep * a + c, keep * b + 1.0
-            self._clutter_sums = (a, b)
-            return (cl.size + a) / (cl.size / cl.rate + b) / cl.rate
-        return (cl.size + c) / (cl.size / cl.rate + 1.0) / cl.rate
+        keep = 1.0 - 1.0 / max(float(getattr(self.detection, "clutter_memory", 0.0)), 1.0)  # 0: this frame only
+        a, b = getattr(self, "_clutter_sums", (0.0, 0.0))
+        a, b = keep * a + c, keep * b + 1.0
+        self._clutter_sums = (a, b)
+        return (cl.size + a) / (cl.size / cl.rate + b) / cl.rate
+
+    @staticmethod
+    def expected_detections(pd: np.ndarray, weight: np.ndarray, valid: np.ndarray | None = None) -> float:
+        """The map's expected detections in this frame, the :meth:`frame_clutter_scale` argument: the sum of P_D times
+        existence (or PHD weight) over the (valid) features of each particle (P, J), averaged over particles."""
+        if pd.shape[0] == 0:
+            return 0.0
+        e = pd * weight
+        return float(np.mean(np.sum(e if valid is None else np.where(valid, e, 0.0), axis=1)))
 
     def _det_costs(self, zhat, hph, z, rz, own_cov: bool, l_base, log_kappa, in_a, pd_pos, compiled: bool = True):
         """log eta of the detections (P, A, M) (-inf outside the gate or where P_D = 0) and the gate (P, A, M) of the

@@ -175,8 +175,8 @@ class RBPHD(MapFilter):
             pd, buf = self.detection.pd_features(sp, mu, cov, meas, w)
             buf[:, n_map:] = False  # the rule protects map features, not this step's birth hypotheses
         kappa = self.clutter(z, meas)
-        if getattr(self.detection, "frame_clutter", False):
-            kappa = kappa * self.frame_clutter_scale(m, float(np.mean(np.sum(pd * w, axis=1))) if p else 0.0)
+        if self.frame_clutter:
+            kappa = kappa * self.frame_clutter_scale(m, self.expected_detections(pd, w))
         with tm("update"):
             # point features under the filter's one noise: every particle in one compiled call
             # (:func:`slam_runtime.rbphd_kernel.update_points`, the numpy pairs' numbers), which holds the PHD's
