@@ -1,8 +1,9 @@
 """Victoria Park, 10 particles, one map filter (``--filter``, RB-PHD by default): the laser's mount yaw chosen on a
 prefix of the log with seeds that are not reported, then the reported seeds on the full run.
 
-Run: ``python benchmarks/bench_vp_seeds.py [--data ../shared/data] [--filter rbphd|lmb|glmb] [--prefix 2000]
-[--choose-seeds 100,101] [--yaws -0.03,-0.025,-0.02,-0.015,-0.01,-0.005,0] [--seeds 0-9] [--set key=value ...]``.
+Run: ``python benchmarks/bench_vp_seeds.py [--data ../shared/data] [--filter rbphd|lmb|glmb] [--config FILE]
+[--prefix 2000] [--choose-seeds 100,101] [--yaws -0.03,-0.025,-0.02,-0.015,-0.01,-0.005,0] [--seeds 0-9]
+[--set key=value ...]``.
 
 1. Choice: for every candidate yaw, runs of the first ``--prefix`` frames with the ``--choose-seeds`` (never the
    reported ones); the yaw of the largest mean log evidence (``slam_runtime.run.LogEvidence``: no GPS) is taken.
@@ -14,9 +15,10 @@ Run: ``python benchmarks/bench_vp_seeds.py [--data ../shared/data] [--filter rbp
    start in the GPS frame). The log's GPS jumps 6-8 m in 0.2 s (242, 452 and 836 s after its first fix) and 141 m out and
    125 m back within 7 s (1,221 s); every fix counts in the first figure, the 1,068 near a scan in the second.
 
-Settings: ``benchmarks/configs/victoria_park.yaml`` with its ``mount_yaw`` replaced by the chosen one, and the
-filter's own self-calibrated profile (``benchmarks.common.VP_PROFILES``); ``--set`` overrides any other setting
-(values parsed as YAML). One process on one core (BLAS pinned to one thread).
+Settings: ``benchmarks/configs/victoria_park_prefix.yaml`` (every value estimated by self-calibration or chosen on
+the prefix with other seeds; ``--config benchmarks/configs/victoria_park.yaml`` for the settings the profiles were
+self-calibrated with) with its ``mount_yaw`` replaced by the chosen one, and the filter's own self-calibrated
+profile (``benchmarks.common.VP_PROFILES``); ``--set`` overrides any other setting (values parsed as YAML). One process on one core (BLAS pinned to one thread).
 """
 
 from __future__ import annotations
@@ -57,6 +59,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--data", type=Path, default=SHARED_DATA)
     ap.add_argument("--filter", choices=("rbphd", "lmb", "glmb"), default="rbphd", help="map filter (with its own profile)")
+    ap.add_argument("--config", type=Path, default=ROOT / "benchmarks/configs/victoria_park_prefix.yaml", help="settings file")
     ap.add_argument("--prefix", type=int, default=2000, help="frames of the choice runs")
     ap.add_argument("--choose-seeds", default="100,101", help="seeds of the choice runs (not the reported ones)")
     ap.add_argument("--yaws", default="-0.03,-0.025,-0.02,-0.015,-0.01,-0.005,0", help="candidate mount yaws [rad]")
@@ -80,14 +83,15 @@ def main() -> None:
         return
     log = read_log(vp)
     prof = load_profile_file(VP_PROFILES[a.filter])
-    base = with_filter(load_yaml_model(SlamConfig, ROOT / "benchmarks/configs/victoria_park.yaml"), a.filter)
+    base = with_filter(load_yaml_model(SlamConfig, a.config), a.filter)
     sets = dict(parse_set(x) for x in a.sets)
     if sets:
         base = with_settings(base, sets)
     yaws = [float(y) for y in a.yaws.split(",")]
     print(
-        f"CPUs {os.cpu_count()}, load average {'/'.join(f'{x:.1f}' for x in os.getloadavg())}; filter {a.filter}, profile {VP_PROFILES[a.filter].name}"
-        + (f"; settings {sets}" if sets else "")
+        f"CPUs {os.cpu_count()}, load average {'/'.join(f'{x:.1f}' for x in os.getloadavg())}; filter {a.filter}, profile {VP_PROFILES[a.filter].name},"
+        f" settings file {a.config.name}"
+        + (f"; overrides {sets}" if sets else "")
     )
     if len(yaws) > 1 or a.choose_only:
         choose = ints(a.choose_seeds)

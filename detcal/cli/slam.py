@@ -142,6 +142,14 @@ def slam_sweep_cmd(
     scheduler: Annotated[str | None, typer.Option(help="Address of an existing Dask scheduler (e.g. tcp://10.0.0.5:8786) instead of a local cluster.")] = None,
     out_dir: Annotated[Path, typer.Option("--out", help="Sweep folder: one run folder per run, runs.csv, summary.csv, paired.csv, timings.csv.")] = Path("runs/sweep"),
     force: Annotated[bool, typer.Option(help="Start the sweep folder anew (without it, the same command resumes an unfinished sweep).")] = False,
+    write_config: Annotated[
+        Path | None,
+        typer.Option(
+            "--write-config",
+            help="After the runs, write a settings file: --config's settings, the options given and the varied settings at the values of "
+            "the likeliest variant (the largest mean log evidence). Needs --vary and one profile, filter, P_D mode and particle count.",
+        ),
+    ] = None,
 ) -> None:
     """Monte Carlo sweep: every log x profile x filter x P_D mode x particle count x varied setting x seed, on Dask workers.
 
@@ -163,7 +171,7 @@ def slam_sweep_cmd(
     settings = SettingsRequest(config, particles=particles[0] if particles else None, poses=poses)
     sweep = SweepRequest(
         logs, reader.read, reader.fmt, reader.options, profile_refs, settings, seed_list(seeds), out_dir, filters, pd_modes,
-        particles, vary, frames, workers, scheduler, force, inputs=input_refs,
+        particles, vary, frames, workers, scheduler, force, inputs=input_refs, write_config=write_config,
     )  # fmt: skip
     sweep.prepare()
     if force:
@@ -177,3 +185,6 @@ def slam_sweep_cmd(
         out.print(paired_table(res.paired))
     if len(sweep.varied) > 1:
         out.print(evidence_table(res.rows))
+    if write_config is not None:
+        rank = sweep.write_likeliest(res.rows)
+        out.print(f"settings of the likeliest variant ({rank['best']}) written to {write_config}")

@@ -29,6 +29,7 @@ from detcal.pipelines.slam_run import SettingsRequest, check_option, own_option,
 from detcal.reports.slam_run import write_slam_run
 from detcal.reports.sweep import (
     SETTING,
+    by_evidence,
     check_run_names,
     install_run,
     is_number,
@@ -238,6 +239,7 @@ class SweepRequest:
     scheduler: str | None = None
     force: bool = False
     inputs: Callable[[Path, SensorLog], list] = field(default=lambda p, lg: [])  # a log's input files with their sha256
+    write_config: Path | None = None  # --write-config: the likeliest variant's settings file (written after the runs)
     jobs: list[SweepJob] = field(default_factory=list, init=False)
     plan: dict = field(default_factory=dict, init=False)
     varied: list = field(default_factory=list, init=False)
@@ -277,6 +279,8 @@ class SweepRequest:
                 except UsageError as exc:
                     raise UsageError(f"--vary {label}, for filter {f}: {exc}") from None
         checked = {c.poses: c for c in configs.values()}  # (a varied setting may put the runs on the truth's poses)
+        if self.write_config is not None:
+            self._check_write_config(modes, kinds, counts)
         if self.frames is not None and self.frames < 1:
             raise UsageError(f"--frames: expected a positive integer, got {self.frames}")
         check_options(self.workers, self.scheduler)
@@ -319,6 +323,81 @@ class SweepRequest:
         if self.settings.config is not None:
             own = int(read_yaml_mapping(self.settings.config).get("particles", own))
         self.plan = make_plan(self.jobs, {**base.model_dump(mode="json"), "particles": own}, described)
+
+    def _check_write_config(self, modes: list[str], kinds: list[str], counts: list[int]) -> None:
+        """--write-config needs varied settings to choose among and one setting of everything else (the evidence ranks
+        the variants within one profile, filter, P_D mode and particle count), and a file name not taken."""
+        target = self.write_config
+        if len(self.varied) < 2:
+            raise UsageError("--write-config: nothing to choose; give --vary KEY=V1,V2,... (the likeliest value is written)")
+        several = [f"{what} {', '.join(map(str, vals))}" for what, vals in (
+            ("profiles", list(dict.fromkeys(self.profiles))), ("filters", kinds), ("P_D modes", modes), ("particle counts", counts),
+        ) if len(vals) > 1]  # fmt: skip
+        if several:
+            hint = "; give --pd-mode profile" if len(modes) > 1 and self.pd_modes is None else ""
+            raise UsageError(f"--write-config: the sweep ranks its variants for each of several {'; '.join(several)}: sweep one at a time{hint}")
+        if os.path.lexists(target):
+            raise UsageError(f"--write-config: {target} exists; remove it or name another file (a settings file is never overwritten)")
+        if not target.parent.is_dir():
+            raise UsageError(f"--write-config: no folder {target.parent} to write {target.name} in")
+
+    def write_likeliest(self, rows: list[dict]) -> dict:
+        """Write ``write_config``: the settings file the runs started from (``--config``'s mapping, comments not kept),
+        the options the sweep was given (``--filter``, ``--particles``, ``--pd-mode``, ``--poses``) and the varied
+        settings at the likeliest variant's values (:func:`detcal.reports.sweep.by_evidence`), under a header that
+        names the choice and every variant's mean log evidence. ``detcal slam run --config`` with it on the same log and
+        seed repeats the likeliest variant's run (the settings no file gives are derived from the log as in the sweep).
+        Returns the ranking's entry."""
+        import yaml
+
+        from calib.config import read_yaml_mapping
+        from profiles.atomic import atomic_output
+
+        ranked = by_evidence(rows)
+        if not ranked:
+            raise DataError(f"--write-config: no run of the sweep recorded a finite log evidence; {self.write_config} not written")
+        (rank,) = ranked
+        label, changes = next((lb, ch) for lb, ch in self.varied if lb == rank["best"])
+        job = next(j for j in self.jobs if j.labels["variant"] == label)
+        mapping = read_yaml_mapping(self.settings.config) if self.settings.config is not None else {}
+        if self.filters:  # the filter's section as the runs had it (--filter changes the kind and its options): what differs
+            ran = job.config.filter.model_dump(mode="json")  # from that filter's defaults
+            plain = type(job.config.filter)().model_dump(mode="json")
+            mapping["filter"] = {"kind": ran["kind"], **{k: v for k, v in ran.items() if k != "kind" and v != plain[k]}}
+        options = {  # flag: (dotted key, value) of the options given
+            "--filter": ("filter.kind", self.filters and job.labels["filter"]),
+            "--particles": ("particles", self.particles and job.labels["particles"]),
+            "--pd-mode": ("detection.pd_mode", self.pd_modes and job.labels["pd_mode"]),
+            "--poses": ("poses", self.settings.poses),
+        }
+        options = {flag: kv for flag, kv in options.items() if kv[1]}
+        for key, value in [*options.values(), *changes.items()]:
+            node = mapping
+            *parents, leaf = key.split(".")
+            for part in parents:
+                node = node.setdefault(part, {})
+            node[leaf] = value
+        means: dict[object, list[float]] = {}
+        for r in rows:
+            if is_number(r.get("log_evidence")):
+                means.setdefault(r.get("variant"), []).append(float(r["log_evidence"]))
+        logs = ", ".join(dict.fromkeys(j.labels["log"] for j in self.jobs))
+        frames = f"; first {self.frames} frames" if self.frames else ""
+        rest = self.settings.config.name if self.settings.config is not None else "no settings file"
+        head = [
+            f"Written by detcal slam sweep --write-config: of {len(means)} variants the likeliest by the mean log evidence of its runs",
+            f"(log p(Z), no ground truth; logs {logs}; seeds {', '.join(map(str, self.seeds))}{frames}): {label}.",
+            f"Lead over the next ({rank['next']}): {rank['lead']:.1f} +- {rank['lead_se']:.1f} nats, higher in {rank['lead_higher']}"
+            f" of {rank['pairs']} pairs." if rank["next"] is not None else "No other variant recorded a finite log evidence.",
+            "Mean log evidence [nats] of each variant:",
+            *(f"  {v}: {sum(e) / len(e):.1f}" for v, e in means.items()),
+            f"The rest: {rest}" + "".join(f", {flag} {kv[1]}" for flag, kv in options.items())
+            + "; settings no file gives are derived from the log and the profile at run time.",
+        ]
+        text = "".join(f"# {line}\n" for line in head) + yaml.safe_dump(mapping, sort_keys=False, default_flow_style=False)
+        with atomic_output(self.write_config, overwrite=False) as tmp:
+            tmp.write_text(text)
+        return rank
 
     def run(self, progress=None) -> tuple[SweepOutcome, str]:
         """Open (or resume) the sweep folder, run what is missing on the engine; (outcome, where it ran)."""

@@ -99,16 +99,29 @@ def test_sweep_varies_a_setting_and_the_log_evidence_finds_the_simulators_noise(
     its settings in config.yaml), compared run by run in paired.csv, and ranked by the runs' log evidence. The
     simulator's range noise is 0.3 m; with the poses given (80 frames, one particle) the evidence of the true value
     leads both others by tens of nats (measured: 147.6 against 89.5 at 0.1 m and 84.5 at 0.9 m), and the map is no
-    worse with it."""
+    worse with it. ``--write-config`` writes the settings of the likeliest value (the true one), and ``slam run`` with
+    that file repeats its run to the last digit."""
     from detcal.reports.sweep import by_evidence
 
-    out = tmp_path / "sw"
+    out, chosen = tmp_path / "sw", tmp_path / "chosen.yaml"
     code, text, err = run(
         capsys, "slam", "sweep", str(paper / "log.dlog"), "--profile", str(paper / "profile.yaml"), "--filter", "glmb",
         "--pd-mode", "profile", "--particles", "1", "--frames", "80", "--poses", "ground_truth", "--workers", "0",
-        "--vary", "measurement.sigma_range=0.1,0.3,0.9", "--out", str(out),
+        "--vary", "measurement.sigma_range=0.1,0.3,0.9", "--out", str(out), "--write-config", str(chosen),
     )  # fmt: skip
     assert code == 0, err
+    written = yaml.safe_load(chosen.read_text())
+    assert written["measurement"]["sigma_range"] == 0.3
+    assert (written["particles"], written["detection"]["pd_mode"], written["poses"], written["filter"]["kind"]) == (1, "profile", "ground_truth", "glmb")
+    assert "likeliest by the mean log evidence" in chosen.read_text() and "measurement.sigma_range=0.3" in chosen.read_text()
+    code, _, err = run(
+        capsys, "slam", "run", str(paper / "log.dlog"), "--profile", str(paper / "profile.yaml"), "--config", str(chosen),
+        "--frames", "80", "--seed", "0", "--out", str(tmp_path / "again"),
+    )  # fmt: skip
+    assert code == 0, err
+    again = yaml.safe_load((tmp_path / "again" / "metrics.yaml").read_text())["log_evidence"]
+    (v1,) = [p for p in out.iterdir() if p.name.endswith("_v1_s0")]
+    assert again == yaml.safe_load((v1 / "metrics.yaml").read_text())["log_evidence"]
     rows = list(csv.DictReader((out / "runs.csv").read_text().splitlines()))
     labels = [f"measurement.sigma_range={v}" for v in ("0.1", "0.3", "0.9")]
     assert [r["variant"] for r in rows] == labels
@@ -125,6 +138,34 @@ def test_sweep_varies_a_setting_and_the_log_evidence_finds_the_simulators_noise(
     pairs = {(r["a"], r["b"]) for r in csv.DictReader((out / "paired.csv").read_text().splitlines()) if r["varies"] == "variant"}
     assert pairs == {(labels[0], labels[1]), (labels[0], labels[2]), (labels[1], labels[2])}
     assert "likeliest" in text and "evidence" in text
+
+
+@pytest.mark.parametrize(
+    ("extra", "needle"),
+    [
+        ([], "--write-config: nothing to choose; give --vary"),
+        (["--vary", "filter.gate=9,16"], "P_D modes profile, constant: sweep one at a time; give --pd-mode profile"),
+        (["--vary", "filter.gate=9,16", "--pd-mode", "profile", "--particles", "1", "--particles", "2"], "particle counts 1, 2: sweep one at a time"),
+        (["--vary", "filter.gate=9,16", "--pd-mode", "profile", "--write-config", "TAKEN"], "TAKEN exists; remove it or name another file"),
+        (["--vary", "filter.gate=9,16", "--pd-mode", "profile", "--write-config", "nofolder/c.yaml"], "--write-config: no folder"),
+    ],
+)
+def test_write_config_is_refused_before_any_run(tmp_path, capsys, paper, extra, needle):
+    """--write-config needs variants to choose among, one of everything else, and a free file name: refused with one
+    message before any run, the sweep folder not made and an existing file untouched."""
+    taken = tmp_path / "taken.yaml"
+    taken.write_text("particles: 3\n")
+    extra = [str(taken) if e == "TAKEN" else str(tmp_path / e) if e.startswith("nofolder") else e for e in extra]
+    if "--write-config" not in extra:
+        extra += ["--write-config", str(tmp_path / "c.yaml")]
+    code, _, err = run(
+        capsys, "slam", "sweep", str(paper / "log.dlog"), "--profile", str(paper / "profile.yaml"), "--frames", "3", "--workers", "0",
+        "--out", str(tmp_path / "x"), *extra,
+    )  # fmt: skip
+    assert code == 2, err
+    assert_one_line_error(err, needle.replace("TAKEN", str(taken)))
+    assert not (tmp_path / "x").exists() and not (tmp_path / "c.yaml").exists()
+    assert taken.read_text() == "particles: 3\n"
 
 
 @pytest.mark.parametrize(
