@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+import json
 import os
 import shutil
 import tempfile
@@ -24,6 +25,8 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import SimpleNamespace
+
+import numpy as np
 
 from detcal.pipelines.slam_run import SettingsRequest, check_option, own_option, read_value, run_and_evaluate, run_record
 from detcal.reports.slam_run import write_slam_run
@@ -334,7 +337,7 @@ class SweepRequest:
             ("profiles", list(dict.fromkeys(self.profiles))), ("filters", kinds), ("P_D modes", modes), ("particle counts", counts),
         ) if len(vals) > 1]  # fmt: skip
         if several:
-            hint = "; give --pd-mode profile" if len(modes) > 1 and self.pd_modes is None else ""
+            hint = "; give one --pd-mode (without it the sweep runs both)" if len(modes) > 1 and self.pd_modes is None else ""
             raise UsageError(f"--write-config: the sweep ranks its variants for each of several {'; '.join(several)}: sweep one at a time{hint}")
         if os.path.lexists(target):
             raise UsageError(f"--write-config: {target} exists; remove it or name another file (a settings file is never overwritten)")
@@ -353,13 +356,18 @@ class SweepRequest:
         from calib.config import read_yaml_mapping
         from profiles.atomic import atomic_output
 
-        ranked = by_evidence(rows)
-        if not ranked:
-            raise DataError(f"--write-config: no run of the sweep recorded a finite log evidence; {self.write_config} not written")
-        (rank,) = ranked
+        bad = [r for r in rows if not (is_number(r.get("log_evidence")) and np.isfinite(float(r["log_evidence"])))]
+        if bad:  # (every variant is then ranked on the same logs and seeds)
+            r = bad[0]
+            raise DataError(
+                f"--write-config: {len(bad)} of {len(rows)} runs recorded no finite log evidence (the first: {r.get('variant')}, log"
+                f" {r.get('log')}, seed {r.get('seed')}), so the variants cannot be ranked; {self.write_config} not written"
+            )
+        (rank,) = by_evidence(rows)
         label, changes = next((lb, ch) for lb, ch in self.varied if lb == rank["best"])
         job = next(j for j in self.jobs if j.labels["variant"] == label)
-        mapping = read_yaml_mapping(self.settings.config) if self.settings.config is not None else {}
+        # (a JSON round trip: YAML aliases would share one mapping between groups)
+        mapping = json.loads(json.dumps(read_yaml_mapping(self.settings.config))) if self.settings.config is not None else {}
         if self.filters:  # the filter's section as the runs had it (--filter changes the kind and its options): what differs
             ran = job.config.filter.model_dump(mode="json")  # from that filter's defaults
             plain = type(job.config.filter)().model_dump(mode="json")
@@ -375,12 +383,13 @@ class SweepRequest:
             node = mapping
             *parents, leaf = key.split(".")
             for part in parents:
-                node = node.setdefault(part, {})
+                if not isinstance(node.get(part), dict):  # (absent, or an empty group written as null)
+                    node[part] = {}
+                node = node[part]
             node[leaf] = value
         means: dict[object, list[float]] = {}
         for r in rows:
-            if is_number(r.get("log_evidence")):
-                means.setdefault(r.get("variant"), []).append(float(r["log_evidence"]))
+            means.setdefault(r.get("variant"), []).append(float(r["log_evidence"]))
         logs = ", ".join(dict.fromkeys(j.labels["log"] for j in self.jobs))
         frames = f"; first {self.frames} frames" if self.frames else ""
         rest = self.settings.config.name if self.settings.config is not None else "no settings file"
@@ -391,8 +400,9 @@ class SweepRequest:
             f" of {rank['pairs']} pairs." if rank["next"] is not None else "No other variant recorded a finite log evidence.",
             "Mean log evidence [nats] of each variant:",
             *(f"  {v}: {sum(e) / len(e):.1f}" for v, e in means.items()),
-            f"The rest: {rest}" + "".join(f", {flag} {kv[1]}" for flag, kv in options.items())
-            + "; settings no file gives are derived from the log and the profile at run time.",
+            f"The rest: {rest}" + "".join(f", {flag} {kv[1]}" for flag, kv in options.items()) + f"; profile {job.profile.ref}"
+            + "; settings no file gives are derived from the log and the profile at run time"
+            + (f" (a run of the sweep again: --frames {self.frames})." if self.frames else "."),
         ]
         text = "".join(f"# {line}\n" for line in head) + yaml.safe_dump(mapping, sort_keys=False, default_flow_style=False)
         with atomic_output(self.write_config, overwrite=False) as tmp:

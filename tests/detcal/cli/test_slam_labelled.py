@@ -144,7 +144,7 @@ def test_sweep_varies_a_setting_and_the_log_evidence_finds_the_simulators_noise(
     ("extra", "needle"),
     [
         ([], "--write-config: nothing to choose; give --vary"),
-        (["--vary", "filter.gate=9,16"], "P_D modes profile, constant: sweep one at a time; give --pd-mode profile"),
+        (["--vary", "filter.gate=9,16"], "P_D modes profile, constant: sweep one at a time; give one --pd-mode"),
         (["--vary", "filter.gate=9,16", "--pd-mode", "profile", "--particles", "1", "--particles", "2"], "particle counts 1, 2: sweep one at a time"),
         (["--vary", "filter.gate=9,16", "--pd-mode", "profile", "--write-config", "TAKEN"], "TAKEN exists; remove it or name another file"),
         (["--vary", "filter.gate=9,16", "--pd-mode", "profile", "--write-config", "nofolder/c.yaml"], "--write-config: no folder"),
@@ -166,6 +166,30 @@ def test_write_config_is_refused_before_any_run(tmp_path, capsys, paper, extra, 
     assert_one_line_error(err, needle.replace("TAKEN", str(taken)))
     assert not (tmp_path / "x").exists() and not (tmp_path / "c.yaml").exists()
     assert taken.read_text() == "particles: 3\n"
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("-inf")])
+def test_write_config_refuses_a_ranking_with_a_run_of_no_finite_evidence(tmp_path, paper, bad):
+    """A run whose log evidence is not finite (NaN: not computed; -inf: a measurement the model cannot explain) would
+    rank the variants on different runs: nothing is written, and the message names the run."""
+    from calib.io.registry import ReadOptions, read_log
+    from detcal.pipelines.slam_run import SettingsRequest
+    from detcal.pipelines.sweep import SweepRequest
+    from profiles.errors import DataError
+
+    target = tmp_path / "c.yaml"
+    sw = SweepRequest(
+        [paper / "log.dlog"], read_log, None, ReadOptions(), [str(paper / "profile.yaml")], SettingsRequest(None), [0, 1], tmp_path / "x",
+        pd_modes=["profile"], vary=["filter.gate=9,16"], frames=3, write_config=target,
+    )  # fmt: skip
+    sw.prepare()
+    rows = [{**j.labels, "log_evidence": 10.0 + i} for i, j in enumerate(sw.jobs)]
+    rows[1]["log_evidence"] = bad
+    with pytest.raises(DataError, match=r"1 of 4 runs recorded no finite log evidence \(the first: filter.gate=9, log .*, seed 1\)"):
+        sw.write_likeliest(rows)
+    assert not target.exists()
+    rows[1]["log_evidence"] = 11.0
+    assert sw.write_likeliest(rows)["best"] == "filter.gate=16" and "gate: 16" in target.read_text()
 
 
 @pytest.mark.parametrize(
