@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import contextlib
 import itertools
-import json
 import os
 import shutil
 import tempfile
@@ -246,6 +245,7 @@ class SweepRequest:
     jobs: list[SweepJob] = field(default_factory=list, init=False)
     plan: dict = field(default_factory=dict, init=False)
     varied: list = field(default_factory=list, init=False)
+    _base_mapping: dict = field(default_factory=dict, init=False)
 
     def prepare(self) -> None:
         """Check everything and make the jobs and the plan; no run starts and nothing is written."""
@@ -343,6 +343,10 @@ class SweepRequest:
             raise UsageError(f"--write-config: {target} exists; remove it or name another file (a settings file is never overwritten)")
         if not target.parent.is_dir():
             raise UsageError(f"--write-config: no folder {target.parent} to write {target.name} in")
+        from calib.config import read_yaml_mapping
+
+        # the settings file as the runs read it (an edit during a long sweep does not reach the written file)
+        self._base_mapping = read_yaml_mapping(self.settings.config) if self.settings.config is not None else {}
 
     def write_likeliest(self, rows: list[dict]) -> dict:
         """Write ``write_config``: the settings file the runs started from (``--config``'s mapping, comments not kept),
@@ -353,7 +357,6 @@ class SweepRequest:
         Returns the ranking's entry."""
         import yaml
 
-        from calib.config import read_yaml_mapping
         from profiles.atomic import atomic_output
 
         bad = [r for r in rows if not (is_number(r.get("log_evidence")) and np.isfinite(float(r["log_evidence"])))]
@@ -366,8 +369,7 @@ class SweepRequest:
         (rank,) = by_evidence(rows)
         label, changes = next((lb, ch) for lb, ch in self.varied if lb == rank["best"])
         job = next(j for j in self.jobs if j.labels["variant"] == label)
-        # (a JSON round trip: YAML aliases would share one mapping between groups)
-        mapping = json.loads(json.dumps(read_yaml_mapping(self.settings.config))) if self.settings.config is not None else {}
+        mapping = _plain(self._base_mapping)  # (a copy that shares nothing: YAML aliases would share one group)
         if self.filters:  # the filter's section as the runs had it (--filter changes the kind and its options): what differs
             ran = job.config.filter.model_dump(mode="json")  # from that filter's defaults
             plain = type(job.config.filter)().model_dump(mode="json")
@@ -397,12 +399,12 @@ class SweepRequest:
             f"Written by detcal slam sweep --write-config: of {len(means)} variants the likeliest by the mean log evidence of its runs",
             f"(log p(Z), no ground truth; logs {logs}; seeds {', '.join(map(str, self.seeds))}{frames}): {label}.",
             f"Lead over the next ({rank['next']}): {rank['lead']:.1f} +- {rank['lead_se']:.1f} nats, higher in {rank['lead_higher']}"
-            f" of {rank['pairs']} pairs." if rank["next"] is not None else "No other variant recorded a finite log evidence.",
+            f" of {rank['pairs']} pairs.",
             "Mean log evidence [nats] of each variant:",
             *(f"  {v}: {sum(e) / len(e):.1f}" for v, e in means.items()),
             f"The rest: {rest}" + "".join(f", {flag} {kv[1]}" for flag, kv in options.items()) + f"; profile {job.profile.ref}"
             + "; settings no file gives are derived from the log and the profile at run time"
-            + (f" (a run of the sweep again: --frames {self.frames})." if self.frames else "."),
+            + (f" (to repeat one of the sweep's runs, give --frames {self.frames} too)." if self.frames else "."),
         ]
         text = "".join(f"# {line}\n" for line in head) + yaml.safe_dump(mapping, sort_keys=False, default_flow_style=False)
         with atomic_output(self.write_config, overwrite=False) as tmp:
@@ -442,3 +444,12 @@ class SweepRequest:
                 f"{res.folder / 'failed.yaml'}); the {res.skipped + res.ran} others are in {res.folder}: run the same command again "
                 "to complete only the missing ones"
             )
+
+
+def _plain(node: object) -> object:
+    """A copy of a YAML document's mappings and lists that shares no container (copy.deepcopy keeps the aliases)."""
+    if isinstance(node, dict):
+        return {k: _plain(v) for k, v in node.items()}
+    if isinstance(node, list):
+        return [_plain(v) for v in node]
+    return node

@@ -177,9 +177,10 @@ def test_write_config_refuses_a_ranking_with_a_run_of_no_finite_evidence(tmp_pat
     from detcal.pipelines.sweep import SweepRequest
     from profiles.errors import DataError
 
-    target = tmp_path / "c.yaml"
+    target, base = tmp_path / "c.yaml", tmp_path / "base.yaml"
+    base.write_text("detection: &e {}\nmetric: *e\n")  # one YAML mapping under two groups
     sw = SweepRequest(
-        [paper / "log.dlog"], read_log, None, ReadOptions(), [str(paper / "profile.yaml")], SettingsRequest(None), [0, 1], tmp_path / "x",
+        [paper / "log.dlog"], read_log, None, ReadOptions(), [str(paper / "profile.yaml")], SettingsRequest(base), [0, 1], tmp_path / "x",
         pd_modes=["profile"], vary=["filter.gate=9,16"], frames=3, write_config=target,
     )  # fmt: skip
     sw.prepare()
@@ -189,7 +190,10 @@ def test_write_config_refuses_a_ranking_with_a_run_of_no_finite_evidence(tmp_pat
         sw.write_likeliest(rows)
     assert not target.exists()
     rows[1]["log_evidence"] = 11.0
-    assert sw.write_likeliest(rows)["best"] == "filter.gate=16" and "gate: 16" in target.read_text()
+    assert sw.write_likeliest(rows)["best"] == "filter.gate=16"
+    written = yaml.safe_load(target.read_text())
+    assert written["filter"]["gate"] == 16 and written["detection"] == {"pd_mode": "profile"} and written["metric"] == {}
+    assert "base.yaml, --pd-mode profile; profile " in target.read_text() and "give --frames 3 too" in target.read_text()
 
 
 @pytest.mark.parametrize(
