@@ -51,20 +51,26 @@ def load_yaml_model(model: type[M], path: str | Path | None, updates: dict | Non
     if path is not None:
         data = read_yaml_mapping(Path(path))
     for key, value in given.items():
-        node = data
-        *parents, last = key.split(".")
-        for part in parents:
-            if node.get(part) is None:
-                node[part] = {}
-            if not isinstance(node[part], dict):
-                break  # the file's own error is reported
-            node = node[part]
-        else:
-            node[last] = value
+        set_dotted(data, key, value)
     try:
         return model.model_validate(data)
     except ValidationError as exc:
         raise refuse(exc, "the command line" if path is None else str(path)) from None
+
+
+def set_dotted(data: dict, key: str, value: object) -> None:
+    """Set the dotted setting ``key`` (``motion.ackermann.sigma_speed``) in a settings mapping, making the groups it
+    passes through where they are absent or empty (null); a group that is not a mapping is left as it is (the
+    validation then reports the file's own error)."""
+    node = data
+    *parents, last = key.split(".")
+    for part in parents:
+        if node.get(part) is None:
+            node[part] = {}
+        if not isinstance(node[part], dict):
+            return
+        node = node[part]
+    node[last] = value
 
 
 def read_yaml_mapping(path: Path) -> dict:

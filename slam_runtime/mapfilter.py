@@ -83,8 +83,10 @@ class MapFilter(ABC):
         self.feature = feature
         self.detection = detection
         self.timers = Timers()
-        #: detection.frame_clutter: the filters scale the frame's clutter by :meth:`frame_clutter_scale`
+        #: detection.frame_clutter: the filters scale the frame's clutter by :meth:`frame_clutter_scale`, which keeps
+        #: the remembered false-alarm counts and frames in _clutter_sums
         self.frame_clutter = bool(getattr(detection, "frame_clutter", False))
+        self._clutter_sums = (0.0, 0.0)
         #: steps at which a component cap bound (reported by the runner)
         self.capped_steps = 0
 
@@ -131,11 +133,11 @@ class MapFilter(ABC):
         constant: compare runs by evidence only with the same setting. RB-PHD, LMB and delta-GLMB take it
         (MH-FastSLAM refuses it)."""
         cl = self.detection.clutter
-        if not getattr(self.detection, "frame_clutter", False) or cl.count_model != "negative_binomial" or not cl.size or cl.rate <= 0.0:
+        if not self.frame_clutter or cl.count_model != "negative_binomial" or not cl.size or cl.rate <= 0.0:
             return 1.0
         c = max(float(m) - float(expected), 0.0)
-        keep = 1.0 - 1.0 / max(float(getattr(self.detection, "clutter_memory", 0.0)), 1.0)  # 0: this frame only
-        a, b = getattr(self, "_clutter_sums", (0.0, 0.0))
+        keep = 1.0 - 1.0 / max(float(self.detection.clutter_memory), 1.0)  # 0: this frame only
+        a, b = self._clutter_sums
         a, b = keep * a + c, keep * b + 1.0
         self._clutter_sums = (a, b)
         return (cl.size + a) / (cl.size / cl.rate + b) / cl.rate

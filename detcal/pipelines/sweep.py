@@ -27,7 +27,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from detcal.pipelines.slam_run import SettingsRequest, check_option, own_option, read_value, run_and_evaluate, run_record
+from calib.config import read_yaml_mapping, set_dotted
+from detcal.pipelines.slam_run import OPTIONS, SettingsRequest, check_option, own_option, read_value, run_and_evaluate, run_record
 from detcal.reports.slam_run import write_slam_run
 from detcal.reports.sweep import (
     SETTING,
@@ -255,6 +256,9 @@ class SweepRequest:
         from slam_runtime.defaults import derived
         from slam_runtime.run import check_features, check_inputs, check_poses
 
+        # the settings file as the runs read it (the plan's particle count; --write-config's start, so that an edit
+        # during a long sweep does not reach the written file)
+        self._base_mapping = read_yaml_mapping(self.settings.config) if self.settings.config is not None else {}
         modes = list(dict.fromkeys(self.pd_modes or ["profile", "constant"]))
         for m in modes:
             check_option("--pd-mode", m)
@@ -320,11 +324,7 @@ class SweepRequest:
                     self.jobs.append(SweepJob(name, src, prof, cfg, sd, labels, self.frames, refs))
         # the plan records the config's own particle count, as before --particles met the islands check: each run holds
         # its own, and a sweep then resumes whatever order --particles comes in
-        from calib.config import read_yaml_mapping
-
-        own = SlamConfig.model_fields["particles"].default
-        if self.settings.config is not None:
-            own = int(read_yaml_mapping(self.settings.config).get("particles", own))
+        own = int(self._base_mapping.get("particles", SlamConfig.model_fields["particles"].default))
         self.plan = make_plan(self.jobs, {**base.model_dump(mode="json"), "particles": own}, described)
 
     def _check_write_config(self, modes: list[str], kinds: list[str], counts: list[int]) -> None:
@@ -343,10 +343,6 @@ class SweepRequest:
             raise UsageError(f"--write-config: {target} exists; remove it or name another file (a settings file is never overwritten)")
         if not target.parent.is_dir():
             raise UsageError(f"--write-config: no folder {target.parent} to write {target.name} in")
-        from calib.config import read_yaml_mapping
-
-        # the settings file as the runs read it (an edit during a long sweep does not reach the written file)
-        self._base_mapping = read_yaml_mapping(self.settings.config) if self.settings.config is not None else {}
 
     def write_likeliest(self, rows: list[dict]) -> dict:
         """Write ``write_config``: the settings file the runs started from (``--config``'s mapping, comments not kept),
@@ -370,25 +366,17 @@ class SweepRequest:
         label, changes = next((lb, ch) for lb, ch in self.varied if lb == rank["best"])
         job = next(j for j in self.jobs if j.labels["variant"] == label)
         mapping = _plain(self._base_mapping)  # (a copy that shares nothing: YAML aliases would share one group)
-        if self.filters:  # the filter's section as the runs had it (--filter changes the kind and its options): what differs
-            ran = job.config.filter.model_dump(mode="json")  # from that filter's defaults
-            plain = type(job.config.filter)().model_dump(mode="json")
-            mapping["filter"] = {"kind": ran["kind"], **{k: v for k, v in ran.items() if k != "kind" and v != plain[k]}}
-        options = {  # flag: (dotted key, value) of the options given
-            "--filter": ("filter.kind", self.filters and job.labels["filter"]),
-            "--particles": ("particles", self.particles and job.labels["particles"]),
-            "--pd-mode": ("detection.pd_mode", self.pd_modes and job.labels["pd_mode"]),
-            "--poses": ("poses", self.settings.poses),
+        if self.filters:  # the filter's section as the runs had it (--filter changes the kind and its options)
+            mapping["filter"] = {"kind": job.config.filter.kind, **job.config.filter.model_dump(mode="json", exclude_defaults=True)}
+        given = {  # the options given, by flag
+            "--filter": self.filters and job.labels["filter"],
+            "--particles": self.particles and job.labels["particles"],
+            "--pd-mode": self.pd_modes and job.labels["pd_mode"],
+            "--poses": self.settings.poses,
         }
-        options = {flag: kv for flag, kv in options.items() if kv[1]}
-        for key, value in [*options.values(), *changes.items()]:
-            node = mapping
-            *parents, leaf = key.split(".")
-            for part in parents:
-                if not isinstance(node.get(part), dict):  # (absent, or an empty group written as null)
-                    node[part] = {}
-                node = node[part]
-            node[leaf] = value
+        options = {flag: v for flag, v in given.items() if v}
+        for key, value in [*((OPTIONS[flag], v) for flag, v in options.items()), *changes.items()]:
+            set_dotted(mapping, key, value)
         means: dict[object, list[float]] = {}
         for r in rows:
             means.setdefault(r.get("variant"), []).append(float(r["log_evidence"]))
@@ -402,7 +390,7 @@ class SweepRequest:
             f" of {rank['pairs']} pairs.",
             "Mean log evidence [nats] of each variant:",
             *(f"  {v}: {sum(e) / len(e):.1f}" for v, e in means.items()),
-            f"The rest: {rest}" + "".join(f", {flag} {kv[1]}" for flag, kv in options.items()) + f"; profile {job.profile.ref}"
+            f"The rest: {rest}" + "".join(f", {flag} {v}" for flag, v in options.items()) + f"; profile {job.profile.ref}"
             + "; settings no file gives are derived from the log and the profile at run time"
             + (f" (to repeat one of the sweep's runs, give --frames {self.frames} too)." if self.frames else "."),
         ]

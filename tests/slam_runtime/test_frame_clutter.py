@@ -15,7 +15,7 @@ RATE, SIZE = 3.0, 2.0
 
 def _scale(clutter: ClutterParams, on: bool = True, memory: float = 0.0):
     """MapFilter.frame_clutter_scale of a filter whose detection model carries ``clutter``."""
-    holder = SimpleNamespace(detection=SimpleNamespace(clutter=clutter, frame_clutter=on, clutter_memory=memory))
+    holder = SimpleNamespace(detection=SimpleNamespace(clutter=clutter, clutter_memory=memory), frame_clutter=on, _clutter_sums=(0.0, 0.0))
     return lambda m, expected: MapFilter.frame_clutter_scale(holder, m, expected)
 
 
