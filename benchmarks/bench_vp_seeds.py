@@ -38,7 +38,7 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.common import SHARED_DATA, VP_PROFILES, ints, parse_set  # noqa: E402
+from benchmarks.common import SHARED_DATA, VP_PROFILES, BestOffset, ints, parse_set  # noqa: E402
 
 
 class HeaviestPose:
@@ -125,7 +125,7 @@ def main() -> None:
     rows = []
     for s in ints(a.seeds):
         t0 = time.process_time()
-        res = run_slam(log, prof, cfg, s, hooks=tuple(HeaviestPose(i) for i in range(3)))
+        res = run_slam(log, prof, cfg, s, hooks=(*(HeaviestPose(i) for i in range(3)), BestOffset()))
         m = evaluate(log, res, cfg=cfg)
         filtering = np.column_stack([res.per_step[f"heaviest_{c}"] for c in "xyh"])
         rows.append((
@@ -135,7 +135,8 @@ def main() -> None:
         print(
             f"  seed {s}: RMSE {rows[-1][1]:.2f} m (GPS within 25 ms of a scan: {rows[-1][4]:.2f} m; the filtering estimate there: {rows[-1][5]:.2f} m),"
             f" CPU per step median {rows[-1][2]:.2f} ms, features {rows[-1][3]}"
-            f" ({time.process_time() - t0:.0f} s CPU, load {os.getloadavg()[0]:.1f})",
+            + (f", steering offset at the end {res.per_step['steer_offset'][-1]:+.4f} rad" if cfg.motion.ackermann.steer_offset_sd > 0 else "")
+            + f" ({time.process_time() - t0:.0f} s CPU, load {os.getloadavg()[0]:.1f})",
             flush=True,
         )
     rmse = [r[1] for r in rows]

@@ -119,7 +119,12 @@ class RBSlam:
         self._heaviest = np.full(islands, -1, np.int64)
         self.time = {"predict": 0.0, "resample": 0.0}
         self.proposal = resolve_proposal(proposal, vehicle, mapfilter)
-        self._prior: tuple[np.ndarray, np.ndarray] | None = None
+        if vehicle.adaptive and self.proposal != "optimal":
+            raise UsageError(
+                f"the {vehicle.label} model estimates its steering offset in every particle through the optimal proposal's pose "
+                "update: set proposal: optimal (with a map filter that offers it), or leave the offset's standard deviation at 0"
+            )
+        self._prior: tuple[np.ndarray, ...] | None = None
 
     @property
     def n(self) -> int:
@@ -138,7 +143,10 @@ class RBSlam:
         """Move every particle through the control rows (R, k), each held for dts (R,) [s]."""
         t0 = time.perf_counter()
         if self.proposal == "optimal":  # sampled in update(), once the measurements are known
-            self._prior = self.vehicle.predict_gaussian(self.x, controls, dts)
+            if self.vehicle.adaptive:  # (states, pose covariance, the pose's covariance with the bias)
+                self._prior = self.vehicle.predict_joint(self.x, controls, dts)
+            else:
+                self._prior = self.vehicle.predict_gaussian(self.x, controls, dts)
             self.x = self._prior[0]
         else:
             for u, dt in zip(controls, dts, strict=True):  # rows of one frame (a handful); each vectorised over particles
@@ -160,12 +168,15 @@ class RBSlam:
         correction = 0.0
         if self._prior is not None:
             t0 = time.perf_counter()
-            xbar, q = self._prior
-            mean, cov, _ = self.mf.pose_proposal(self.maps, xbar, q, meas)
+            xbar, q = self._prior[0], self._prior[1]
+            pose = self.vehicle.pose(xbar)
+            mean, cov, _ = self.mf.pose_proposal(self.maps, pose, q, meas)
             chol = np.linalg.cholesky(cov + np.eye(3) * 1e-12)
             x = mean + (chol @ self.rng.standard_normal((self.n, 3, 1)))[..., 0]
             x[:, 2] = np.mod(x[:, 2] + np.pi, 2 * np.pi) - np.pi
-            correction = _log_normal(x, xbar, q) - _log_normal(x, mean, cov)
+            correction = _log_normal(x, pose, q) - _log_normal(x, mean, cov)
+            if self.vehicle.adaptive:
+                x = self.vehicle.condition(xbar, q, self._prior[2], x)
             self.x, self._prior = x, None
             self.time["proposal"] = self.time.get("proposal", 0.0) + time.perf_counter() - t0
         self.history.append(self.x, self._pending)
@@ -235,8 +246,8 @@ class RBSlam:
     def trajectory(self, i: int | None = None) -> np.ndarray:
         """(T, dim) the states of particle ``i``'s ancestors at every recorded step (default: the best; with islands
         and a planar-pose vehicle, the mean of the islands' heaviest particles' histories)."""
-        if i is None and self.islands > 1 and self.vehicle.dim == 3:
-            tr = np.stack([self.history.trajectory(int(self._pending[self.island_best(k)])) for k in range(self.islands)])
+        if i is None and self.islands > 1 and (self.vehicle.dim == 3 or self.vehicle.adaptive):
+            tr = np.stack([self.vehicle.pose(self.history.trajectory(int(self._pending[self.island_best(k)]))) for k in range(self.islands)])
             # once per call, at the end of a run: a loop over the steps (one batched product differs in the last bit)
             w = np.full(self.islands, 1.0 / self.islands)
             return np.stack([_mean_pose(tr[:, t], w) for t in range(tr.shape[1])])
@@ -260,7 +271,7 @@ def resolve_proposal(proposal: str, vehicle: VehicleModel, mapfilter: MapFilter)
     """The proposal a run draws its poses from: the optimal one needs a planar-pose vehicle and a map filter that offers
     it ("prior" otherwise); "auto" is the map filter's ``proposal_default`` for point (range-bearing) features, the
     prior for others."""
-    if not (vehicle.dim == 3 and getattr(mapfilter, "proposes_poses", False)):
+    if not ((vehicle.dim == 3 or vehicle.adaptive) and getattr(mapfilter, "proposes_poses", False)):
         return "prior"
     if proposal == "auto":
         return getattr(mapfilter, "proposal_default", "prior") if isinstance(getattr(mapfilter, "feature", None), RangeBearing) else "prior"

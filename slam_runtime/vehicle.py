@@ -62,6 +62,20 @@ class VehicleModel(ABC):
     #: labels, and how little their change must be for the iteration to have settled
     biases: dict[str, str] = {}
     settled: dict[str, float] = {}
+    #: True when each state carries a Gaussian of a bias (its mean and variance after the planar pose) that the
+    #: optimal proposal updates with the pose (:meth:`predict_joint`, :meth:`condition`); the state is then the pose
+    #: and those two columns
+    adaptive: bool = False
+
+    def predict_joint(self, x: np.ndarray, controls: np.ndarray, dts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Adaptive models: the mean motion (P, dim), the pose's covariance (P, 3, 3) with the bias's uncertainty in
+        it, and the pose's covariance with the bias (P, 3), through control rows (R, k) held for dts (R,)."""
+        raise NotImplementedError(f"{type(self).__name__} estimates no bias during a run")
+
+    def condition(self, xbar: np.ndarray, q: np.ndarray, cross: np.ndarray, pose: np.ndarray) -> np.ndarray:
+        """Adaptive models: the states (P, dim) at the drawn poses (P, 3), each bias conditioned on its pose under the
+        joint Gaussian of :meth:`predict_joint` (the measurements depend on the bias only through the pose)."""
+        raise NotImplementedError(f"{type(self).__name__} estimates no bias during a run")
 
     def fit_biases(self, controls: list[tuple[np.ndarray, np.ndarray]], trajectory: np.ndarray) -> dict:
         """The :attr:`biases` measured against a trajectory (T, 3), given each frame's control rows and durations."""
@@ -321,6 +335,8 @@ class AckermannNoise(BaseModel):
     sigma_steer: float = Field(default=0.02, ge=0.0, description="rad")
     steer_offset: float = Field(default=0.0, ge=-0.2, le=0.2, description="steering bias removed from every reading [rad]")
     speed_scale: float = Field(default=1.0, gt=0.5, lt=2.0, description="factor on every speed reading")
+    steer_offset_sd: float = Field(default=0.0, ge=0.0, le=0.1, description="rad: > 0 estimates the offset in every particle, from steer_offset with this sd (optimal proposal)")
+    steer_offset_walk: float = Field(default=0.0, ge=0.0, le=0.01, description="rad/sqrt(s): how fast the estimated steering offset may drift")
 
 
 class Ackermann(VehicleModel):
@@ -352,11 +368,48 @@ class Ackermann(VehicleModel):
         sigma_steer: float = 0.02,
         steer_offset: float | np.ndarray = 0.0,
         speed_scale: float | np.ndarray = 1.0,
+        steer_offset_sd: float = 0.0,
+        steer_offset_walk: float = 0.0,
     ) -> None:
         self.L, self.H = float(wheelbase), float(encoder_offset)
         self.sig = np.array([sigma_speed, sigma_steer], dtype=np.float64)
         self.steer_offset = steer_offset
         self.speed_scale = speed_scale
+        # the steering offset estimated in every particle (a Gaussian: mean and variance in the state's columns 3-4)
+        self.adaptive = steer_offset_sd > 0.0
+        self.dim = 5 if self.adaptive else 3
+        self.offset_sd, self.offset_walk = float(steer_offset_sd), float(steer_offset_walk)
+
+    def initial(self, pose, n):
+        x = super().initial(pose, n)
+        if self.adaptive:
+            x[:, 3], x[:, 4] = float(self.steer_offset), self.offset_sd**2
+        return x
+
+    def predict_joint(self, x, controls, dts):
+        """Each particle's offset o ~ N(x[3], x[4]) (after the random walk's variance for the frame) enters the motion
+        as a steering noise shared by every row: with S = d(pose)/d(o) through the rows, the pose's covariance is
+        the control noise's plus x[4] S S^T and its covariance with o is x[4] S."""
+        xp = np.array(x, dtype=np.float64)
+        xp[:, 4] += self.offset_walk**2 * float(np.sum(dts))
+        c = np.asarray(controls, dtype=np.float64).reshape(-1, 2)
+        pose, cov, sens = _ackermann_gaussian(
+            np.ascontiguousarray(xp[:, :3]), np.ascontiguousarray(xp[:, 3]), c, np.asarray(dts, dtype=np.float64).reshape(-1),
+            self.L, self.H, self.sig[0], self.sig[1], float(self.speed_scale),
+        )  # fmt: skip
+        var = xp[:, 4]
+        xp[:, :3] = pose
+        return xp, cov + var[:, None, None] * sens[:, :, None] * sens[:, None, :], var[:, None] * sens
+
+    def condition(self, xbar, q, cross, pose):
+        d = np.asarray(pose, dtype=np.float64) - xbar[:, :3]
+        d[:, 2] = wrap_angle(d[:, 2])
+        k = np.linalg.solve(q + np.eye(3) * 1e-12, cross[:, :, None])[..., 0]  # q^-1 Cov(pose, o): o regressed on the pose
+        out = np.array(xbar, dtype=np.float64)
+        out[:, :3] = pose
+        out[:, 3] += np.einsum("pi,pi->p", k, d)
+        out[:, 4] = np.maximum(out[:, 4] - np.einsum("pi,pi->p", k, cross), 1e-14)
+        return out
 
     def control_sigmas(self, u, dt):
         return self.sig
@@ -384,46 +437,53 @@ class Ackermann(VehicleModel):
         if np.ndim(self.steer_offset) or np.ndim(self.speed_scale):  # one bias per state: the generic form
             return super().predict_gaussian(x, controls, dts)
         c = np.asarray(controls, dtype=np.float64).reshape(-1, 2)
-        return _ackermann_gaussian(
-            np.ascontiguousarray(x, dtype=np.float64), c, np.asarray(dts, dtype=np.float64).reshape(-1),
-            self.L, self.H, self.sig[0], self.sig[1], float(self.steer_offset), float(self.speed_scale),
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        mean, cov, _ = _ackermann_gaussian(
+            x, np.full(x.shape[0], float(self.steer_offset)), c, np.asarray(dts, dtype=np.float64).reshape(-1),
+            self.L, self.H, self.sig[0], self.sig[1], float(self.speed_scale),
         )  # fmt: skip
+        return mean, cov
 
 
 @numba.njit(cache=True, nogil=True)
-def _ackermann_gaussian(x, controls, dts, wheelbase, h, s_v, s_g, offset, scale):  # pragma: no cover - compiled
+def _ackermann_gaussian(x, offsets, controls, dts, wheelbase, h, s_v, s_g, scale):  # pragma: no cover - compiled
     """Mean motion and linearised covariance of the Ackermann model through control rows (R, 2).
 
     Per row: v_c = s v / (1 - tan(g) H / L), g = steer - offset; x += dt v_c cos th, y += dt v_c sin th,
     th += dt v_c tan(g) / L; C <- F C F^T + G diag(s_v^2, s_g^2) G^T with F = d(motion)/d(state) and
-    G = d(motion)/d(v, steer) written out."""
+    G = d(motion)/d(v, steer) written out.
+
+    One steering offset per pose (P,); also returns the sensitivity of each pose to its offset through the rows
+    (P, 3): S <- F S - d(motion)/d(steer) per row (g = steer - offset)."""
     p = x.shape[0]
     out = x.copy()
     cov = np.zeros((p, 3, 3))
-    f = np.eye(3)  # d(motion)/d(state): the identity but for the heading column's position terms
+    sens = np.zeros((p, 3))
+    f = np.eye(3)
     g_ = np.zeros((3, 2))
     tmp = np.zeros((3, 3))
     for r in range(controls.shape[0]):
         dt = dts[r]
-        g = controls[r, 1] - offset
-        t = np.tan(g)
-        sec2 = 1.0 + t * t
-        den = 1.0 - t * h / wheelbase
-        a = scale / den  # d v_c / d v
-        vc = a * controls[r, 0]
-        dvc = scale * controls[r, 0] * (h / wheelbase) * sec2 / (den * den)  # d v_c / d steer
-        dth = dt * vc * t / wheelbase
         for i in range(p):
+            g = controls[r, 1] - offsets[i]
+            t = np.tan(g)
+            sec2 = 1.0 + t * t
+            den = 1.0 - t * h / wheelbase
+            a = scale / den
+            vc = a * controls[r, 0]
+            dvc = scale * controls[r, 0] * (h / wheelbase) * sec2 / (den * den)
+            dth = dt * vc * t / wheelbase
             th = out[i, 2]
             ct, st = np.cos(th), np.sin(th)
             f[0, 2] = -dt * vc * st
             f[1, 2] = dt * vc * ct
+            gx, gy, gt = dt * dvc * ct, dt * dvc * st, dt / wheelbase * (dvc * t + vc * sec2)  # d(motion)/d(steer)
             g_[0, 0] = dt * a * ct * s_v
             g_[1, 0] = dt * a * st * s_v
             g_[2, 0] = dt * a * t / wheelbase * s_v
-            g_[0, 1] = dt * dvc * ct * s_g
-            g_[1, 1] = dt * dvc * st * s_g
-            g_[2, 1] = dt / wheelbase * (dvc * t + vc * sec2) * s_g
+            g_[0, 1] = gx * s_g
+            g_[1, 1] = gy * s_g
+            g_[2, 1] = gt * s_g
             _left_product(f, cov[i], tmp)
             for m in range(3):
                 for n in range(3):
@@ -432,11 +492,14 @@ def _ackermann_gaussian(x, controls, dts, wheelbase, h, s_v, s_g, offset, scale)
                         acc += tmp[m, k] * f[n, k]
                     acc += g_[m, 0] * g_[n, 0] + g_[m, 1] * g_[n, 1]
                     cov[i, m, n] = acc
+            sens[i, 0] += f[0, 2] * sens[i, 2] - gx
+            sens[i, 1] += f[1, 2] * sens[i, 2] - gy
+            sens[i, 2] -= gt
             out[i, 0] += dt * vc * ct
             out[i, 1] += dt * vc * st
             w = np.mod(th + dth + np.pi, 2.0 * np.pi) - np.pi
-            out[i, 2] = np.pi if w == -np.pi else w  # wrap_angle: (-pi, pi]
-    return out, cov
+            out[i, 2] = np.pi if w == -np.pi else w
+    return out, cov, sens
 
 
 def fit_ackermann_bias(

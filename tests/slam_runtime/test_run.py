@@ -212,3 +212,45 @@ def test_a_run_whose_first_frame_precedes_the_ground_truth_starts_at_the_first_t
     assert start_pose(log, 5 * 10**9).tolist() == [3.0, 4.0, 0.5]  # before the truth: its first pose
     assert start_pose(log, 15 * 10**9) == pytest.approx([3.05, 4.0, 0.5])  # inside: interpolated, as before
     assert start_pose(SensorLog(name="none"), 5 * 10**9).tolist() == [0.0, 0.0, 0.0]  # no truth: the origin
+
+
+def test_steering_offset_estimated_in_every_particle_finds_a_biased_steering():
+    """motion.ackermann.steer_offset_sd > 0: each particle carries a Gaussian of the steering offset, conditioned on
+    its pose by the optimal proposal. The glmb-paper circuit with 0.03 rad added to every steering reading (seed 3,
+    10 particles): without the estimate the path drifts away (5.4 m RMSE; 0.12 m with the true offset given);
+    with it, starting from 0 with a standard deviation of 0.05, the best particle ends within 0.01 rad of the
+    offset and the RMSE falls below 2 m and below 0.4 x the unestimated run's (seeds 1-4 of the same setting end
+    0.030-0.038 rad, 0.19-1.5 m against 5.1-5.5 m). The offset needs the optimal proposal: refused with the prior."""
+    import dataclasses
+
+    from calib.sim.glmb_paper import GlmbPaperConfig, simulate_glmb_paper, truth_profile
+    from profiles.errors import UsageError
+    from slam_runtime.config import SlamConfig, with_settings
+    from slam_runtime.metrics import trajectory_rmse
+    from slam_runtime.run import run_slam
+
+    sim = GlmbPaperConfig(clutter=1.0)
+    log = simulate_glmb_paper(sim, 3)
+    values = log.odometry.values.copy()
+    values[:, 1] += 0.03
+    biased = dataclasses.replace(log, odometry=dataclasses.replace(log.odometry, values=values))
+    prof = truth_profile(sim)
+    base = with_settings(SlamConfig(particles=10, proposal="optimal"), {"motion.ackermann.sigma_speed": 0.1, "motion.ackermann.sigma_steer": 0.035})
+    gt = log.reference["ground_truth"]
+
+    class Offset:
+        name = "offset"
+
+        def __call__(self, k, slam):
+            return float(slam.x[slam.best(), 3])
+
+    def rmse(res):
+        return trajectory_rmse(np.asarray(res.trajectory), gt.poses[np.searchsorted(gt.stamp, res.stamps)], align=False)
+
+    plain = rmse(run_slam(biased, prof, base, 0))
+    est = run_slam(biased, prof, with_settings(base, {"motion.ackermann.steer_offset_sd": 0.05}), 0, hooks=(Offset(),))
+    assert plain > 4.0
+    assert abs(est.per_step["offset"][-1] - 0.03) < 0.01
+    assert rmse(est) < min(2.0, 0.4 * plain)
+    with pytest.raises(UsageError, match="optimal proposal"):
+        run_slam(biased, prof, with_settings(base, {"proposal": "prior", "motion.ackermann.steer_offset_sd": 0.05}), 0, max_frames=3)

@@ -120,3 +120,43 @@ def test_ackermann_closed_form_gaussian_equals_the_generic_linearisation():
     search = Ackermann(2.83, 0.76, steer_offset=np.linspace(-0.01, 0.01, 12))
     m2, _ = search.predict_gaussian(x, controls, dts)
     np.testing.assert_allclose(m2, VehicleModel.predict_gaussian(search, x, controls, dts)[0])
+
+
+def test_ackermann_offset_per_particle_gaussian_and_its_sensitivity():
+    """The joint prediction of a pose and its particle's steering offset (steer_offset_sd > 0): with every particle at
+    the same offset the pose's mean and control covariance are the fixed-offset model's; the sensitivity of the
+    pose to the offset matches central differences of that model; the pose's covariance takes var S S^T and its
+    covariance with the offset var S; conditioning on the predicted mean keeps the offset and lowers its variance
+    by S^T q^-1 S var^2 (the Gaussian regression of the offset on the pose)."""
+    rng = np.random.default_rng(5)
+    L, H, off, sd = 2.83, 0.76, -0.0055, 0.01
+    veh = Ackermann(L, H, sigma_speed=0.5, sigma_steer=0.05, steer_offset=off, speed_scale=1.012, steer_offset_sd=sd)
+    assert veh.adaptive and veh.dim == 5
+    x = veh.initial(np.array([1.0, 2.0, 3.1]), 6)
+    x[:, :3] += np.column_stack([rng.normal(0, 5, (6, 2)), rng.normal(0, 0.1, 6)])
+    np.testing.assert_array_equal(x[:, 3:], np.tile([off, sd**2], (6, 1)))
+    controls = np.column_stack([rng.uniform(0.5, 4.0, 7), rng.uniform(-0.5, 0.5, 7)])
+    dts = rng.uniform(0.01, 0.05, 7)
+    xbar, q, cross = veh.predict_joint(x, controls, dts)
+    fixed = Ackermann(L, H, sigma_speed=0.5, sigma_steer=0.05, steer_offset=off, speed_scale=1.012)
+    m0, c0 = fixed.predict_gaussian(x[:, :3], controls, dts)
+    np.testing.assert_allclose(xbar[:, :3], m0, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(xbar[:, 3:], x[:, 3:])  # no walk: the offset's Gaussian is carried as it is
+    eps = 1e-6
+    up = Ackermann(L, H, steer_offset=off + eps, speed_scale=1.012).predict_gaussian(x[:, :3], controls, dts)[0]
+    down = Ackermann(L, H, steer_offset=off - eps, speed_scale=1.012).predict_gaussian(x[:, :3], controls, dts)[0]
+    sens = (up - down) / (2 * eps)
+    np.testing.assert_allclose(cross, sd**2 * sens, rtol=1e-5, atol=1e-12)
+    np.testing.assert_allclose(q, c0 + sd**2 * sens[:, :, None] * sens[:, None, :], rtol=1e-5, atol=1e-14)
+    post = veh.condition(xbar, q, cross, xbar[:, :3])
+    np.testing.assert_allclose(post[:, 3], off, atol=1e-15)
+    drop = np.einsum("pi,pi->p", np.linalg.solve(q, cross[:, :, None])[..., 0], cross)
+    np.testing.assert_allclose(post[:, 4], sd**2 - drop, rtol=1e-6)  # (condition regularises q by 1e-12 I)
+    assert (post[:, 4] < sd**2).all() and (post[:, 4] > 0).all()
+    # a pose turned further than predicted says the offset is lower (more turn to the left: a smaller offset)
+    turned = xbar[:, :3].copy()
+    turned[:, 2] += 0.01
+    assert (veh.condition(xbar, q, cross, turned)[:, 3] < off).all() == (np.mean(controls[:, 0]) > 0)
+    # the walk widens the offset's variance by walk^2 times the frame's duration
+    walk = Ackermann(L, H, sigma_speed=0.5, sigma_steer=0.05, steer_offset=off, steer_offset_sd=sd, steer_offset_walk=0.01)
+    np.testing.assert_allclose(walk.predict_joint(x, controls, dts)[0][:, 4], sd**2 + 1e-4 * dts.sum())
