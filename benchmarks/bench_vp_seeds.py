@@ -42,7 +42,8 @@ from benchmarks.common import SHARED_DATA, VP_PROFILES, BestOffset, ints, parse_
 
 
 class HeaviestPose:
-    """Hook: coordinate ``i`` (x, y, heading) of the heaviest particle's pose at each step: the filtering estimate."""
+    """Hook: coordinate ``i`` (x, y, heading) of the heaviest particle's pose at each step: the filtering estimate
+    (with islands, of the island of the largest evidence, where the run's path averages the islands)."""
 
     def __init__(self, i: int) -> None:
         self.i, self.name = i, f"heaviest_{'xyh'[i]}"

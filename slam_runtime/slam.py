@@ -156,9 +156,14 @@ class RBSlam:
 
     def place(self, pose: np.ndarray) -> None:
         """Every particle at ``pose`` (x, y, heading) for this step, in place of the motion's or the proposal's draw:
-        mapping with the path given, to measure a map filter alone (called between :meth:`predict` and :meth:`update`)."""
+        mapping with the path given, to measure a map filter alone (called between :meth:`predict` and :meth:`update`).
+        A vehicle that estimates a bias conditions it on the given pose (the one a proposal would have drawn)."""
+        if self.vehicle.adaptive and self._prior is not None:
+            xbar, q, cross = self._prior
+            self.x = self.vehicle.condition(xbar, q, cross, np.broadcast_to(np.asarray(pose, dtype=np.float64)[:3], (self.n, 3)))
+        else:
+            self.x = self.vehicle.placed(self.x, pose)
         self._prior = None
-        self.x = self.vehicle.placed(self.x, pose)
 
     def update(self, meas: Measurements) -> StepInfo:
         """Record the states of this step, update the maps and weights with ``meas``, resample if needed.
@@ -245,7 +250,7 @@ class RBSlam:
 
     def trajectory(self, i: int | None = None) -> np.ndarray:
         """(T, dim) the states of particle ``i``'s ancestors at every recorded step (default: the best; with islands
-        and a planar-pose vehicle, the mean of the islands' heaviest particles' histories)."""
+        and a planar-pose vehicle, (T, 3) the mean pose of the islands' heaviest particles' histories)."""
         if i is None and self.islands > 1 and (self.vehicle.dim == 3 or self.vehicle.adaptive):
             tr = np.stack([self.vehicle.pose(self.history.trajectory(int(self._pending[self.island_best(k)]))) for k in range(self.islands)])
             # once per call, at the end of a run: a loop over the steps (one batched product differs in the last bit)

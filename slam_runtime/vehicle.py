@@ -35,7 +35,7 @@ from abc import ABC, abstractmethod
 
 import numba
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from detectors.geometry import compose
 from detectors.sensor_log import wrap_angle
@@ -337,6 +337,12 @@ class AckermannNoise(BaseModel):
     speed_scale: float = Field(default=1.0, gt=0.5, lt=2.0, description="factor on every speed reading")
     steer_offset_sd: float = Field(default=0.0, ge=0.0, le=0.1, description="rad: > 0 estimates the offset in every particle, from steer_offset with this sd (optimal proposal)")
     steer_offset_walk: float = Field(default=0.0, ge=0.0, le=0.01, description="rad/sqrt(s): how fast the estimated steering offset may drift")
+
+    @model_validator(mode="after")
+    def _walk_needs_the_estimate(self) -> AckermannNoise:
+        if self.steer_offset_walk > 0 and self.steer_offset_sd == 0:
+            raise ValueError("steer_offset_walk is the drift of the estimated offset: it needs steer_offset_sd > 0 (the estimate)")
+        return self
 
 
 class Ackermann(VehicleModel):

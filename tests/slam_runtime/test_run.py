@@ -220,7 +220,8 @@ def test_steering_offset_estimated_in_every_particle_finds_a_biased_steering():
     10 particles): without the estimate the path drifts away (5.4 m RMSE; 0.12 m with the true offset given);
     with it, starting from 0 with a standard deviation of 0.05, the best particle ends within 0.01 rad of the
     offset and the RMSE falls below 2 m and below 0.4 x the unestimated run's (seeds 1-4 of the same setting end
-    0.030-0.038 rad, 0.19-1.5 m against 5.1-5.5 m). The offset needs the optimal proposal: refused with the prior."""
+    0.030-0.038 rad, 0.19-1.5 m against 5.1-5.5 m); with the path given (poses: ground_truth) the offset is
+    conditioned on the true poses. The offset needs the optimal proposal: refused with the prior."""
     import dataclasses
 
     from calib.sim.glmb_paper import GlmbPaperConfig, simulate_glmb_paper, truth_profile
@@ -252,5 +253,9 @@ def test_steering_offset_estimated_in_every_particle_finds_a_biased_steering():
     assert plain > 4.0
     assert abs(est.per_step["offset"][-1] - 0.03) < 0.01
     assert rmse(est) < min(2.0, 0.4 * plain)
+    # with the path given each particle's offset is conditioned on the true pose: it ends within 0.003 rad of the
+    # truth (seeds 1-4: 0.0302-0.0311)
+    given = run_slam(biased, prof, with_settings(base, {"motion.ackermann.steer_offset_sd": 0.05, "poses": "ground_truth"}), 0, hooks=(Offset(),))
+    assert abs(given.per_step["offset"][-1] - 0.03) < 0.003
     with pytest.raises(UsageError, match="optimal proposal"):
         run_slam(biased, prof, with_settings(base, {"proposal": "prior", "motion.ackermann.steer_offset_sd": 0.05}), 0, max_frames=3)
