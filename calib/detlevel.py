@@ -21,6 +21,12 @@ bearing (thesis eq. 6.2 with the covariates changed). The steps:
   position is within the gate of that landmark's true position is a true
   detection; every other detection (other robots, unknown barcodes, misplaced
   landmark readings) is a false alarm;
+* **occlusion**: each (epoch, landmark in view) pair gets its clearance, the
+  smallest distance from its line of sight of a nearer landmark in front of it;
+  the occluder radius is the change point of the detection rate against the
+  clearance (:func:`occluder_radius`), written to the profile (the filters then
+  give P_D 0 to a feature behind a nearer mapped one within that radius), and the
+  pairs it hides leave the P_D fit (the table is that of unoccluded landmarks);
 * **fits**: the P_D model chosen by held-out likelihood among a range table
   and range x bearing grids (:mod:`calib.pdmodels`); clutter counts per epoch
   (Poisson or negative binomial, with the tests) and the clutter density over
@@ -231,10 +237,62 @@ def label_epochs(log: SensorLog, gate: float, period: float, fov: float, range_m
     e, lm = np.nonzero(view)
     block = (e * period // BLOCK_S).astype(np.int64)
     pairs = pd.DataFrame(
-        {"epoch": e, "landmark": log.landmarks.ids[lm], "range": rng[e, lm], "bearing": brg[e, lm], "detected": seen[e, lm], "block": block}
-    )
+        {
+            "epoch": e, "landmark": log.landmarks.ids[lm], "range": rng[e, lm], "bearing": brg[e, lm], "detected": seen[e, lm], "block": block,
+            "clearance": clearance(rng, brg)[e, lm],
+        }
+    )  # fmt: skip
     fa = pd.DataFrame({"epoch": d_epoch[~t], "range": log.detections.range[~t], "bearing": log.detections.bearing[~t]})
     return Labelled(pairs, np.bincount(d_epoch[~t], minlength=epochs.size), fa, dets, outside)
+
+
+def clearance(rng: np.ndarray, brg: np.ndarray) -> np.ndarray:
+    """(E, N) for every epoch and landmark, the smallest distance [m] from its line of sight of another landmark nearer
+    to the sensor and in front of it (inf: none), from their ranges and bearings (E, N): r_c |sin(b_c - b_a)|, the
+    occlusion test of :meth:`detectors.model.DetectionModel._occlude` read as a distance."""
+    out = np.full(rng.shape, np.inf)
+    for c in range(rng.shape[1]):
+        d = brg[:, c : c + 1] - brg
+        lat = rng[:, c : c + 1] * np.abs(np.sin(d))
+        front = (rng[:, c : c + 1] < rng) & (np.cos(d) > 0)
+        front[:, c] = False
+        out = np.where(front, np.minimum(out, lat), out)
+    return out
+
+
+def occluder_radius(clear: np.ndarray, detected: np.ndarray, *, reach: float = 0.5, step: float = 0.005, min_pairs: int = 20) -> tuple[float | None, dict]:
+    """The occluder radius [m] of landmarks from their detections against their clearance (pairs (n,), :func:`clearance`):
+    the change point rho of a two-rate Bernoulli model over the pairs with clearance below ``reach`` (rate p0 below
+    rho, p1 from rho to reach), rho on a grid of ``step``, by maximum likelihood. Taken when the hidden side is
+    rarely detected (p0 < p1 / 2), holds ``min_pairs`` pairs or more, and the change point beats one rate by a
+    likelihood ratio above 13.8 (chi-square, 2 degrees of freedom, p < 0.001); else None (no occlusion seen).
+    Returns the radius and what it was chosen from."""
+    m = clear < reach
+    c, y = clear[m], detected[m].astype(np.float64)
+    info: dict = {"pairs_within_reach": int(m.sum()), "reach_m": reach}
+    if c.size < 2 * min_pairs:
+        return None, info | {"reason": "too few pairs near a line of sight"}
+
+    def ll(k: float, n: float) -> float:
+        p = k / n if n else 0.0
+        return (k * np.log(p) if k else 0.0) + ((n - k) * np.log(1 - p) if n - k else 0.0)
+
+    order = np.argsort(c, kind="stable")
+    cs, ys = c[order], np.cumsum(y[order])
+    grid = np.arange(step, reach, step)
+    n0 = np.searchsorted(cs, grid, side="left")
+    k0 = np.where(n0 > 0, ys[np.maximum(n0 - 1, 0)], 0.0)
+    n, k = float(c.size), float(ys[-1])
+    lls = np.array([ll(a, b) + ll(k - a, n - b) if min_pairs <= b <= n - min_pairs else -np.inf for a, b in zip(k0, n0.astype(float), strict=True)])
+    if not np.isfinite(lls).any():
+        return None, info | {"reason": "too few pairs near a line of sight"}
+    i = int(np.argmax(lls))
+    rho, p0, p1 = round(float(grid[i]), 6), float(k0[i] / n0[i]), float((k - k0[i]) / (n - n0[i]))  # (the grid's value, not its float sum)
+    lr = 2.0 * (lls[i] - ll(k, n))
+    info |= {"change_point_m": rho, "pd_hidden": round(p0, 4), "pd_beside": round(p1, 4), "pairs_hidden": int(n0[i]), "likelihood_ratio": round(float(lr), 2)}
+    if p0 < p1 / 2 and lr > 13.8:
+        return rho, info
+    return None, info | {"reason": "no drop of the detection rate behind a nearer landmark"}
 
 
 @dataclass
@@ -288,6 +346,10 @@ def calibrate_detections(
     rmax = cfg.range_max or float(np.quantile(tt["range"], cfg.quantile))
     parts = [label_epochs(lg, cfg.gate, period, fov, rmax, remap) for lg in logs]
     pairs = pd.concat([p.pairs.assign(log=k) for k, p in enumerate(parts)], ignore_index=True)
+    occ_r, occ_info = occluder_radius(pairs["clearance"].to_numpy(), pairs["detected"].to_numpy(bool)) if cfg.occlusion else (None, {})
+    if occ_r is not None:  # the P_D table is that of unoccluded landmarks: the pairs the radius hides leave the fit
+        occ_info["pairs_removed"] = int((pairs["clearance"] < occ_r).sum())
+        pairs = pairs[pairs["clearance"].to_numpy() >= occ_r].reset_index(drop=True)
     fas = pd.concat([p.false_alarms.assign(log=k) for k, p in enumerate(parts)], ignore_index=True)
     counts = np.concatenate([p.counts for p in parts])
     if len(logs) > 1:
@@ -333,7 +395,7 @@ def calibrate_detections(
     base = dict(
         version=version,
         description=description,
-        detector=DetectorSpec(kind="external", association_gate=cfg.gate),
+        detector=DetectorSpec(kind="external", association_gate=cfg.gate, occluder_radius=occ_r),
         sensor=sensor,
         noise=fit_noise(truths),
         provenance=prov,
@@ -381,6 +443,8 @@ def calibrate_detections(
         "false_detections": int(counts.sum()),
         "landmark_epoch_pairs": len(pairs),
         "pd_overall": float(pairs["detected"].mean()),
+        "occluder_radius_m": occ_r,
+        "occlusion": occ_info if cfg.occlusion else "not estimated (occlusion: false)",
         "pd_model": table.model if table.two_d else "range",
         "pd_model_loglik": {c: round(v, 6) for c, v in zip(sel.candidates, sel.loglik, strict=True)} if sel else "no choice (one fold)",
         "clutter_rate_per_epoch": clut.rate,
@@ -434,6 +498,9 @@ def held_out_detections(profile: DetectorProfile, log: SensorLog, *, remap: dict
     fov, rmax = profile.sensor.fov, profile.sensor.range_max
     lab = label_epochs(log, profile.detector.association_gate, period, fov, rmax, remap)
     pairs = lab.pairs.assign(log=log.name)
+    occ_r = profile.detector.occluder_radius
+    if occ_r is not None:  # the profile's P_D is that of unoccluded landmarks; the radius says which are hidden
+        pairs = pairs[pairs["clearance"].to_numpy() >= occ_r].reset_index(drop=True)
     pairs["predicted"] = predict(profile.pd, pairs)
     pairs["observed"] = pairs["detected"]
     fa = lab.false_alarms

@@ -168,6 +168,9 @@ class DetectionCalibConfig(BaseModel):
     fov: float | None = Field(default=None, gt=0.0, description="field of view [rad] (default: from the true detections)")
     range_max: float | None = Field(default=None, gt=0.0, description="[m] (default: from the true detections)")
     quantile: float = Field(default=0.995, gt=0.5, lt=1.0)
+    occlusion: bool = Field(
+        default=True, description="estimate the landmarks' occluder radius from where a nearer landmark hides them (false: no occlusion)"
+    )
     audit: IdentityAudit = IdentityAudit()
     pd: PdModelConfig = PdModelConfig()
     clutter: ClutterModelConfig = ClutterModelConfig()

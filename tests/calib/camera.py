@@ -38,8 +38,11 @@ def camera_log(
     clutter_range=None,
     swap: tuple[int, int] | None = None,
     robot: int | None = None,
+    occluder: float | None = None,
 ) -> SensorLog:
-    """A log of ``n`` frames. ``swap``: two landmark ids whose surveyed positions are exchanged in the truth."""
+    """A log of ``n`` frames. ``swap``: two landmark ids whose surveyed positions are exchanged in the truth.
+    ``occluder``: landmarks are posts of this radius [m]: one whose centre lies behind a nearer post, within
+    the angle that post subtends (asin(radius / its range)), is never detected."""
     rng = np.random.default_rng(seed)
     t = np.arange(n) * period
     stamp = np.rint(t * 1e9).astype(np.int64)
@@ -50,6 +53,13 @@ def camera_log(
     rng_ = np.hypot(rel[..., 0], rel[..., 1])
     brg = np.mod(np.arctan2(rel[..., 1], rel[..., 0]) - poses[:, None, 2] + np.pi, 2 * np.pi) - np.pi
     seen = (np.abs(brg) <= FOV / 2) & (rng_ <= RANGE_MAX) & (rng.uniform(size=rng_.shape) < pd(rng_, brg))
+    if occluder is not None:
+        for a in range(lm.shape[0]):
+            for c in range(lm.shape[0]):
+                if c != a:
+                    d = np.mod(brg[:, c] - brg[:, a] + np.pi, 2 * np.pi) - np.pi
+                    half = np.arcsin(np.clip(occluder / rng_[:, c], 0.0, 1.0))
+                    seen[:, a] &= ~((rng_[:, c] < rng_[:, a]) & (np.abs(d) < half))
     e, k = np.nonzero(seen)
     r = np.abs(rng_[e, k] + rng.normal(0, 0.05, e.size))
     b = brg[e, k] + rng.normal(0, 0.01, e.size)

@@ -221,3 +221,21 @@ def test_drift_verdicts_are_the_same_bytes_for_the_same_seed(plain, tmp_path):
     for f in ("summary.yaml", "logs.csv", "drift_bins.csv", "clutter_counts.csv", "reliability.png"):
         assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f
     assert (tmp_path / "a/drift_bins.csv").read_bytes() != (tmp_path / "c/drift_bins.csv").read_bytes()
+
+
+def test_occluder_radius_is_found_where_a_nearer_landmark_hides_another(plain):
+    """Landmarks as posts of radius 0.15 m hide what lies behind them (the simulator never detects a landmark within
+    the angle a nearer post subtends): the calibration finds the radius as the change point of the detection rate
+    against the clearance, within 0.01 m (its grid is 0.005 m; the clearance r_c |sin(db)| and the simulator's angle
+    asin(0.15 / r_c) agree to well under that at these ranges), and fits P_D on the unhidden pairs only, so the
+    range table is that of the simulator's P_D as for the plain log. The plain log hides nothing: no radius."""
+    hid = calibrate_detections([camera_log(1, occluder=0.15), camera_log(2, occluder=0.15)], DetectionCalibConfig(), name="cam", version="1.0.0")
+    assert hid.profile.detector.occluder_radius == pytest.approx(0.15, abs=0.01)
+    occ = hid.summary["occlusion"]
+    assert occ["pd_hidden"] == 0.0 and occ["pairs_removed"] > 500
+    m = DetectionModel.from_profile(hid.profile)
+    r = np.arange(1.25, 5.5, 0.5)
+    np.testing.assert_allclose(m.pd_at(np.column_stack([r, np.zeros_like(r)])), pd_range(r), atol=0.06)
+    assert plain.profile.detector.occluder_radius is None and "reason" in plain.summary["occlusion"]
+    off = calibrate_detections([camera_log(1, occluder=0.15)], DetectionCalibConfig(occlusion=False), name="cam", version="1.0.0")
+    assert off.profile.detector.occluder_radius is None
