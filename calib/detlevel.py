@@ -263,10 +263,14 @@ def clearance(rng: np.ndarray, brg: np.ndarray) -> np.ndarray:
 def occluder_radius(clear: np.ndarray, detected: np.ndarray, *, reach: float = 0.5, step: float = 0.005, min_pairs: int = 20) -> tuple[float | None, dict]:
     """The occluder radius [m] of landmarks from their detections against their clearance (pairs (n,), :func:`clearance`):
     the change point rho of a two-rate Bernoulli model over the pairs with clearance below ``reach`` (rate p0 below
-    rho, p1 from rho to reach), rho on a grid of ``step``, by maximum likelihood. Taken when the hidden side is
-    rarely detected (p0 < p1 / 2), holds ``min_pairs`` pairs or more, and the change point beats one rate by a
-    likelihood ratio above 13.8 (chi-square, 2 degrees of freedom, p < 0.001); else None (no occlusion seen).
-    Returns the radius and what it was chosen from."""
+    rho, p1 from rho to reach), rho on a grid of ``step`` among the splits where the rate drops (p0 < p1), by maximum
+    likelihood. Taken when the hidden side is rarely detected (p0 < p1 / 2), holds ``min_pairs`` pairs or more, and
+    the change point beats one rate by a likelihood ratio above 13.8 (a nominal threshold: chi-square with 2 degrees
+    of freedom at p = 0.001, were the pairs independent and the change point fixed; they are neither, so it only
+    screens out logs with little sign of occlusion); else None. The rule differs from the filters' (detectors.model
+    ``_occlude``) in two ways the calibration cannot know before it has the radius: the filters need the occluder
+    nearer by more than twice the radius, and only features in view occlude. Returns the radius and what it was
+    chosen from."""
     m = clear < reach
     c, y = clear[m], detected[m].astype(np.float64)
     info: dict = {"pairs_within_reach": int(m.sum()), "reach_m": reach}
@@ -279,15 +283,18 @@ def occluder_radius(clear: np.ndarray, detected: np.ndarray, *, reach: float = 0
 
     order = np.argsort(c, kind="stable")
     cs, ys = c[order], np.cumsum(y[order])
-    grid = np.arange(step, reach, step)
+    grid = np.round(np.arange(1, int(round(reach / step))) * step, 9)  # decimal grid values: the radius written is the one applied
     n0 = np.searchsorted(cs, grid, side="left")
     k0 = np.where(n0 > 0, ys[np.maximum(n0 - 1, 0)], 0.0)
     n, k = float(c.size), float(ys[-1])
-    lls = np.array([ll(a, b) + ll(k - a, n - b) if min_pairs <= b <= n - min_pairs else -np.inf for a, b in zip(k0, n0.astype(float), strict=True)])
+    lls = np.array([
+        ll(a, b) + ll(k - a, n - b) if min_pairs <= b <= n - min_pairs and a / b < (k - a) / (n - b) else -np.inf
+        for a, b in zip(k0, n0.astype(float), strict=True)
+    ])  # fmt: skip
     if not np.isfinite(lls).any():
-        return None, info | {"reason": "too few pairs near a line of sight"}
+        return None, info | {"reason": "too few pairs near a line of sight, or no drop of the detection rate behind a nearer landmark"}
     i = int(np.argmax(lls))
-    rho, p0, p1 = round(float(grid[i]), 6), float(k0[i] / n0[i]), float((k - k0[i]) / (n - n0[i]))  # (the grid's value, not its float sum)
+    rho, p0, p1 = float(grid[i]), float(k0[i] / n0[i]), float((k - k0[i]) / (n - n0[i]))
     lr = 2.0 * (lls[i] - ll(k, n))
     info |= {"change_point_m": rho, "pd_hidden": round(p0, 4), "pd_beside": round(p1, 4), "pairs_hidden": int(n0[i]), "likelihood_ratio": round(float(lr), 2)}
     if p0 < p1 / 2 and lr > 13.8:
