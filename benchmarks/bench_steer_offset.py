@@ -12,7 +12,6 @@ particle's offset at the end. One process on one core (BLAS pinned to one thread
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import sys
 from pathlib import Path
@@ -23,7 +22,7 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.common import BestOffset, ints  # noqa: E402
+from benchmarks.common import ints  # noqa: E402
 
 
 def main() -> None:
@@ -36,10 +35,10 @@ def main() -> None:
 
     import numpy as np
 
-    from calib.sim.glmb_paper import GlmbPaperConfig, simulate_glmb_paper, truth_profile
+    from calib.sim.glmb_paper import GlmbPaperConfig, simulate_glmb_paper, truth_profile, with_steering_bias
     from slam_runtime.config import SlamConfig, with_settings
     from slam_runtime.metrics import trajectory_rmse
-    from slam_runtime.run import run_slam
+    from slam_runtime.run import SteeringOffset, run_slam
 
     sim = GlmbPaperConfig(clutter=1.0)
     prof = truth_profile(sim)
@@ -51,13 +50,11 @@ def main() -> None:
     print(f"glmb-paper, steering bias {a.bias:+g} rad, {a.particles} particles; RMSE vs the truth [m] (offset at the end [rad])")
     for seed in ints(a.seeds):
         log = simulate_glmb_paper(sim, seed)
-        values = log.odometry.values.copy()
-        values[:, 1] += a.bias
-        biased = dataclasses.replace(log, odometry=dataclasses.replace(log.odometry, values=values))
+        biased = with_steering_bias(log, a.bias)
         gt = log.reference["ground_truth"]
         cells = []
         for name, sets in variants:
-            res = run_slam(biased, prof, with_settings(base, sets), 0, hooks=(BestOffset(),))
+            res = run_slam(biased, prof, with_settings(base, sets), 0, hooks=(SteeringOffset(),))
             err = trajectory_rmse(np.asarray(res.trajectory), gt.poses[np.searchsorted(gt.stamp, res.stamps)], align=False)
             off = res.per_step["steer_offset"][-1]
             cells.append(f"{name} {err:.2f}" + (f" ({off:+.4f})" if np.isfinite(off) else ""))

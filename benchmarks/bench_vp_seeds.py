@@ -38,7 +38,7 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.common import SHARED_DATA, VP_PROFILES, BestOffset, ints, parse_set  # noqa: E402
+from benchmarks.common import SHARED_DATA, VP_PROFILES, ints, parse_set  # noqa: E402
 
 
 class HeaviestPose:
@@ -89,7 +89,7 @@ def main() -> None:
     from calib.io.registry import read_log
     from profiles.store import load_profile_file
     from slam_runtime.config import SlamConfig, with_filter, with_settings
-    from slam_runtime.run import LogEvidence, evaluate, run_slam
+    from slam_runtime.run import LogEvidence, SteeringOffset, evaluate, run_slam
 
     vp = a.data / "victoria_park"
     if not vp.is_dir():
@@ -126,7 +126,7 @@ def main() -> None:
     rows = []
     for s in ints(a.seeds):
         t0 = time.process_time()
-        res = run_slam(log, prof, cfg, s, hooks=(*(HeaviestPose(i) for i in range(3)), BestOffset()))
+        res = run_slam(log, prof, cfg, s, hooks=(*(HeaviestPose(i) for i in range(3)), SteeringOffset()))
         m = evaluate(log, res, cfg=cfg)
         filtering = np.column_stack([res.per_step[f"heaviest_{c}"] for c in "xyh"])
         rows.append((

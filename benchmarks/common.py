@@ -23,15 +23,6 @@ VP_PROFILES = {
 }
 
 
-class BestOffset:
-    """Hook: the heaviest particle's estimated steering offset [rad] (``motion.ackermann.steer_offset_sd`` > 0; else NaN)."""
-
-    name = "steer_offset"
-
-    def __call__(self, k: int, slam) -> float:
-        return float(slam.x[slam.best(), 3]) if slam.vehicle.adaptive else float("nan")
-
-
 def ints(text: str) -> list[int]:
     """``0-2,5`` -> [0, 1, 2, 5]; an empty text -> []."""
     out: list[int] = []

@@ -277,29 +277,35 @@ def occluder_radius(clear: np.ndarray, detected: np.ndarray, *, reach: float = 0
     if c.size < 2 * min_pairs:
         return None, info | {"reason": "too few pairs near a line of sight"}
 
-    def ll(k: float, n: float) -> float:
-        p = k / n if n else 0.0
-        return (k * np.log(p) if k else 0.0) + ((n - k) * np.log(1 - p) if n - k else 0.0)
-
     order = np.argsort(c, kind="stable")
     cs, ys = c[order], np.cumsum(y[order])
     grid = np.round(np.arange(1, int(round(reach / step))) * step, 9)  # decimal grid values: the radius written is the one applied
     n0 = np.searchsorted(cs, grid, side="left")
     k0 = np.where(n0 > 0, ys[np.maximum(n0 - 1, 0)], 0.0)
     n, k = float(c.size), float(ys[-1])
-    lls = np.array([
-        ll(a, b) + ll(k - a, n - b) if min_pairs <= b <= n - min_pairs and a / b < (k - a) / (n - b) else -np.inf
-        for a, b in zip(k0, n0.astype(float), strict=True)
-    ])  # fmt: skip
+    b = n0.astype(np.float64)
+    ok = (b >= min_pairs) & (b <= n - min_pairs)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p0, p1 = k0 / b, (k - k0) / (n - b)
+        lls = np.where(ok & (p0 < p1), _bernoulli_ll(k0, b) + _bernoulli_ll(k - k0, n - b), -np.inf)
     if not np.isfinite(lls).any():
         return None, info | {"reason": "too few pairs near a line of sight, or no drop of the detection rate behind a nearer landmark"}
     i = int(np.argmax(lls))
-    rho, p0, p1 = float(grid[i]), float(k0[i] / n0[i]), float((k - k0[i]) / (n - n0[i]))
-    lr = 2.0 * (lls[i] - ll(k, n))
+    rho, p0, p1 = float(grid[i]), float(p0[i]), float(p1[i])
+    lr = 2.0 * (lls[i] - float(_bernoulli_ll(k, n)))
     info |= {"change_point_m": rho, "pd_hidden": round(p0, 4), "pd_beside": round(p1, 4), "pairs_hidden": int(n0[i]), "likelihood_ratio": round(float(lr), 2)}
     if p0 < p1 / 2 and lr > 13.8:
         return rho, info
     return None, info | {"reason": "no drop of the detection rate behind a nearer landmark"}
+
+
+def _bernoulli_ll(k, n):
+    """The maximised log-likelihood of k successes in n Bernoulli trials (elementwise; 0 where n is 0)."""
+    from scipy.special import xlogy
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p = np.where(n > 0, k / np.where(n > 0, n, 1.0), 0.0)
+        return xlogy(k, p) + xlogy(n - k, 1.0 - p)
 
 
 @dataclass

@@ -204,6 +204,15 @@ class LogEvidence:
         return float(slam.log_evidence)
 
 
+class SteeringOffset:
+    """Hook: the heaviest particle's estimated steering offset [rad] (``motion.ackermann.steer_offset_sd`` > 0; else NaN)."""
+
+    name = "steer_offset"
+
+    def __call__(self, k: int, slam: RBSlam) -> float:
+        return float(slam.x[slam.best(), 3]) if slam.vehicle.adaptive else float("nan")
+
+
 def run_slam(
     log: SensorLog,
     profile,

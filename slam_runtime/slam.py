@@ -251,7 +251,7 @@ class RBSlam:
     def trajectory(self, i: int | None = None) -> np.ndarray:
         """(T, dim) the states of particle ``i``'s ancestors at every recorded step (default: the best; with islands
         and a planar-pose vehicle, (T, 3) the mean pose of the islands' heaviest particles' histories)."""
-        if i is None and self.islands > 1 and (self.vehicle.dim == 3 or self.vehicle.adaptive):
+        if i is None and self.islands > 1 and self.vehicle.planar:
             tr = np.stack([self.vehicle.pose(self.history.trajectory(int(self._pending[self.island_best(k)]))) for k in range(self.islands)])
             # once per call, at the end of a run: a loop over the steps (one batched product differs in the last bit)
             w = np.full(self.islands, 1.0 / self.islands)
@@ -276,7 +276,7 @@ def resolve_proposal(proposal: str, vehicle: VehicleModel, mapfilter: MapFilter)
     """The proposal a run draws its poses from: the optimal one needs a planar-pose vehicle and a map filter that offers
     it ("prior" otherwise); "auto" is the map filter's ``proposal_default`` for point (range-bearing) features, the
     prior for others."""
-    if not ((vehicle.dim == 3 or vehicle.adaptive) and getattr(mapfilter, "proposes_poses", False)):
+    if not (vehicle.planar and getattr(mapfilter, "proposes_poses", False)):
         return "prior"
     if proposal == "auto":
         return getattr(mapfilter, "proposal_default", "prior") if isinstance(getattr(mapfilter, "feature", None), RangeBearing) else "prior"

@@ -67,6 +67,12 @@ class VehicleModel(ABC):
     #: and those two columns
     adaptive: bool = False
 
+    @property
+    def planar(self) -> bool:
+        """The state is a planar pose (with an adaptive model's bias beside it): what the optimal proposal and the
+        islands' mean path take."""
+        return self.dim == 3 or self.adaptive
+
     def predict_joint(self, x: np.ndarray, controls: np.ndarray, dts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Adaptive models: the mean motion (P, dim), the pose's covariance (P, 3, 3) with the bias's uncertainty in
         it, and the pose's covariance with the bias (P, 3), through control rows (R, k) held for dts (R,)."""
@@ -465,7 +471,7 @@ def _ackermann_gaussian(x, offsets, controls, dts, wheelbase, h, s_v, s_g, scale
     out = x.copy()
     cov = np.zeros((p, 3, 3))
     sens = np.zeros((p, 3))
-    f = np.eye(3)
+    f = np.eye(3)  # d(motion)/d(state): the identity but for the heading column's position terms
     g_ = np.zeros((3, 2))
     tmp = np.zeros((3, 3))
     for r in range(controls.shape[0]):
@@ -475,9 +481,9 @@ def _ackermann_gaussian(x, offsets, controls, dts, wheelbase, h, s_v, s_g, scale
             t = np.tan(g)
             sec2 = 1.0 + t * t
             den = 1.0 - t * h / wheelbase
-            a = scale / den
+            a = scale / den  # d v_c / d v
             vc = a * controls[r, 0]
-            dvc = scale * controls[r, 0] * (h / wheelbase) * sec2 / (den * den)
+            dvc = scale * controls[r, 0] * (h / wheelbase) * sec2 / (den * den)  # d v_c / d steer
             dth = dt * vc * t / wheelbase
             th = out[i, 2]
             ct, st = np.cos(th), np.sin(th)
@@ -504,7 +510,7 @@ def _ackermann_gaussian(x, offsets, controls, dts, wheelbase, h, s_v, s_g, scale
             out[i, 0] += dt * vc * ct
             out[i, 1] += dt * vc * st
             w = np.mod(th + dth + np.pi, 2.0 * np.pi) - np.pi
-            out[i, 2] = np.pi if w == -np.pi else w
+            out[i, 2] = np.pi if w == -np.pi else w  # wrap_angle: (-pi, pi]
     return out, cov, sens
 
 

@@ -36,6 +36,8 @@ reproducible from its text).
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from calib.sim import SIMULATORS, Option, Simulated, Simulator, truth_provenance, with_truth
@@ -139,6 +141,14 @@ def simulate_glmb_paper(cfg: GlmbPaperConfig, seed: int, clutter_draw: int | Non
             **({} if clutter_draw is None else {"clutter_draw": int(clutter_draw)}),
         },
     )
+
+
+def with_steering_bias(log: SensorLog, bias: float) -> SensorLog:
+    """The log with ``bias`` [rad] added to every steering reading of its Ackermann odometry (the truth unchanged): a
+    vehicle whose steering offset the filter has to find."""
+    values = log.odometry.values.copy()
+    values[:, 1] += bias
+    return dataclasses.replace(log, odometry=dataclasses.replace(log.odometry, values=values))
 
 
 def oracle_noise(cfg: GlmbPaperConfig) -> dict:

@@ -377,19 +377,16 @@ class SweepRequest:
         options = {flag: v for flag, v in given.items() if v}
         for key, value in [*((OPTIONS[flag], v) for flag, v in options.items()), *changes.items()]:
             set_dotted(mapping, key, value)
-        means: dict[object, list[float]] = {}
-        for r in rows:
-            means.setdefault(r.get("variant"), []).append(float(r["log_evidence"]))
         logs = ", ".join(dict.fromkeys(j.labels["log"] for j in self.jobs))
         frames = f"; first {self.frames} frames" if self.frames else ""
         rest = self.settings.config.name if self.settings.config is not None else "no settings file"
         head = [
-            f"Written by detcal slam sweep --write-config: of {len(means)} variants the likeliest by the mean log evidence of its runs",
+            f"Written by detcal slam sweep --write-config: of {len(rank['means'])} variants the likeliest by the mean log evidence of its runs",
             f"(log p(Z), no ground truth; logs {logs}; seeds {', '.join(map(str, self.seeds))}{frames}): {label}.",
             f"Lead over the next ({rank['next']}): {rank['lead']:.1f} +- {rank['lead_se']:.1f} nats, higher in {rank['lead_higher']}"
             f" of {rank['pairs']} pairs.",
             "Mean log evidence [nats] of each variant:",
-            *(f"  {v}: {sum(e) / len(e):.1f}" for v, e in means.items()),
+            *(f"  {v}: {m:.1f}" for v, m in rank["means"].items()),
             f"The rest: {rest}" + "".join(f", {flag} {v}" for flag, v in options.items()) + f"; profile {job.profile.ref}"
             + "; settings no file gives are derived from the log and the profile at run time"
             + (f" (to repeat one of the sweep's runs, give --frames {self.frames} too)." if self.frames else "."),

@@ -316,7 +316,7 @@ def by_evidence(rows: list[dict]) -> list[dict]:
         means = {v: float(np.mean([r["log_evidence"] for r in rs])) for v, rs in by_var.items()}
         ranked = sorted(means, key=lambda v: -means[v])  # (stable: ties keep the plan's order)
         best = ranked[0]
-        entry = {**dict(zip(fixed, key, strict=True)), "best": best, "best_mean": means[best], "next": None}
+        entry = {**dict(zip(fixed, key, strict=True)), "best": best, "best_mean": means[best], "means": means, "next": None}
         if len(ranked) > 1:
             nxt = ranked[1]
             runs: dict[tuple, dict[object, list[dict]]] = {}

@@ -222,40 +222,30 @@ def test_steering_offset_estimated_in_every_particle_finds_a_biased_steering():
     offset and the RMSE falls below 2 m and below 0.4 x the unestimated run's (seeds 1-4 of the same setting end
     0.030-0.038 rad, 0.19-1.5 m against 5.1-5.5 m); with the path given (poses: ground_truth) the offset is
     conditioned on the true poses. The offset needs the optimal proposal: refused with the prior."""
-    import dataclasses
-
-    from calib.sim.glmb_paper import GlmbPaperConfig, simulate_glmb_paper, truth_profile
+    from calib.sim.glmb_paper import GlmbPaperConfig, simulate_glmb_paper, truth_profile, with_steering_bias
     from profiles.errors import UsageError
     from slam_runtime.config import SlamConfig, with_settings
     from slam_runtime.metrics import trajectory_rmse
-    from slam_runtime.run import run_slam
+    from slam_runtime.run import SteeringOffset, run_slam
 
     sim = GlmbPaperConfig(clutter=1.0)
     log = simulate_glmb_paper(sim, 3)
-    values = log.odometry.values.copy()
-    values[:, 1] += 0.03
-    biased = dataclasses.replace(log, odometry=dataclasses.replace(log.odometry, values=values))
+    biased = with_steering_bias(log, 0.03)
     prof = truth_profile(sim)
     base = with_settings(SlamConfig(particles=10, proposal="optimal"), {"motion.ackermann.sigma_speed": 0.1, "motion.ackermann.sigma_steer": 0.035})
     gt = log.reference["ground_truth"]
-
-    class Offset:
-        name = "offset"
-
-        def __call__(self, k, slam):
-            return float(slam.x[slam.best(), 3])
 
     def rmse(res):
         return trajectory_rmse(np.asarray(res.trajectory), gt.poses[np.searchsorted(gt.stamp, res.stamps)], align=False)
 
     plain = rmse(run_slam(biased, prof, base, 0))
-    est = run_slam(biased, prof, with_settings(base, {"motion.ackermann.steer_offset_sd": 0.05}), 0, hooks=(Offset(),))
+    est = run_slam(biased, prof, with_settings(base, {"motion.ackermann.steer_offset_sd": 0.05}), 0, hooks=(SteeringOffset(),))
     assert plain > 4.0
-    assert abs(est.per_step["offset"][-1] - 0.03) < 0.01
+    assert abs(est.per_step["steer_offset"][-1] - 0.03) < 0.01
     assert rmse(est) < min(2.0, 0.4 * plain)
     # with the path given each particle's offset is conditioned on the true pose: it ends within 0.003 rad of the
     # truth (seeds 1-4: 0.0302-0.0311)
-    given = run_slam(biased, prof, with_settings(base, {"motion.ackermann.steer_offset_sd": 0.05, "poses": "ground_truth"}), 0, hooks=(Offset(),))
-    assert abs(given.per_step["offset"][-1] - 0.03) < 0.003
+    given = run_slam(biased, prof, with_settings(base, {"motion.ackermann.steer_offset_sd": 0.05, "poses": "ground_truth"}), 0, hooks=(SteeringOffset(),))
+    assert abs(given.per_step["steer_offset"][-1] - 0.03) < 0.003
     with pytest.raises(UsageError, match="optimal proposal"):
         run_slam(biased, prof, with_settings(base, {"proposal": "prior", "motion.ackermann.steer_offset_sd": 0.05}), 0, max_frames=3)
