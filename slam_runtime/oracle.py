@@ -33,6 +33,13 @@ Two odometry kinds are modelled, those of the simulators: ``increment`` (pose
 increments in the vehicle frame, rfs-sim: per-axis sigma) and ``ackermann``
 (speed and steering of a rear-axle bicycle, glmb-paper: the controls are
 variables with their noise as prior, the poses follow them exactly).
+
+:func:`log_oracle` is the same question for a recorded log whose detections carry identities (UTIAS's
+barcodes): a pose at every frame the filters step through, the odometry between frames as the filter's own
+vehicle model predicts it (mean and covariance, :meth:`~slam_runtime.vehicle.VehicleModel.predict_gaussian`),
+the identities as the associations, a Huber loss on the measurements (a real camera's outliers), the first pose
+at the truth as the filters start there. What it reaches with the associations given is the floor a filter
+that must find them can be held to.
 """
 
 from __future__ import annotations
@@ -47,7 +54,15 @@ from scipy.sparse.linalg import splu
 from detectors.geometry import compose, interpolate_poses
 from detectors.sensor_log import SensorLog, wrap_angle
 from profiles.errors import DataError, UsageError
-from slam_runtime.oracle_factors import Blocks, ackermann_factors, bicycle, increment_factors, range_bearing_factors, range_bearing_jacobian
+from slam_runtime.oracle_factors import (
+    Blocks,
+    ackermann_factors,
+    bicycle,
+    increment_factors,
+    range_bearing_factors,
+    range_bearing_jacobian,
+    relative_pose_factors,
+)
 from slam_runtime.refine import association_weights
 
 
@@ -534,3 +549,153 @@ def clutter_information_ratio(pd: float, density: float, rng: np.random.Generato
     return float(np.mean(score**2) / pd)
 
 
+
+
+@dataclass
+class LogOracleResult:
+    """:func:`log_oracle`'s mode."""
+
+    stamps: np.ndarray  # (T,) the log's frame stamps [ns]: the steps of a filter run on it
+    poses: np.ndarray  # (T, 3) MAP vehicle poses, world frame
+    landmark_ids: np.ndarray  # (L,)
+    landmarks: np.ndarray  # (L, 2) MAP landmark positions (NaN: never detected)
+    detected: np.ndarray  # (L,) bool
+    iterations: int  # of the last solve
+    converged: bool  # the last solve's step moved nothing by more than ``tolerance``
+    downweighted: float  # share of the labelled detections whose residual the Huber loss downweighted at the mode
+    forward_stamps: np.ndarray  # (W,) the last frame of each window [ns]
+    forward_poses: np.ndarray  # (W, 3) the pose there given the data up to it: what a filter (forward only) could know
+
+
+def log_oracle(
+    log: SensorLog,
+    vehicle,
+    labels: np.ndarray,
+    *,
+    range_sigma: float,
+    bearing_sigma: float,
+    huber: float = 3.0,
+    window: float = 30.0,
+    iterations: int = 50,
+    tolerance: float = 1e-6,
+) -> LogOracleResult:
+    """The full-SLAM mode of a recorded log, its detections' associations given.
+
+    vehicle: the filter's vehicle model (planar pose state); labels (detections,): the landmark id of each
+    detection, or -1 for one that is no landmark (clutter, another robot); range_sigma [m], bearing_sigma [rad]: the
+    measurement noise; huber: the whitened residual norm beyond which a detection is downweighted (IRLS). The run
+    grows ``window`` seconds at a time (each solve starts from the last, the new frames dead-reckoned on, each new
+    landmark from its first detection): a whole log from dead reckoning metres off would fall into a wrong basin.
+    The last pose of each window's solve is the mode given the data up to it (``forward_poses``): the floor of a
+    filter's estimate at that time, where the final ``poses`` also use what came after (a smoother's).
+    """
+    _check_noise(range_sigma, bearing_sigma, iterations)
+    if not huber > 0 or not window > 0:
+        raise UsageError(f"log_oracle: huber and window must be positive, not {huber!r} and {window!r}")
+    det, ref = log.detections, log.reference.get("ground_truth")
+    if log.odometry is None or det is None or log.landmarks is None or ref is None:
+        raise DataError(f"{log.name}: the oracle needs odometry, detections, landmark truth and ground truth")
+    labels = np.asarray(labels)
+    if labels.shape != (det.range.size,):
+        raise UsageError(f"log_oracle: one label per detection ({det.range.size}), not an array of shape {labels.shape}")
+    if getattr(vehicle, "dim", 3) != 3:
+        raise UsageError(f"log_oracle: a vehicle model whose state is the planar pose, not {type(vehicle).__name__} of {vehicle.dim}")
+    mount = log.sensor.mount if log.sensor is not None else None
+    if mount is not None and (mount.x, mount.y, mount.theta) != (0.0, 0.0, 0.0):
+        raise DataError(f"{log.name}: the oracle models a sensor at the vehicle's reference point")
+    from slam_runtime.sources import control_rows
+
+    frames = list(log.frames())
+    stamps = np.array([f.stamp for f in frames], dtype=np.int64)
+    if not ref.stamp[0] <= stamps[0] <= ref.stamp[-1]:
+        raise DataError(f"{log.name}: the ground truth does not cover the first frame")
+    n = stamps.size
+    # the odometry between frames: the vehicle model's mean increment and its covariance, in the earlier frame's pose
+    inc, cov = np.zeros((n - 1, 3)), np.zeros((n - 1, 3, 3))
+    x0 = vehicle.initial(np.zeros(3), 1)
+    for k, fr in enumerate(frames[1:]):
+        u, dt = control_rows(log, fr.odometry)
+        if u.shape[0]:
+            m, c = vehicle.predict_gaussian(x0, u, dt)
+            inc[k], cov[k] = vehicle.pose(m)[0], c[0, :3, :3]
+    # frames with no odometry between them hold the pose (0.1 mm, 1e-5 rad)
+    whiten = np.linalg.inv(np.linalg.cholesky(cov + np.diag([1e-8, 1e-8, 1e-10])))
+    ids = np.asarray(log.landmarks.ids)
+    keep = labels >= 0
+    li = np.minimum(np.searchsorted(ids, labels[keep]), ids.size - 1)
+    if np.any(ids[li] != labels[keep]):
+        raise DataError(f"{log.name}: label {int(labels[keep][ids[li] != labels[keep]][0])} is no landmark of the log's truth")
+    k_of, zr, zb = det.frame[keep], np.asarray(det.range)[keep], np.asarray(det.bearing)[keep]
+    start = interpolate_poses(ref.stamp, ref.poses, stamps[:1])[0]
+
+    x = np.zeros((n, 3))
+    x[0] = start
+    lm = np.full((ids.size, 2), np.nan)
+    ends = np.searchsorted(stamps, stamps[0] + np.arange(1, int((stamps[-1] - stamps[0]) / (window * 1e9)) + 1) * int(window * 1e9))
+    ends = np.unique(np.concatenate([ends[(ends > 1) & (ends < n)], [n]]))
+    done, it, converged, w = 1, 0, False, np.ones(0)
+    forward = np.zeros((ends.size, 3))
+    for i, end in enumerate(ends):
+        for k in range(done - 1, end - 1):  # dead reckoning onto the new frames
+            x[k + 1] = compose(x[k], inc[k])
+        sel = k_of < end
+        new = sel & np.isnan(lm[li, 0])
+        first = np.unique(li[new], return_index=True)[1]
+        j, f = li[new][first], np.flatnonzero(new)[first]
+        a = x[k_of[f], 2] + zb[f]
+        lm[j] = x[k_of[f], :2] + zr[f, None] * np.column_stack([np.cos(a), np.sin(a)])
+        last = end == n  # the windows before only place the start of the next: a few iterations, a coarse tolerance
+        it, converged, w = _solve_log(x[:end], lm, inc[: end - 1], whiten[: end - 1], start, k_of[sel], li[sel], zr[sel], zb[sel],
+                                      range_sigma, bearing_sigma, huber, iterations if last else min(iterations, 10),
+                                      tolerance if last else max(tolerance, 1e-4))  # fmt: skip
+        forward[i] = x[end - 1]
+        done = end
+    return LogOracleResult(
+        stamps, x, ids, lm, ~np.isnan(lm[:, 0]), it, converged, float(np.mean(w < 1.0)) if w.size else 0.0, stamps[ends - 1], forward
+    )
+
+
+def _solve_log(x, lm, inc, whiten, start, k_of, li, zr, zb, sr, sb, huber, iterations, tolerance):
+    """Gauss-Newton with Huber weights re-set at each iteration (IRLS), x (m, 3) and the seen landmarks of lm in
+    place: (iterations, converged, the final weights)."""
+    seen = np.flatnonzero(~np.isnan(lm[:, 0]))
+    col = -np.ones(lm.shape[0], dtype=np.int64)
+    col[seen] = np.arange(seen.size)
+    lj = col[li]
+    nx = 3 * x.shape[0]
+    nv = nx + 2 * seen.size
+    sub = lm[seen].copy()
+    w = np.ones(k_of.size)
+    converged, it = False, 0
+    for it in range(1, iterations + 1):
+        b = Blocks()
+        relative_pose_factors(b, x, inc, whiten)
+        range_bearing_factors(b, x, sub, k_of, lj, zr, zb, sr, sb, nx, w=w)
+        d0 = x[0] - start
+        d0[2] = wrap_angle(d0[2])
+        b.add(1e6 * d0, [(np.arange(3), np.full(3, 1e6))])  # the first pose is the true start
+        jac, res = b.build(nv)
+        step = splu((jac.T @ jac).tocsc()).solve(-(jac.T @ res))
+        x += step[:nx].reshape(-1, 3)
+        x[:, 2] = wrap_angle(x[:, 2])
+        sub += step[nx:].reshape(-1, 2)
+        q = sub[lj] - x[k_of, :2]
+        e = np.hypot((np.hypot(q[:, 0], q[:, 1]) - zr) / sr, wrap_angle(np.arctan2(q[:, 1], q[:, 0]) - x[k_of, 2] - zb) / sb)
+        w = huber / np.maximum(e, huber)  # 1 within the threshold, huber / e beyond
+        if np.abs(step).max() < tolerance:
+            converged = True
+            break
+    lm[seen] = sub
+    return it, converged, w
+
+
+def as_slam_result(res: LogOracleResult):
+    """The oracle's mode in the shape of a filter run's result (no timings, every landmark it placed as the map), so
+    that :func:`slam_runtime.run.evaluate` scores it with the filters' own metrics."""
+    from slam_runtime.run import SlamResult
+
+    t = res.stamps.size
+    return SlamResult(
+        "oracle", res.stamps, res.poses, res.poses, res.landmarks[res.detected], np.ones(int(res.detected.sum())),
+        np.zeros(t), np.zeros(t, dtype=np.int64), np.ones(t), np.zeros(t, dtype=bool), np.ones(t), res.poses[0].copy(),
+    )  # fmt: skip

@@ -123,3 +123,27 @@ def range_bearing_jacobian(x, lm, k_of, lj, zr, zb, sr, sb, off) -> tuple[np.nda
     jac[:, 1, :] = np.column_stack(v[4:])
     cols = np.column_stack([3 * k_of, 3 * k_of + 1, 3 * k_of + 2, off + 2 * lj, off + 2 * lj + 1])
     return np.column_stack(b.res), jac, cols
+
+
+def relative_pose_factors(b: Blocks, x: np.ndarray, inc: np.ndarray, whiten: np.ndarray) -> None:
+    """relative(x_{k-1}, x_k) - inc_k for k = 1..N-1, whitened by whiten_k (N-1, 3, 3) (the inverse Cholesky factor
+    of the increment's covariance, which may couple the axes): the odometry between the frames of a log."""
+    a, c = x[:-1], x[1:]
+    co, si = np.cos(a[:, 2]), np.sin(a[:, 2])
+    dx, dy = c[:, 0] - a[:, 0], c[:, 1] - a[:, 1]
+    r = np.column_stack([co * dx + si * dy - inc[:, 0], -si * dx + co * dy - inc[:, 1], wrap_angle(c[:, 2] - a[:, 2] - inc[:, 2])])
+    zero = np.zeros_like(co)
+    jac = np.stack(
+        [
+            np.column_stack([-co, -si, -si * dx + co * dy, co, si, zero]),
+            np.column_stack([si, -co, -co * dx - si * dy, -si, co, zero]),
+            np.column_stack([zero, zero, zero - 1.0, zero, zero, zero + 1.0]),
+        ],
+        axis=1,
+    )  # (N-1, 3, 6): d(r)/d(x_{k-1}, x_k)
+    rw = np.einsum("kij,kj->ki", whiten, r)
+    jw = np.einsum("kij,kjl->kil", whiten, jac)
+    ia = 3 * np.arange(x.shape[0] - 1)
+    cols = ia[:, None] + np.arange(6)[None, :]
+    for i in range(3):
+        b.add(rw[:, i], [(cols[:, q], jw[:, i, q]) for q in range(6)])

@@ -249,3 +249,51 @@ def test_steering_offset_estimated_in_every_particle_finds_a_biased_steering():
     assert abs(given.per_step["steer_offset"][-1] - 0.03) < 0.003
     with pytest.raises(UsageError, match="optimal proposal"):
         run_slam(biased, prof, with_settings(base, {"proposal": "prior", "motion.ackermann.steer_offset_sd": 0.05}), 0, max_frames=3)
+
+
+def _circle_run(turn_deg: float, map_shift: float = 0.0):
+    """A log driving a 5 m circle past 8 landmarks, and a result whose path and map are the truth turned by
+    ``turn_deg`` about the start (the gauge a SLAM solution cannot see), the map also shifted by ``map_shift`` [m]."""
+    from detectors.geometry import compose
+    from detectors.sensor_log import Landmarks, ReferencePoses
+    from slam_runtime.run import SlamResult
+
+    t = np.linspace(0.0, 2 * np.pi, 200)
+    truth = np.column_stack([5 * np.sin(t), 5 - 5 * np.cos(t), t])
+    st = _stamps(200, 10.0)
+    a = np.linspace(0, 2 * np.pi, 8, endpoint=False)
+    lm = np.column_stack([7 * np.sin(a), 5 - 7 * np.cos(a)])
+    log = SensorLog(
+        "circle",
+        odometry=Odometry("velocity", st, np.tile([5 * (t[1] - t[0]) * 10.0, (t[1] - t[0]) * 10.0], (200, 1))),
+        reference={"ground_truth": ReferencePoses("ground_truth", st, truth)},
+        landmarks=Landmarks(np.arange(8), lm, None, None),
+    )
+    g = np.array([0.0, 0.0, np.radians(turn_deg)])
+    path = compose(g, truth)
+    mp = compose(g, np.column_stack([lm, np.zeros(8)]))[:, :2] + [map_shift, 0.0]
+    res = SlamResult("rbphd", st, path, path, mp, np.ones(8), np.zeros(200), np.zeros(200, int), np.ones(200),
+                     np.zeros(200, bool), np.ones(200), truth[0])  # fmt: skip
+    return log, res
+
+
+def test_path_aligned_metrics_take_out_the_gauge_and_only_the_gauge():
+    """Path and map turned together by 4 degrees about the start: as mapped, the landmarks 2-12 m from the start
+    lie 0.14-0.84 m off and one is within 0.3 m; after the path's rigid fit every one is, the RMSE is 0, and the
+    fit's angle is the turn undone. A map that is wrong by itself (shifted 0.5 m, the path right) stays wrong after the
+    fit: the fit is the path's, never the map's."""
+    from slam_runtime.run import evaluate
+
+    log, res = _circle_run(4.0)
+    m = evaluate(log, res)
+    assert m["trajectory_rmse_vs_ground_truth_m"] > 0.3
+    assert m["landmarks_within_03_m"] == 1
+    assert m["trajectory_rmse_vs_ground_truth_path_aligned_m"] < 1e-9
+    assert abs(m["path_alignment_deg"] + 4.0) < 1e-9
+    assert m["landmarks_within_03_m_path_aligned"] == 8
+    assert m["map_ospa_path_aligned"] < 1e-9
+    log, res = _circle_run(0.0, map_shift=0.5)
+    m = evaluate(log, res)
+    assert m["trajectory_rmse_vs_ground_truth_path_aligned_m"] < 1e-9
+    assert m["landmarks_within_03_m"] == m["landmarks_within_03_m_path_aligned"] == 0
+    assert abs(m["map_ospa_path_aligned"] - 0.5) < 1e-9
