@@ -603,23 +603,12 @@ def log_oracle(
     mount = log.sensor.mount if log.sensor is not None else None
     if mount is not None and (mount.x, mount.y, mount.theta) != (0.0, 0.0, 0.0):
         raise DataError(f"{log.name}: the oracle models a sensor at the vehicle's reference point")
-    from slam_runtime.sources import control_rows
-
     frames = list(log.frames())
     stamps = np.array([f.stamp for f in frames], dtype=np.int64)
     if not ref.stamp[0] <= stamps[0] <= ref.stamp[-1]:
         raise DataError(f"{log.name}: the ground truth does not cover the first frame")
     n = stamps.size
-    # the odometry between frames: the vehicle model's mean increment and its covariance, in the earlier frame's pose
-    inc, cov = np.zeros((n - 1, 3)), np.zeros((n - 1, 3, 3))
-    x0 = vehicle.initial(np.zeros(3), 1)
-    for k, fr in enumerate(frames[1:]):
-        u, dt = control_rows(log, fr.odometry)
-        if u.shape[0]:
-            m, c = vehicle.predict_gaussian(x0, u, dt)
-            inc[k], cov[k] = vehicle.pose(m)[0], c[0, :3, :3]
-    # frames with no odometry between them hold the pose (0.1 mm, 1e-5 rad)
-    whiten = np.linalg.inv(np.linalg.cholesky(cov + np.diag([1e-8, 1e-8, 1e-10])))
+    inc, whiten = frame_odometry(log, vehicle, frames)
     ids = np.asarray(log.landmarks.ids)
     keep = labels >= 0
     li = np.minimum(np.searchsorted(ids, labels[keep]), ids.size - 1)
@@ -653,6 +642,25 @@ def log_oracle(
     return LogOracleResult(
         stamps, x, ids, lm, ~np.isnan(lm[:, 0]), it, converged, float(np.mean(w < 1.0)) if w.size else 0.0, stamps[ends - 1], forward
     )
+
+
+def frame_odometry(log: SensorLog, vehicle, frames: list | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The odometry between consecutive frames as the vehicle model predicts it: the mean increment (T-1, 3) in the
+    earlier frame's pose, and the whitening (T-1, 3, 3), W = L^-1 for the increment's covariance L L^T, so that
+    W (relative pose - increment) has unit covariance. Frames with no odometry row between them hold the pose
+    (0.1 mm, 1e-5 rad)."""
+    from slam_runtime.sources import control_rows
+
+    frames = list(log.frames()) if frames is None else frames
+    n = len(frames)
+    inc, cov = np.zeros((n - 1, 3)), np.zeros((n - 1, 3, 3))
+    x0 = vehicle.initial(np.zeros(3), 1)
+    for k, fr in enumerate(frames[1:]):
+        u, dt = control_rows(log, fr.odometry)
+        if u.shape[0]:
+            m, c = vehicle.predict_gaussian(x0, u, dt)
+            inc[k], cov[k] = vehicle.pose(m)[0], c[0, :3, :3]
+    return inc, np.linalg.inv(np.linalg.cholesky(cov + np.diag([1e-8, 1e-8, 1e-10])))
 
 
 def _solve_log(x, lm, inc, whiten, start, k_of, li, zr, zb, sr, sb, huber, iterations, tolerance):
