@@ -91,27 +91,25 @@ def oracle_row(log, others, prof, cfg) -> None:
     other robots' identity audit says; scored as the filters are."""
     import numpy as np
 
-    from calib.detlevel import DetectionCalibConfig, audit_identities
-    from calib.io.utias import TARGET_LANDMARK
+    from calib.detlevel import DetectionCalibConfig, audit_identities, identities
+    from detectors.geometry import interpolate_poses
+    from detectors.sensor_log import wrap_angle
+    from slam_runtime.metrics import trajectory_rmse
     from slam_runtime.oracle import as_slam_result, log_oracle
     from slam_runtime.run import build, evaluate
 
     t0 = time.process_time()
     dc = DetectionCalibConfig()
-    remap, _ = audit_identities(others, dc.gate, dc.audit)
-    d = log.detections.descriptors
-    labels = np.where(d["target"] == TARGET_LANDMARK, [remap.get(int(s), int(s)) for s in d["subject"]], -1)
+    ident = identities(log, audit_identities(others, dc.gate, dc.audit)[0])
+    labels = np.where(np.isin(ident, log.landmarks.ids), ident, -1)  # other robots and unknown barcodes: no landmark
     b = build(log, prof, cfg)
     sr, sb = np.sqrt(np.diag(b.mapfilter.feature.r))[:2]
     res = log_oracle(log, b.vehicle, labels, range_sigma=float(sr), bearing_sigma=float(sb))
     m = evaluate(log, as_slam_result(res), cfg=cfg)
-    from detectors.geometry import interpolate_poses
-    from detectors.sensor_log import wrap_angle
-
     ref = log.reference["ground_truth"]
-    fwd = res.forward_poses - interpolate_poses(ref.stamp, ref.poses, res.forward_stamps)
-    fwd_rmse = float(np.sqrt(np.mean(np.sum(fwd[:, :2] ** 2, axis=1))))
-    fwd_heading = float(np.degrees(np.abs(wrap_angle(fwd[:, 2])).max()))
+    truth = interpolate_poses(ref.stamp, ref.poses, res.forward_stamps)
+    fwd_rmse = trajectory_rmse(res.forward_poses, truth)
+    fwd_heading = float(np.degrees(np.abs(wrap_angle(res.forward_poses[:, 2] - truth[:, 2])).max()))
     print(
         f"  {'oracle (barcodes)':<22} RMSE {m['trajectory_rmse_vs_ground_truth_m']:.2f} m, odometry {m['odometry_rmse_vs_ground_truth_m']:.2f};"
         f" OSPA {m['map_ospa']:.3f}, landmarks {int(res.detected.sum())} (within 0.3 m: {m['landmarks_within_03_m']});"

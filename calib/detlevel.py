@@ -151,6 +151,18 @@ def audit_identities(logs: list[SensorLog], gate: float, cfg: IdentityAudit) -> 
     return remap, evidence
 
 
+def identities(log: SensorLog, remap: dict[int, int] | None = None) -> np.ndarray:
+    """(detections,) the identity each detection reads (its ``subject``), with those the identity audit re-attributed
+    (``remap``: identity -> landmark id) replaced."""
+    subj = np.asarray(log.detections.descriptors["subject"], dtype=np.int64)
+    if remap:
+        keys = np.array(list(remap), dtype=np.int64)
+        vals = np.array(list(remap.values()), dtype=np.int64)
+        pos = index_of(subj, keys)
+        subj = np.where(pos >= 0, vals[np.maximum(pos, 0)], subj)
+    return subj
+
+
 def true_detections(log: SensorLog, gate: float, remap: dict[int, int] | None = None) -> pd.DataFrame:
     """One row per detection: range, bearing, frame stamp, landmark index or -1, and whether it is true.
 
@@ -158,13 +170,7 @@ def true_detections(log: SensorLog, gate: float, remap: dict[int, int] | None = 
     """
     d = log.detections
     sp, world = _detections_world(log)
-    subj = np.asarray(d.descriptors["subject"], dtype=np.int64)
-    if remap:
-        keys = np.array(list(remap), dtype=np.int64)
-        vals = np.array(list(remap.values()), dtype=np.int64)
-        pos = index_of(subj, keys)
-        subj = np.where(pos >= 0, vals[np.maximum(pos, 0)], subj)
-    lm = index_of(subj, log.landmarks.ids)
+    lm = index_of(identities(log, remap), log.landmarks.ids)
     dist = np.where(lm >= 0, np.hypot(*(world - log.landmarks.xy[np.maximum(lm, 0)]).T), np.inf)
     rel = log.landmarks.xy[np.maximum(lm, 0)] - sp[:, :2]
     r_hat = np.hypot(rel[:, 0], rel[:, 1])

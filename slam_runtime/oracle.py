@@ -193,12 +193,15 @@ def _problem(log: SensorLog, odometry_sigma) -> _Problem:
         ctrl = np.zeros((0, 2))
         for k in range(1, n):
             x[k] = compose(x[k - 1], odo[k])
-    lm = np.zeros((nl, 2))
     first = np.unique(lj, return_index=True)[1]  # each landmark's first detection (lj lists them in frame order)
-    a = x[k_of[first], 2] + zb[first]
-    lm[:, 0] = x[k_of[first], 0] + zr[first] * np.cos(a)
-    lm[:, 1] = x[k_of[first], 1] + zr[first] * np.sin(a)
+    lm = _sighted(x[k_of[first]], zr[first], zb[first])
     return _Problem(log.name, stamps, ack, odo, ctrl, dts, wb, sig, start, ids, detected, k_of, lj, zr, zb, x, lm)
+
+
+def _sighted(poses: np.ndarray, rng: np.ndarray, brg: np.ndarray) -> np.ndarray:
+    """(n, 2) the points at range and bearing (n,) from poses (n, 3): landmarks placed by a detection."""
+    a = poses[:, 2] + brg
+    return np.column_stack([poses[:, 0] + rng * np.cos(a), poses[:, 1] + rng * np.sin(a)])
 
 
 def _motion_blocks(prob: _Problem, x: np.ndarray, ctrl: np.ndarray) -> Blocks:
@@ -212,8 +215,8 @@ def _motion_blocks(prob: _Problem, x: np.ndarray, ctrl: np.ndarray) -> Blocks:
     return blocks
 
 
-def _anchor(prob: _Problem, blocks: Blocks, x: np.ndarray) -> None:
-    d0 = x[0] - prob.start
+def _anchor(blocks: Blocks, x: np.ndarray, start: np.ndarray) -> None:
+    d0 = x[0] - start
     d0[2] = wrap_angle(d0[2])
     blocks.add(1e6 * d0, [(np.arange(3), np.full(3, 1e6))])  # the first pose is the true start
 
@@ -303,7 +306,7 @@ def _solve_labelled(prob: _Problem, range_sigma: float, bearing_sigma: float, it
     for it in range(1, iterations + 1):
         blocks = _motion_blocks(prob, x, ctrl)
         range_bearing_factors(blocks, x, lm, prob.k_of, prob.lj, prob.zr, prob.zb, range_sigma, bearing_sigma, nx + nc)
-        _anchor(prob, blocks, x)
+        _anchor(blocks, x, prob.start)
         jac, res = blocks.build(nv)
         h = (jac.T @ jac).tocsc()
         lu = splu(h)
@@ -363,7 +366,7 @@ def clutter_oracle(
     def weighted(dj, lj, w):
         blocks = _motion_blocks(prob, x, ctrl)
         range_bearing_factors(blocks, x, lm, k_all[dj], lj, zr_all[dj], zb_all[dj], range_sigma, bearing_sigma, nx + nc, w)
-        _anchor(prob, blocks, x)
+        _anchor(blocks, x, prob.start)
         return blocks.build(nv)
 
     it = 0
@@ -378,7 +381,7 @@ def clutter_oracle(
             break
     dj, lj, w, grp, ll = mix.pairs(x, lm)
     motion = _motion_blocks(prob, x, ctrl)
-    _anchor(prob, motion, x)
+    _anchor(motion, x, prob.start)
     mjac, mres = motion.build(nv)
     cost = 0.5 * float(mres @ mres)  # the odometry's (and the anchor's) part of the objective
     # the measurements' Gauss-Newton information, sum_j w_j J_j^T J_j, from the pairs' dense blocks (whitened)
@@ -598,7 +601,7 @@ def log_oracle(
     labels = np.asarray(labels)
     if labels.shape != (det.range.size,):
         raise UsageError(f"log_oracle: one label per detection ({det.range.size}), not an array of shape {labels.shape}")
-    if getattr(vehicle, "dim", 3) != 3:
+    if vehicle.dim != 3:
         raise UsageError(f"log_oracle: a vehicle model whose state is the planar pose, not {type(vehicle).__name__} of {vehicle.dim}")
     mount = log.sensor.mount if log.sensor is not None else None
     if mount is not None and (mount.x, mount.y, mount.theta) != (0.0, 0.0, 0.0):
@@ -630,9 +633,8 @@ def log_oracle(
         sel = k_of < end
         new = sel & np.isnan(lm[li, 0])
         first = np.unique(li[new], return_index=True)[1]
-        j, f = li[new][first], np.flatnonzero(new)[first]
-        a = x[k_of[f], 2] + zb[f]
-        lm[j] = x[k_of[f], :2] + zr[f, None] * np.column_stack([np.cos(a), np.sin(a)])
+        f = np.flatnonzero(new)[first]
+        lm[li[f]] = _sighted(x[k_of[f]], zr[f], zb[f])
         last = end == n  # the windows before only place the start of the next: a few iterations, a coarse tolerance
         it, converged, w = _solve_log(x[:end], lm, inc[: end - 1], whiten[: end - 1], start, k_of[sel], li[sel], zr[sel], zb[sel],
                                       range_sigma, bearing_sigma, huber, iterations if last else min(iterations, 10),
@@ -679,9 +681,7 @@ def _solve_log(x, lm, inc, whiten, start, k_of, li, zr, zb, sr, sb, huber, itera
         b = Blocks()
         relative_pose_factors(b, x, inc, whiten)
         range_bearing_factors(b, x, sub, k_of, lj, zr, zb, sr, sb, nx, w=w)
-        d0 = x[0] - start
-        d0[2] = wrap_angle(d0[2])
-        b.add(1e6 * d0, [(np.arange(3), np.full(3, 1e6))])  # the first pose is the true start
+        _anchor(b, x, start)
         jac, res = b.build(nv)
         step = splu((jac.T @ jac).tocsc()).solve(-(jac.T @ res))
         x += step[:nx].reshape(-1, 3)
