@@ -33,7 +33,9 @@ class Measurements:
     and angles (B,) the laser scan the measurements came from (ray-traced P_D),
     or None; cloud (N, 4) the point cloud they came from (3D features), or None;
     outlines: (vertices (V, 3), offsets (M + 1,)) each measured plane's convex outline in the sensor frame
-    (measurement m's are ``vertices[offsets[m]:offsets[m + 1]]``; planar features' extents), or None.
+    (measurement m's are ``vertices[offsets[m]:offsets[m + 1]]``; planar features' extents), or None;
+    ident (M,) int64 the identity each measurement reads (the landmark a barcode names; -1: none), or None when the
+    run takes no identities.
     """
 
     z: np.ndarray
@@ -43,6 +45,7 @@ class Measurements:
     angles: np.ndarray | None = None
     cloud: np.ndarray | None = None
     outlines: tuple[np.ndarray, np.ndarray] | None = None
+    ident: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.z.shape[0])
@@ -69,7 +72,12 @@ class Detector(ABC):
 
     @abstractmethod
     def source(self, log, profile, detection, options) -> Callable[[object], Measurements]:
-        """``measure(frame) -> Measurements`` for every frame of ``log`` (a :class:`detectors.sensor_log.Frame`)."""
+        """``measure(frame) -> Measurements`` for every frame of ``log`` (a :class:`detectors.sensor_log.Frame`).
+        A detector that :meth:`reads_identities` also takes ``identities=True``: its measurements then carry them."""
+
+    def reads_identities(self, log) -> bool:
+        """Whether its detections in ``log`` name the landmark they read (a barcode): none by default."""
+        return False
 
 
 #: The detector kinds by the profile's ``detector.kind``.

@@ -78,6 +78,15 @@ class DetectionOptions(_Strict):
     landmarks_only: bool = Field(
         default=True, description="detection-level logs that label their detections (UTIAS `target`): feed only the landmark ones to the filter"
     )
+    identities: Literal["auto", "on", "off"] = Field(
+        default="auto", description="the landmark identity each detection reads (UTIAS barcodes): auto (when the log has them), on, off"
+    )
+
+    @field_validator("identities", mode="before")
+    @classmethod
+    def _switch(cls, value):
+        """YAML reads a bare on / off as true / false: take those for on and off."""
+        return {True: "on", False: "off"}.get(value, value) if isinstance(value, bool) else value
 
     @field_validator("occlusion_sigmas", mode="before")
     @classmethod

@@ -119,10 +119,13 @@ class GMBatch:
     w: np.ndarray  # (P, J)
     mu: np.ndarray  # (P, J, d)
     cov: np.ndarray  # (P, J, d, d)
+    #: (P, J) int64 the identity of each component (the landmark a detector's reading names, e.g. a barcode; -1: none),
+    #: or None when the run reads no identities; merging never joins components of different identities
+    ident: np.ndarray | None = None
 
     @classmethod
-    def empty(cls, p: int, j: int = 0, d: int = 2) -> GMBatch:
-        return cls(np.zeros((p, j)), np.zeros((p, j, d)), np.tile(np.eye(d), (p, j, 1, 1)))
+    def empty(cls, p: int, j: int = 0, d: int = 2, ident: bool = False) -> GMBatch:
+        return cls(np.zeros((p, j)), np.zeros((p, j, d)), np.tile(np.eye(d), (p, j, 1, 1)), np.full((p, j), -1, np.int64) if ident else None)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -134,15 +137,20 @@ class GMBatch:
 
     def take(self, idx: np.ndarray) -> GMBatch:
         """The maps of particles ``idx`` (resampling)."""
-        return GMBatch(self.w[idx], self.mu[idx], self.cov[idx])
+        return GMBatch(self.w[idx], self.mu[idx], self.cov[idx], None if self.ident is None else self.ident[idx])
+
+    def identities(self) -> np.ndarray:
+        """(P, J) int64 the components' identities (-1 everywhere when the mixture carries none)."""
+        return np.full(self.w.shape, -1, np.int64) if self.ident is None else self.ident
 
     def concat(self, other: GMBatch) -> GMBatch:
-        if other.shape[1] == 0:
+        if other.shape[1] == 0 and (other.ident is None or self.ident is not None):
             return self
-        if self.shape[1] == 0:
+        if self.shape[1] == 0 and (self.ident is None or other.ident is not None):
             return other
+        ident = None if self.ident is None and other.ident is None else np.concatenate([self.identities(), other.identities()], axis=1)
         return GMBatch(
-            np.concatenate([self.w, other.w], axis=1), np.concatenate([self.mu, other.mu], axis=1), np.concatenate([self.cov, other.cov], axis=1)
+            np.concatenate([self.w, other.w], axis=1), np.concatenate([self.mu, other.mu], axis=1), np.concatenate([self.cov, other.cov], axis=1), ident
         )
 
     def total(self) -> np.ndarray:
@@ -204,7 +212,8 @@ def prune_merge(
     Returns the mixture and whether the cap bound (a particle had more merged
     components than ``cap``; its lightest were dropped, as Vo & Ma do), and with
     ``groups=True`` also (P, J_out) bool: the outputs that merged more than one
-    component.
+    component. A mixture with identities (``gm.ident``) merges only components of
+    the same identity; each output keeps its group's.
 
     The greedy grouping (heaviest remaining component takes every remaining one
     inside its gate) is sequential by nature: ordering, inverses, grouping
@@ -213,8 +222,10 @@ def prune_merge(
     """
     p, j = gm.shape
     d = gm.dim
+    has_id = gm.ident is not None
     if j == 0:
-        return (GMBatch.empty(p, 0, d), False, np.zeros((p, 0), dtype=bool)) if groups else (GMBatch.empty(p, 0, d), False)
+        e = GMBatch.empty(p, 0, d, ident=has_id)
+        return (e, False, np.zeros((p, 0), dtype=bool)) if groups else (e, False)
     alive = gm.w > prune
     n_alive = alive.sum(axis=1)
     # the live components, heaviest first (at most 10 cap: a bound on the cost in pathological cases)
@@ -227,34 +238,39 @@ def prune_merge(
         icov[alive] = inv(gm.cov[alive])
     # how far along x a component's gate can reach: trace >= the largest eigenvalue of its covariance
     reach = np.sqrt(merge * np.maximum(np.einsum("...ii->...", gm.cov), 0.0))
-    w_out, mu_out, cov_out, size, filled = _prune_merge(
+    w_out, mu_out, cov_out, id_out, size, filled = _prune_merge(
         np.ascontiguousarray(gm.w, dtype=np.float64), np.ascontiguousarray(gm.mu, dtype=np.float64),
-        np.ascontiguousarray(gm.cov, dtype=np.float64), icov, reach, new, float(prune), float(merge), k, bool(mutual), float(inflate),
+        np.ascontiguousarray(gm.cov, dtype=np.float64), icov, reach, new, np.ascontiguousarray(gm.identities()),
+        float(prune), float(merge), k, bool(mutual), float(inflate),
     )  # fmt: skip
     capped = bool(k < n_alive.max())
     if filled == 0:
-        out, merged = GMBatch.empty(p, 0, d), np.zeros((p, 0), dtype=bool)
+        out, merged = GMBatch.empty(p, 0, d, ident=has_id), np.zeros((p, 0), dtype=bool)
         return (out, capped, merged) if groups else (out, capped)
-    out = GMBatch(w_out[:, :filled], mu_out[:, :filled], cov_out[:, :filled])
+    out = GMBatch(w_out[:, :filled], mu_out[:, :filled], cov_out[:, :filled], id_out[:, :filled] if has_id else None)
     merged = size[:, :filled] > 1
     if filled > cap:  # Vo & Ma: keep the cap heaviest merged components
         capped = capped or bool((out.w > 0).sum(axis=1).max() > cap)
         keep = np.argsort(-out.w, axis=1, kind="stable")[:, :cap]
-        out = GMBatch(np.take_along_axis(out.w, keep, 1), np.take_along_axis(out.mu, keep[..., None], 1), np.take_along_axis(out.cov, keep[..., None, None], 1))
+        out = GMBatch(
+            np.take_along_axis(out.w, keep, 1), np.take_along_axis(out.mu, keep[..., None], 1), np.take_along_axis(out.cov, keep[..., None, None], 1),
+            None if out.ident is None else np.take_along_axis(out.ident, keep, 1),
+        )
         merged = np.take_along_axis(merged, keep, 1)
     return (out, capped, merged) if groups else (out, capped)
 
 
 @numba.njit(cache=True, nogil=True)
-def _prune_merge(w_all, mu_all, cov_all, icov_all, reach_all, fresh_all, prune, merge, k, mutual, inflate):  # pragma: no cover - compiled
+def _prune_merge(w_all, mu_all, cov_all, icov_all, reach_all, fresh_all, id_all, prune, merge, k, mutual, inflate):  # pragma: no cover - compiled
     """Prune, group (:func:`_group`) and moment-match every particle's mixture (P, J) in one pass.
 
     Per particle: the live components (weight > prune), heaviest first (ties in index order), at most k;
     their groups; then each group's weight, mean and covariance (with ``inflate`` times the spread of
     the means), in the order of the heads. icov_all: the inverse covariances of the live components;
-    reach_all: how far along x each component's gate reaches. Returns w (P, k), mu (P, k, d), cov
-    (P, k, d, d) (empty slots: weight 0, identity covariance), the size of each group (P, k) and the
-    largest number of groups of a particle."""
+    reach_all: how far along x each component's gate reaches; id_all (P, J) the identities (only equal
+    ones merge). Returns w (P, k), mu (P, k, d), cov (P, k, d, d) (empty slots: weight 0, identity
+    covariance), the identity of each group (P, k) (its head's; -1 in empty slots), the size of each
+    group (P, k) and the largest number of groups of a particle."""
     p = w_all.shape[0]
     d = mu_all.shape[2]
     out_w = np.zeros((p, k))
@@ -263,20 +279,23 @@ def _prune_merge(w_all, mu_all, cov_all, icov_all, reach_all, fresh_all, prune, 
     for r in range(d):
         out_cov[:, :, r, r] = 1.0
     out_n = np.zeros((p, k), dtype=np.int64)
+    out_id = np.full((p, k), -1, dtype=np.int64)
     filled = 0
     for a in range(p):
         live = np.flatnonzero(w_all[a] > prune)
         order = live[np.argsort(-w_all[a][live], kind="mergesort")][:k]
         if order.size == 0:
             continue
-        w, mu, cov = w_all[a][order], mu_all[a][order], cov_all[a][order]
-        label, used = _group(mu, icov_all[a][order], reach_all[a][order], fresh_all[a][order], merge, mutual)
+        w, mu, cov, ids = w_all[a][order], mu_all[a][order], cov_all[a][order], id_all[a][order]
+        label, used = _group(mu, icov_all[a][order], reach_all[a][order], fresh_all[a][order], ids, merge, mutual)
         filled = max(filled, used)
         # moments of each group, summed in the order of the sorted components
         tot = np.zeros(used)
         m = np.zeros((used, d))
         for q in range(order.size):
             g = label[q]
+            if out_n[a, g] == 0:  # the head: the heaviest of its group
+                out_id[a, g] = ids[q]
             tot[g] += w[q]
             out_n[a, g] += 1
             for r in range(d):
@@ -297,17 +316,17 @@ def _prune_merge(w_all, mu_all, cov_all, icov_all, reach_all, fresh_all, prune, 
                 out_mu[a, g, r] = m[g, r]
                 for c in range(d):
                     out_cov[a, g, r, c] = c2[g, r, c] / tot[g]
-    return out_w, out_mu, out_cov, out_n, filled
+    return out_w, out_mu, out_cov, out_id, out_n, filled
 
 
 @numba.njit(cache=True, nogil=True)
-def _group(mu, icov, reach, fresh, merge, mutual):  # pragma: no cover - compiled
+def _group(mu, icov, reach, fresh, ids, merge, mutual):  # pragma: no cover - compiled
     """Vo & Ma grouping of one particle's live components, sorted by weight (heaviest first).
 
     mu (K, d), icov (K, d, d) the inverse covariances, reach (K,) how far along x each
     one's gate reaches, fresh (K,) the components that take part in every test (a pair
-    of two others is not tested). Returns label (K,) (the group of each component) and
-    the number of groups.
+    of two others is not tested), ids (K,) their identities (a component joins only a head
+    of its own). Returns label (K,) (the group of each component) and the number of groups.
 
     Only the components within the head's reach along x are tested: with the components
     sorted by that coordinate, a head i looks at the ones with |x_j - x_i| <= reach_i =
@@ -334,7 +353,7 @@ def _group(mu, icov, reach, fresh, merge, mutual):  # pragma: no cover - compile
                 j = by_x[q]
                 q += step
                 # every lighter ungrouped component inside the head's gate joins it (an old head: only fresh ones)
-                if j <= i or label[j] >= 0 or not (every or fresh[j]):
+                if j <= i or label[j] >= 0 or not (every or fresh[j]) or ids[j] != ids[i]:
                     continue
                 m2 = 0.0
                 m2j = 0.0

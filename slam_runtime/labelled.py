@@ -31,6 +31,7 @@ from slam_runtime.features import FeatureModel, RangeBearing, lookup, mean_by_la
 from slam_runtime.gibbs import joint_update
 from slam_runtime.gm import birth_gaussians, ekf_update, inv, matmul, moment_match, quad, transpose
 from slam_runtime.mapfilter import MapFilter, Measurements
+from slam_runtime.proposal import identity_match
 
 #: bits of a label that hold the measurement index: label = (step << LABEL_BITS) + measurement
 LABEL_BITS = 20
@@ -218,6 +219,7 @@ class LabelledFilter(MapFilter):
 
     labelled = True
     proposes_poses = True
+    takes_identities = True
     # without the occlusion test the labelled filters no longer keep the tracks of static clutter (docs/results.md)
     occlusion_default = float("inf")
 
@@ -248,6 +250,11 @@ class LabelledFilter(MapFilter):
         self._rec_label = np.zeros(0, np.int64)
         self._rec_x = np.zeros((0, feature.dim_x))
         self._rec_step = -1
+        # identities (detection.identities): the identity each step's measurements read, flat, with each step's
+        # offset into it (a label names the step and the measurement it was born from: its identity is that one's)
+        self._id_off = [0]
+        self._id_flat = np.zeros(0, np.int64)
+        self._frame_ident: np.ndarray | None = None
 
     def bind(self, rng: np.random.Generator, groups: int = 1) -> None:
         """Use the run's generator for the Gibbs sampler (the particle loop calls this); the particles come in
@@ -310,6 +317,9 @@ class LabelledFilter(MapFilter):
         explained = np.zeros((p, m), dtype=bool)
         if a and m:
             l_det, gated = self._det_costs(zhat, hph, z, rz, own_cov, l_base, log_kappa, in_a, pd_a > 0)
+            if self._frame_ident is not None:  # a track may make only the measurements of its own identity
+                match = identity_match(self._label_identity(sl.label[rows, act]), self._frame_ident)
+                l_det, gated = np.where(match, l_det, -np.inf), gated & match
             # a measurement 'can be associated with an existing feature' (the lower birth probability) when it lies in
             # the gate of a track that is more likely there than not: an LMB track of existence >= 0.5, any track a
             # delta-GLMB hypothesis holds (r = 1 there; a rule on the label's summed weight instead made more births and
@@ -500,6 +510,7 @@ class LabelledFilter(MapFilter):
         return self._proposal(
             xbar, q, meas, t.mu, t.cov, ex, t.valid,
             gate=self.cfg.gate, share=share, iterations=iterations, pd_factor=self._pd_factor(maps),
+            ident=self._label_identity(t.label) if meas.ident is not None else None,
         )
 
     def _pd_factor(self, maps) -> np.ndarray | None:
@@ -539,7 +550,28 @@ class LabelledFilter(MapFilter):
         x[hit] = self._rec_x[j[hit]]
         return x
 
+    def _label_identity(self, label: np.ndarray) -> np.ndarray:
+        """The identity each label's track reads (that of the measurement it was born from; -1 for an empty slot or
+        a run without identities), same shape as ``label``."""
+        out = np.full(np.shape(label), -1, np.int64)
+        ok = np.asarray(label) >= 0
+        if not self._id_flat.size or not ok.any():
+            return out
+        step, m = label_parts(np.asarray(label)[ok])
+        off = np.asarray(self._id_off, np.int64)
+        known = step < off.size - 1
+        out_ok = np.full(step.shape, -1, np.int64)
+        out_ok[known] = self._id_flat[off[step[known]] + m[known]]
+        out[ok] = out_ok
+        return out
+
     def _begin(self, poses: np.ndarray, meas: Measurements):
+        self._frame_ident = meas.ident
+        if meas.ident is not None:  # this step's births take these identities (steps before it without any: none)
+            del self._id_off[self.step + 1 :]
+            self._id_off += [self._id_off[-1]] * (self.step + 1 - len(self._id_off))
+            self._id_flat = np.concatenate([self._id_flat[: self._id_off[-1]], np.asarray(meas.ident, np.int64)])
+            self._id_off.append(self._id_flat.size)
         z, rz = self.measurements(meas)
         sp = self.feature.sensor_pose(np.asarray(poses, dtype=np.float64))
         return z, rz, sp, self._log_kappa(z, meas)

@@ -73,6 +73,8 @@ class MapFilter(ABC):
     labelled: bool = False
     #: it offers ``pose_proposal`` (the optimal proposal draws poses from it)
     proposes_poses: bool = False
+    #: it takes the identities a detector reads (``Measurements.ident``, ``detection.identities``)
+    takes_identities: bool = False
     #: the proposal of ``proposal: auto`` for point features ("optimal" where it was measured the better, else "prior")
     proposal_default: str = "prior"
     #: ``detection.occlusion_sigmas`` when the settings give none: "profile" (the profile's k_sigma) or a number of
@@ -185,11 +187,13 @@ class MapFilter(ABC):
     def _proposal(
         self, xbar: np.ndarray, q: np.ndarray, meas: Measurements, mu: np.ndarray, cov: np.ndarray, ex: np.ndarray,
         valid: np.ndarray | None, *, gate: float, share: float, iterations: int, pd_factor: np.ndarray | None = None,
+        ident: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """What the filters' ``pose_proposal`` share: the features mu (P, J, dx), cov (P, J, dx, dx) of weight or
         existence ex (P, J) (valid (P, J): the slots that hold one; None: every slot) weighted by their P_D from the
         motion prior's poses (times pd_factor (P, J) where given: a track's learned factor on P_D), and the frame's
-        measurements, noise and kappa, handed to :func:`slam_runtime.proposal.pose_proposal`."""
+        measurements, noise and kappa, handed to :func:`slam_runtime.proposal.pose_proposal`; ident (P, J) the
+        features' identities when the run takes them (``meas.ident``)."""
         z, rz = self.measurements(meas)
         if z.shape[0] == 0 or mu.shape[1] == 0:
             return xbar, q, np.zeros(xbar.shape[0], dtype=np.int64)
@@ -200,6 +204,7 @@ class MapFilter(ABC):
         return pose_proposal(
             self.feature, xbar, q, z, rz, self.r if meas.cov is None else None, mu, cov, np.where(seen, ex * np.minimum(pd, 1.0), 0.0),
             self.clutter(z, meas), gate=gate, share=share, iterations=iterations,
+            ident=ident if meas.ident is not None else None, ident_z=meas.ident,
         )
 
     def bind(self, rng: np.random.Generator, groups: int = 1) -> None:

@@ -57,6 +57,8 @@ def pose_proposal(
     gate: float,
     share: float = 0.5,
     iterations: int = 3,
+    ident: np.ndarray | None = None,
+    ident_z: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mean (P, 3), covariance (P, 3, 3) and number of measurements used (P,) of each particle's pose proposal.
 
@@ -65,7 +67,8 @@ def pose_proposal(
     for every measurement (else None); mu (P, J, dx), cov (P, J, dx, dx): each particle's map features, world
     frame; weight (P, J): their weight (or existence) times P_D, 0 for a feature the sensor cannot see or an
     empty slot; kappa (M,) the clutter intensity of each measurement (divided by its descriptor ratio, if any).
-    Only the features of positive weight take part (gathered first, in their order).
+    Only the features of positive weight take part (gathered first, in their order). ident (P, J) and ident_z (M,):
+    the features' and the measurements' identities (:func:`identity_match`), or None; with them, the numpy path.
     """
     if iterations < 1:
         raise UsageError(f"pose proposal: iterations must be at least 1, not {iterations}")
@@ -77,6 +80,8 @@ def pose_proposal(
     rows = np.arange(p)[:, None]
     sel = np.argsort(~seen, axis=1, kind="stable")[:, :js]  # (P, Js) the seen features first
     mu_s, cov_s, w_s = mu[rows, sel], cov[rows, sel], np.where(seen[rows, sel], weight[rows, sel], 0.0)
+    if ident is not None and ident_z is not None:
+        return pose_proposal_numpy(fm, xbar, q, z, rz, mu_s, cov_s, w_s, kappa, gate=gate, share=share, iterations=iterations, match=identity_match(ident[rows, sel], ident_z))
     if type(fm) is RangeBearing and r_const is not None:  # exactly this model: a subclass may measure otherwise
         return _compiled(
             np.ascontiguousarray(xbar, dtype=np.float64),
@@ -95,8 +100,16 @@ def pose_proposal(
     return pose_proposal_numpy(fm, xbar, q, z, rz, mu_s, cov_s, w_s, kappa, gate=gate, share=share, iterations=iterations)
 
 
-def pose_proposal_numpy(fm, xbar, q, z, rz, mu_s, cov_s, w_s, kappa, *, gate: float, share: float = 0.5, iterations: int = 3):
-    """:func:`pose_proposal` for any feature model, batched in numpy (the reference of the compiled path)."""
+def identity_match(ident: np.ndarray, ident_z: np.ndarray) -> np.ndarray:
+    """(P, J, M) bool: which features (identities ident (P, J)) may have made which measurements (identities ident_z
+    (M,)): the same identity, or either reads none (-1). A detection is explained by a feature born of its own
+    identity or by clutter; a misread barcode is clutter, as the calibration's labels count it."""
+    return (ident[:, :, None] == ident_z[None, None, :]) | (ident[:, :, None] < 0) | (ident_z[None, None, :] < 0)
+
+
+def pose_proposal_numpy(fm, xbar, q, z, rz, mu_s, cov_s, w_s, kappa, *, gate: float, share: float = 0.5, iterations: int = 3, match=None):
+    """:func:`pose_proposal` for any feature model, batched in numpy (the reference of the compiled path); match
+    (P, Js, M) bool: the pairs the identities allow (None: every pair)."""
     p, m = xbar.shape[0], z.shape[0]
     dz = fm.dim_z
     sp = fm.sensor_pose(xbar)
@@ -110,6 +123,8 @@ def pose_proposal_numpy(fm, xbar, q, z, rz, mu_s, cov_s, w_s, kappa, *, gate: fl
         np.where(m2 <= gate, np.exp(-0.5 * m2) / np.sqrt((2 * np.pi) ** dz * np.maximum(det(s_assoc), 1e-300)), 0.0)
         * w_s[..., None]
     )
+    if match is not None:
+        lik = np.where(match, lik, 0.0)
     best = np.argmax(lik, axis=1)  # (P, M) the likeliest feature of each measurement
     lb = np.take_along_axis(lik, best[:, None, :], axis=1)[:, 0]
     use = lb > share * (kappa[None, :] + lik.sum(axis=1))  # (P, M)

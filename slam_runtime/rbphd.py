@@ -50,6 +50,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from slam_runtime.features import FeatureModel, RangeBearing
 from slam_runtime.gm import GMBatch, birth_gaussians, det, gaussian, inv, matmul, matvec, prune_merge, quad, transpose
 from slam_runtime.mapfilter import MAP_FILTERS, MapFilter, Measurements
+from slam_runtime.proposal import identity_match
 from slam_runtime.rbphd_kernel import update_points
 
 
@@ -130,6 +131,7 @@ class RBPHD(MapFilter):
     name = "RB-PHD"
     Config = RBPHDConfig
     proposes_poses = True
+    takes_identities = True
     proposal_default = "optimal"  # (proposal: auto) rfs-sim and Victoria Park chose it: docs/results/slam.md
     #: point features under one noise take the compiled update (:mod:`slam_runtime.rbphd_kernel`, the same numbers)
     compiled = True
@@ -147,7 +149,7 @@ class RBPHD(MapFilter):
         q = self.cfg.landmark_noise * max(dt, 0.0)
         if q > 0 and maps.gm.shape[1]:
             d = self.feature.dim_x
-            maps = PHDMaps(GMBatch(maps.gm.w, maps.gm.mu, maps.gm.cov + q * np.eye(d)), maps.birth)  # every gate grew
+            maps = PHDMaps(GMBatch(maps.gm.w, maps.gm.mu, maps.gm.cov + q * np.eye(d), maps.gm.ident), maps.birth)  # every gate grew
         return maps
 
     def size(self, maps: PHDMaps) -> np.ndarray:
@@ -181,15 +183,15 @@ class RBPHD(MapFilter):
             # point features under the filter's one noise: every particle in one compiled call
             # (:func:`slam_runtime.rbphd_kernel.update_points`, the numpy pairs' numbers), which holds the PHD's
             # update (eqs. 3.17-3.18) only; the existence rule and every other feature model take the numpy pairs
-            if self.compiled and meas.cov is None and type(fm) is RangeBearing and cfg.update_rule == "phd":
+            if self.compiled and meas.cov is None and meas.ident is None and type(fm) is RangeBearing and cfg.update_rule == "phd":
                 missed, w_kept, mu_det, cov_det, j_kept, den, wsum = update_points(
                     w, np.ascontiguousarray(mu), np.ascontiguousarray(cov), np.ascontiguousarray(pd, dtype=np.float64), np.ascontiguousarray(buf),
                     np.ascontiguousarray(sp), z, np.ascontiguousarray(self.r), kappa, float(cfg.gate), float(cfg.prune),
                 )
-                seen, pd_kept = (pd > 0) & (w > 0), np.take_along_axis(pd, j_kept, axis=1)
+                seen, pd_kept, id_kept = (pd > 0) & (w > 0), np.take_along_axis(pd, j_kept, axis=1), None
             else:
-                missed, w_kept, mu_det, cov_det, pd_kept, den, wsum, seen = self._pairs(w, mu, cov, pd, buf, sp, z, rz, kappa, meas)
-            upd = GMBatch(missed, mu, cov).concat(GMBatch(w_kept, mu_det, cov_det))
+                missed, w_kept, mu_det, cov_det, pd_kept, den, wsum, seen, id_kept = self._pairs(w, mu, cov, pd, buf, sp, z, rz, kappa, meas, prior.ident)
+            upd = GMBatch(missed, mu, cov, prior.ident).concat(GMBatch(w_kept, mu_det, cov_det, id_kept))
             # what this step touched: the map features in view, the ones the last merge formed (their moments
             # changed), this step's births and every detection update; the rest was tested at the last merge
             fresh = None
@@ -203,24 +205,25 @@ class RBPHD(MapFilter):
                 lw = np.log(np.where(kappa > 0, den / np.maximum(kappa, 1e-300), 1.0)).sum(axis=1) if m else np.zeros(p)
                 loglik = lw - (pd * w).sum(axis=1)
             else:
-                loglik = self._log_weight(prior, upd, np.concatenate([pd, pd_kept], axis=1), sp, z, kappa, rz)
+                loglik = self._log_weight(prior, upd, np.concatenate([pd, pd_kept], axis=1), sp, z, kappa, rz, meas.ident)
         with tm("merge"):
             gm, capped, merged = prune_merge(
                 upd, prune=cfg.prune, merge=cfg.merge, cap=cfg.cap, inflate=cfg.merge_inflation, mutual=cfg.merge_rule == "mutual", fresh=fresh, groups=True
             )
             self.capped_steps += int(capped)
             if cfg.update_rule == "existence":  # duplicates of one feature merged: still one feature
-                gm = GMBatch(np.minimum(gm.w, cfg.existence_max), gm.mu, gm.cov)
+                gm = GMBatch(np.minimum(gm.w, cfg.existence_max), gm.mu, gm.cov, gm.ident)
         # adaptive birth: a measurement the map already explains gives birth to little
-        birth = self._birth(sp, z, rz, 1.0 - np.clip(wsum, 0.0, 1.0) if cfg.adaptive_birth else None)
+        birth = self._birth(sp, z, rz, 1.0 - np.clip(wsum, 0.0, 1.0) if cfg.adaptive_birth else None, meas.ident)
         return PHDMaps(gm, birth, merged), loglik
 
-    def _pairs(self, w, mu, cov, pd, buf, sp, z, rz, kappa, meas):
-        """The numpy update of the prior mixtures w (P, J), mu (P, J, dx), cov (P, J, dx, dx) by the measurements z
-        (M, dz): (missed-detection weights (P, J) with the buffer zone's floor (eqs. 3.17, 3.21), the kept
-        detection-updated components' weights (P, K), means and covariances (eq. 3.18), their P_D (P, K),
-        kappa + sum_j P_D w_j q_j (P, M), the share of each measurement the map took (P, M), the components in view
-        (P, J))."""
+    def _pairs(self, w, mu, cov, pd, buf, sp, z, rz, kappa, meas, ident=None):
+        """The numpy update of the prior mixtures w (P, J), mu (P, J, dx), cov (P, J, dx, dx) (identities ident
+        (P, J) or None) by the measurements z (M, dz): (missed-detection weights (P, J) with the buffer zone's floor
+        (eqs. 3.17, 3.21), the kept detection-updated components' weights (P, K), means and covariances (eq. 3.18),
+        their P_D (P, K), kappa + sum_j P_D w_j q_j (P, M), the share of each measurement the map took (P, M), the
+        components in view (P, J), the kept components' identities (P, K) or None). With ``meas.ident`` a component
+        takes part only in the measurements of its identity (:func:`slam_runtime.proposal.identity_match`)."""
         cfg, fm = self.cfg, self.feature
         dz = fm.dim_z
         m = z.shape[0]
@@ -246,6 +249,10 @@ class RBPHD(MapFilter):
             sinv_pair, det_pair = inv(s_pair), det(s_pair)
             m2 = nu.quad(sinv_pair)
         gated = m2 <= cfg.gate
+        id_s = None
+        if meas.ident is not None:
+            id_s = (np.full(w.shape, -1, np.int64) if ident is None else ident)[rows, sel]
+            gated &= identity_match(id_s, meas.ident)
         q = np.zeros(m2.shape)
         q[gated] = gaussian(m2[gated], det_pair[gated], dz)
         existence = cfg.update_rule == "existence"
@@ -281,7 +288,8 @@ class RBPHD(MapFilter):
         cov_det = cov_s[rows, jj] - matmul(gain, transpose(ph[rows, jj]))
         cov_det = 0.5 * (cov_det + transpose(cov_det))
         w_kept = np.where(np.take_along_axis(keep, pick, axis=1), w_det[rows, jj, mm], 0.0)
-        return missed, w_kept, mu_det, cov_det, pd_s[rows, jj], den, w_det.sum(axis=1), seen
+        id_kept = None if id_s is None else id_s[rows, jj]
+        return missed, w_kept, mu_det, cov_det, pd_s[rows, jj], den, w_det.sum(axis=1), seen, id_kept
 
     def pose_proposal(
         self, maps: PHDMaps, xbar: np.ndarray, q: np.ndarray, meas: Measurements, *, share: float = 0.5, iterations: int = 3
@@ -296,26 +304,28 @@ class RBPHD(MapFilter):
         the data-association covariance); the update itself uses R + H_m P H_m^T.
         Returns the mean (P, 3), covariance (P, 3, 3) and the number of measurements used (P,)."""
         gm = maps.gm
-        return self._proposal(xbar, q, meas, gm.mu, gm.cov, gm.w, None, gate=self.cfg.gate, share=share, iterations=iterations)
+        return self._proposal(xbar, q, meas, gm.mu, gm.cov, gm.w, None, gate=self.cfg.gate, share=share, iterations=iterations, ident=gm.identities())
 
-    def _birth(self, sp: np.ndarray, z: np.ndarray, rz: np.ndarray, unexplained: np.ndarray | None) -> GMBatch:
+    def _birth(self, sp: np.ndarray, z: np.ndarray, rz: np.ndarray, unexplained: np.ndarray | None, ident: np.ndarray | None = None) -> GMBatch:
         """Birth mixture for the next step from this step's measurements (eq. 3.15).
 
         unexplained (P, M): the share of each measurement the updated map did not
         take, 1 - sum_j w_det; it scales the birth weight, so features seen every
-        step are not re-born and merged into themselves.
+        step are not re-born and merged into themselves. ident (M,): the
+        measurements' identities, which their births take (None: no identities).
         """
         p, m = sp.shape[0], z.shape[0]
         if m == 0:
-            return GMBatch.empty(p, 0, self.feature.dim_x)
+            return GMBatch.empty(p, 0, self.feature.dim_x, ident=ident is not None)
         pos, cov = birth_gaussians(self.feature, sp, z, rz, 1e-4)
         w = np.full((p, m), self.cfg.birth_weight)
         if unexplained is not None:
             w = w * unexplained
-        return GMBatch(w, pos, cov)
+        return GMBatch(w, pos, cov, None if ident is None else np.broadcast_to(np.asarray(ident, np.int64), (p, m)).copy())
 
-    def _log_weight(self, prior: GMBatch, upd: GMBatch, pd_upd: np.ndarray, sp, z, kappa, rz) -> np.ndarray:
-        """log of eq. 3.13 under the chosen strategy (particle-independent factors dropped)."""
+    def _log_weight(self, prior: GMBatch, upd: GMBatch, pd_upd: np.ndarray, sp, z, kappa, rz, ident_z: np.ndarray | None = None) -> np.ndarray:
+        """log of eq. 3.13 under the chosen strategy (particle-independent factors dropped); ident_z (M,) the
+        measurements' identities (a feature's likelihood counts only for its own identity's)."""
         cfg = self.cfg
         base = upd.total() - prior.total()
         if cfg.weighting == "empty_set" or upd.shape[1] == 0:
@@ -343,7 +353,10 @@ class RBPHD(MapFilter):
             zh, _ = self.feature.predict_sensor(sp[:, None, :], pts)
             nu = self.feature.innovation(z[None, None, :, :], zh[:, :, None, :])
             m2 = quad(inv(rz)[None, None], nu)
-            g = np.where(m2 <= cfg.gate, gaussian(m2, det(rz)[None, None], self.feature.dim_z), 0.0)
+            ok = m2 <= cfg.gate
+            if ident_z is not None:
+                ok &= identity_match(upd.identities()[rows, pick], ident_z)
+            g = np.where(ok, gaussian(m2, det(rz)[None, None], self.feature.dim_z), 0.0)
             lam = (pd_m[..., None] * g).sum(axis=1)  # (P, M)
             lik += np.log1p(lam / np.maximum(kappa[None, :], 1e-300)).sum(axis=1)
         return base + ratio + lik

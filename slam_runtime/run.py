@@ -122,8 +122,21 @@ def build(log: SensorLog, profile, cfg: SlamConfig) -> Built:
     feat = feature_model(cfg.features, det, cfg.measurement, mount, cfg.metric)
     mf = map_filter(cfg, feat, det)
     veh = vehicle_model(log.odometry.kind, cfg.motion, log.vehicle, cfg.features)
-    measure = DETECTORS.get(profile.detector.kind).source(log, profile, det, cfg.detection)
+    detector = DETECTORS.get(profile.detector.kind)
+    ids = uses_identities(cfg, detector.reads_identities(log), mf)
+    measure = detector.source(log, profile, det, cfg.detection, identities=True) if ids else detector.source(log, profile, det, cfg.detection)
     return Built(veh, mf, measure, mount)
+
+
+def uses_identities(cfg: SlamConfig, readable: bool, mf) -> bool:
+    """Whether the run takes the identities its detections read (``detection.identities``): ``on`` refuses a log whose
+    detections carry none (``readable``) and a filter that does not take them."""
+    mode = cfg.detection.identities
+    if mode == "on" and not readable:
+        raise UsageError("detection.identities: on, but this log's detections name no landmark (no identity to read)")
+    if mode == "on" and not mf.takes_identities:
+        raise UsageError(f"detection.identities: on, but the {mf.name} filter does not take identities (RB-PHD, LMB and delta-GLMB do)")
+    return mode != "off" and readable and mf.takes_identities
 
 
 def start_pose(log: SensorLog, stamp: int) -> np.ndarray:
