@@ -248,6 +248,7 @@ class GLMB(LabelledFilter):
             out = reduce_hypotheses(
                 res.slot_count, label, np.ascontiguousarray(mu), np.ascontiguousarray(cov), release, res.hyp_count, res.hyp_logw,
                 res.mem_count, res.mem_slot, float(cfg.merge), float(cfg.merge_alternatives), float(cfg.prune), int(cfg.max_hypotheses),
+                self._label_identity(label),
             )
             red = JointResult.of_reduction(res.loglik, out)
             o_label, o_mu, o_cov = out[2:5]

@@ -44,7 +44,7 @@ def _moments(w, mu, cov, key, n):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, mem_count, mem_slot, merge, together, prune, cap):  # pragma: no cover - compiled
+def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, mem_count, mem_slot, merge, together, prune, cap, ident):  # pragma: no cover - compiled
     """Merge close versions of each label and alternative labels of one landmark, release unseen labels,
     merge identical hypotheses; prune and cap.
 
@@ -63,7 +63,8 @@ def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, 
       within squared Mahalanobis distance ``merge`` of the head (Vo & Ma's rule,
       within one label); a merged version is the moment match of its members.
       ``merge`` <= 0 merges nothing.
-    * Alternatives: groups of different labels, both released or both kept,
+    * Alternatives: groups of different labels of one identity (ident (N,), each slot's: the landmark its
+      label's birth measurement read, -1 everywhere without identities), both released or both kept,
       within squared Mahalanobis distance ``merge`` of the heavier, that the
       hypotheses hold together (with any version of the heavier's labels)
       with at most ``together`` x the lighter's weight, become one group under
@@ -164,8 +165,10 @@ def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, 
             a = b
         # moments of each group
         glab = np.empty(ng, np.int64)
+        gid = np.empty(ng, np.int64)
         for k in range(ns):
             glab[grp[k]] = lab[k]
+            gid[grp[k]] = ident[s0 + k]
         gw, gmu, gcov = _moments(wv, mu[s0 : s0 + ns], cov[s0 : s0 + ns], grp, ng)
         # alternatives of one landmark: groups of different labels, both released or both kept, within squared
         # Mahalanobis distance merge of the heavier, that the hypotheses hold together with at most ``together``
@@ -190,7 +193,7 @@ def reduce_hypotheses(slot_count, label, mu, cov, release, hyp_count, hyp_logw, 
                 j = gord[y]
                 for x in range(y):
                     i = gord[x]
-                    if head[i] != i or gfree[i] != gfree[j] or glab[i] == glab[j]:
+                    if head[i] != i or gfree[i] != gfree[j] or glab[i] == glab[j] or gid[i] != gid[j]:
                         continue
                     dd2 = 0.0
                     for k in range(d):

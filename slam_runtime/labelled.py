@@ -250,8 +250,10 @@ class LabelledFilter(MapFilter):
         self._rec_label = np.zeros(0, np.int64)
         self._rec_x = np.zeros((0, feature.dim_x))
         self._rec_step = -1
-        # identities (detection.identities): the identity each step's measurements read, flat, with each step's
-        # offset into it (a label names the step and the measurement it was born from: its identity is that one's)
+        # identities (detection.identities): the identity each recorded step's measurements read, flat, the steps
+        # recorded (ascending) and each one's offset into it (a label names the step and the measurement it was born
+        # from: its identity is that one's; a step without identities has none)
+        self._id_step: list[int] = []
         self._id_off = [0]
         self._id_flat = np.zeros(0, np.int64)
         self._frame_ident: np.ndarray | None = None
@@ -551,26 +553,30 @@ class LabelledFilter(MapFilter):
         return x
 
     def _label_identity(self, label: np.ndarray) -> np.ndarray:
-        """The identity each label's track reads (that of the measurement it was born from; -1 for an empty slot or
-        a run without identities), same shape as ``label``."""
-        out = np.full(np.shape(label), -1, np.int64)
-        ok = np.asarray(label) >= 0
-        if not self._id_flat.size or not ok.any():
+        """The identity each label's track reads (that of the measurement it was born from; -1 for an empty slot, a
+        run without identities or a label born at a step without them), same shape as ``label``."""
+        label = np.asarray(label, dtype=np.int64)
+        out = np.full(label.shape, -1, np.int64)
+        ok = label >= 0
+        if not self._id_step or not ok.any():
             return out
-        step, m = label_parts(np.asarray(label)[ok])
-        off = np.asarray(self._id_off, np.int64)
-        known = step < off.size - 1
-        out_ok = np.full(step.shape, -1, np.int64)
-        out_ok[known] = self._id_flat[off[step[known]] + m[known]]
-        out[ok] = out_ok
+        step, m = label_parts(label[ok])
+        steps, off = np.asarray(self._id_step, np.int64), np.asarray(self._id_off, np.int64)
+        at = np.minimum(np.searchsorted(steps, step), steps.size - 1)
+        known = (steps[at] == step) & (m < off[at + 1] - off[at])
+        got = np.full(step.shape, -1, np.int64)
+        got[known] = self._id_flat[off[at[known]] + m[known]]
+        out[ok] = got
         return out
 
     def _begin(self, poses: np.ndarray, meas: Measurements):
         self._frame_ident = meas.ident
-        if meas.ident is not None:  # this step's births take these identities (steps before it without any: none)
-            del self._id_off[self.step + 1 :]
-            self._id_off += [self._id_off[-1]] * (self.step + 1 - len(self._id_off))
+        if meas.ident is not None:  # this step's births take these identities
+            if self._id_step and self._id_step[-1] == self.step:  # (the step begun again: its record replaced)
+                self._id_step.pop()
+                self._id_off.pop()
             self._id_flat = np.concatenate([self._id_flat[: self._id_off[-1]], np.asarray(meas.ident, np.int64)])
+            self._id_step.append(self.step)
             self._id_off.append(self._id_flat.size)
         z, rz = self.measurements(meas)
         sp = self.feature.sensor_pose(np.asarray(poses, dtype=np.float64))

@@ -212,7 +212,7 @@ class LMB(LabelledFilter):
         out = reduce_hypotheses(
             res.slot_count, label, np.ascontiguousarray(mu), np.ascontiguousarray(cov), np.zeros(label.size, dtype=bool),
             res.hyp_count, res.hyp_logw, res.mem_count, res.mem_slot, ALTERNATIVES_GATE, float(self.cfg.merge_alternatives),
-            0.0, 1 << 30,
+            0.0, 1 << 30, self._label_identity(label),
         )
         o_label, o_mu, o_cov = out[2:5]
         red = JointResult.of_reduction(res.loglik, out)

@@ -36,6 +36,7 @@ from typing import Protocol
 import numpy as np
 
 from detectors.kinds import Measurements
+from profiles.errors import UsageError
 from profiles.registry import Registry
 from slam_runtime.features import FeatureModel
 from slam_runtime.gibbs import detection_costs
@@ -105,6 +106,8 @@ class MapFilter(ABC):
         z = np.asarray(meas.z, dtype=np.float64).reshape(-1, dz)
         m = z.shape[0]
         rz = np.broadcast_to(self.r, (m, dz, dz)) if meas.cov is None else np.asarray(meas.cov, dtype=np.float64).reshape(m, dz, dz) + self.r
+        if meas.ident is not None and np.shape(meas.ident) != (m,):
+            raise UsageError(f"measurements: {np.size(meas.ident)} identities for {m} measurements (one each)")
         return z, rz
 
     def clutter(self, z: np.ndarray, meas: Measurements) -> np.ndarray:

@@ -378,10 +378,10 @@ def test_a_likely_birth_is_sampled_not_held():
     assert w[np.isfinite(maps.logw[0]) & holds].sum() == pytest.approx(0.9 * (1 - PD) / (0.1 + 0.9 * (1 - PD)), abs=1e-3)
 
 
-def _reduce(mu, hyps, merge=4.0, together=0.1, cov=0.01, release=True, labels=None):
-    """One particle whose slots (labels 1..n or ``labels``, means mu (n, 2), covariance cov I) are held by the
-    hypotheses ``hyps`` [(weight, slot indices)], the slots released where ``release`` (one flag or one per slot);
-    returns reduce_hypotheses' output."""
+def _reduce(mu, hyps, merge=4.0, together=0.1, cov=0.01, release=True, labels=None, ident=None):
+    """One particle whose slots (labels 1..n or ``labels``, means mu (n, 2), covariance cov I; identities ``ident``,
+    none by default) are held by the hypotheses ``hyps`` [(weight, slot indices)], the slots released where
+    ``release`` (one flag or one per slot); returns reduce_hypotheses' output."""
     n = len(mu)
     w = np.array([h[0] for h in hyps], dtype=np.float64)
     return reduce_hypotheses(
@@ -389,6 +389,7 @@ def _reduce(mu, hyps, merge=4.0, together=0.1, cov=0.01, release=True, labels=No
         np.asarray(mu, dtype=np.float64), np.tile(np.eye(2) * cov, (n, 1, 1)), np.broadcast_to(np.asarray(release, dtype=bool), (n,)).copy(),
         np.array([len(hyps)]), np.log(w / w.sum()), np.array([len(h[1]) for h in hyps], dtype=np.int64),
         np.array([s for h in hyps for s in h[1]], dtype=np.int64), merge, together, 1e-9, 100,
+        np.full(n, -1, np.int64) if ident is None else np.asarray(ident, dtype=np.int64),
     )
 
 
@@ -577,6 +578,7 @@ def test_every_reduced_hypothesis_holds_a_label_once():
         out = reduce_hypotheses(
             np.array(counts), np.array(labels, dtype=np.int64), np.array(mus), np.array(covs), np.array(rel), np.array(hc),
             np.array(lw), np.array(mc, dtype=np.int64), np.array(ms, dtype=np.int64), 4.0, float(rng.choice([0.1, 0.3])), 1e-9, 100,
+            np.full(len(labels), -1, np.int64),
         )
         slot_count, lab_o, hyp_count, hyp_logw, mem_count, mem_slot = out[1], out[2], out[5], out[6], out[7], out[8]
         free_count, f_label, f_r = out[9], out[10], out[11]
@@ -616,7 +618,7 @@ def test_reduction_of_several_particles_keeps_each_its_own():
     w = np.array([0.6, 0.35, 0.05, 0.7, 0.3])
     out = reduce_hypotheses(
         np.array([3, 2]), lab, mu, np.tile(np.eye(2) * 0.01, (5, 1, 1)), np.ones(5, dtype=bool), np.array([3, 2]), np.log(w),
-        np.array([2, 2, 1, 1, 1]), np.array([0, 2, 1, 2, 2, 0, 1]), 4.0, 0.1, 1e-9, 100,
+        np.array([2, 2, 1, 1, 1]), np.array([0, 2, 1, 2, 2, 0, 1]), 4.0, 0.1, 1e-9, 100, np.full(5, -1, np.int64),
     )
     assert out[9].tolist() == [2, 2]
     np.testing.assert_allclose(out[11][:2], [0.95, 1.0], atol=1e-12)  # particle 0: A with B, C

@@ -167,3 +167,94 @@ def test_labelled_filters_keep_two_close_landmarks_apart_by_their_identities(kin
                     assert np.linalg.norm(x[got == i][0] - lms[k]) < 0.15
     assert np.mean(err[True]) < np.mean(err[False])
 
+
+
+def test_alternatives_of_two_identities_do_not_merge():
+    """delta-GLMB's alternatives (two labels at one place that no hypothesis holds together) become one track only
+    when they read one identity: two identities are two landmarks, however close."""
+    from tests.slam_runtime.test_gibbs import _release
+
+    a, b, c = [0.0, 0.0], [0.05, 0.0], [5.0, 5.0]
+    hyps = [(0.6, [0, 2]), (0.35, [1, 2]), (0.05, [2])]
+    lab, r, _ = _release([a, b, c], hyps, ident=[6, 6, 8])
+    assert lab.tolist() == [1, 3] and r == pytest.approx([0.95, 1.0])
+    lab, r, _ = _release([a, b, c], hyps, ident=[6, 7, 8])
+    assert sorted(lab.tolist()) == [1, 2, 3] and sorted(r) == pytest.approx([0.35, 0.6, 1.0])
+
+
+def test_a_label_reads_the_identity_of_its_own_birth_measurement():
+    """Labels name (step, measurement): each reads that measurement's identity, a step without identities gives
+    none (-1), a step begun again replaces its record; identities of the wrong length are refused."""
+    from slam_runtime.features import RangeBearing
+    from slam_runtime.labelled import LABEL_BITS
+    from slam_runtime.lmb import LMB, LMBConfig
+    from tests.slam_runtime.test_glmb import model as lmodel
+
+    mf = LMB(RangeBearing(np.diag([0.1**2, 0.01**2])), lmodel(rate=0.5, pd=0.9, buffer=False), LMBConfig(), rng=np.random.default_rng(0))
+    maps = mf.empty(1)
+    z3 = np.array([[3.0, 0.1], [5.0, -0.2], [7.0, 0.3]])
+    frames = [None, np.array([6, 7, 8]), None, np.array([11, 12, 13])]
+    for ids in frames:
+        maps, _ = mf.update(maps, np.zeros((1, 3)), Measurements(z3, ident=ids))
+    lab = (np.arange(4)[:, None].astype(np.int64) << LABEL_BITS) + np.arange(3)[None, :]
+    assert mf._label_identity(lab).tolist() == [[-1, -1, -1], [6, 7, 8], [-1, -1, -1], [11, 12, 13]]
+    assert mf._label_identity(np.array([-1, (1 << LABEL_BITS) + 5, 9 << LABEL_BITS])).tolist() == [-1, -1, -1]
+    mf._begin(np.zeros((1, 3)), Measurements(z3, ident=np.array([21, 22, 23])))  # step 4 begun twice
+    mf._begin(np.zeros((1, 3)), Measurements(z3, ident=np.array([31, 32, 33])))
+    assert mf._label_identity(lab[1:2] + (3 << LABEL_BITS)).tolist() == [[31, 32, 33]]
+    with pytest.raises(UsageError, match="1 identities for 3 measurements"):
+        mf.update(maps, np.zeros((1, 3)), Measurements(z3, ident=np.array([6])))
+
+
+@pytest.mark.parametrize("weighting", ["marginal", "multi_feature", "single_feature"])
+def test_a_feature_of_another_identity_does_not_raise_a_particles_weight(weighting):
+    """Two particles at one pose, one measurement reading identity 7 where both maps hold a feature: particle A's is
+    of identity 6, B's of identity 7. B's feature explains the measurement (a weight gain of about log(P_D g / kappa));
+    A's cannot, so A is weighed as if its feature were missed and the measurement clutter: B ahead by several nats.
+    P_D 0.3: A's missed feature keeps weight 0.7, still a map feature in the multi- and single-feature weights
+    (eq. 3.13), whose likelihood of the measurement must count only for its own identity."""
+    mf = phd(model(rate=0.5, pd=0.3, buffer=False), sr=0.05, sb=0.005, weighting=weighting)
+    lm = np.array([10.0, 0.0])
+    maps = PHDMaps(
+        GMBatch(np.ones((2, 1)), np.broadcast_to(lm, (2, 1, 2)).copy(), np.broadcast_to(np.eye(2) * 1e-4, (2, 1, 2, 2)).copy(), np.array([[6], [7]])),
+        GMBatch.empty(2, 0, 2, ident=True),
+    )
+    z, _ = mf.feature.predict(np.zeros(3), lm[None])
+    _, ll = mf.update(maps, np.zeros((2, 3)), Measurements(z, ident=np.array([7])))
+    assert ll[1] - ll[0] > 5.0
+
+
+def test_the_labelled_proposal_associates_only_its_own_identity():
+    """delta-GLMB with a confirmed track of identity 6 ten metres ahead (built from 10 frames of it): the pose
+    proposal from a prior 0.03 rad off uses a measurement of it reading 6 and returns near the truth, and leaves
+    one reading 7 (a misread) out, keeping the motion prior."""
+    from slam_runtime.features import RangeBearing
+    from slam_runtime.glmb import GLMB, GLMBConfig
+    from tests.slam_runtime.test_glmb import model as lmodel
+
+    mf = GLMB(RangeBearing(np.diag([0.05**2, 0.005**2])), lmodel(rate=0.5, pd=0.9, buffer=False), GLMBConfig(survival=1.0), rng=np.random.default_rng(1))
+    lm = np.array([[10.0, 0.0]])
+    z, _ = mf.feature.predict(np.zeros(3), lm)
+    maps = mf.empty(1)
+    for _ in range(10):
+        maps, _ = mf.update(maps, np.zeros((1, 3)), Measurements(z, ident=np.array([6])))
+    xbar, q = np.array([[0.0, 0.0, 0.03]]), np.diag([0.01**2, 0.01**2, 0.03**2])[None]
+    mean, _, used = mf.pose_proposal(maps, xbar, q, Measurements(z, ident=np.array([6])))
+    assert used[0] == 1 and abs(mean[0, 2]) < 0.006
+    mean, _, used = mf.pose_proposal(maps, xbar, q, Measurements(z, ident=np.array([7])))
+    assert used[0] == 0 and np.array_equal(mean, xbar)
+
+
+def test_logged_detections_keep_the_identities_of_the_landmark_rows():
+    """A log whose detections are labelled (UTIAS target: 1 landmark, 2 another robot): the filter's measurements are
+    the landmark rows, and their identities are those rows' subjects, in order."""
+    from detectors.sensor_log import Detections
+
+    d = Detections(np.array([0, 10], np.int64), np.array([0, 0, 0, 1, 1]), np.array([1.0, 2.0, 3.0, 4.0, 5.0]), np.zeros(5),
+                   {"subject": np.array([6, 1, 8, 9, 2]), "target": np.array([1, 2, 1, 1, 2])})
+    log = type("Log", (), {"detections": d})()
+    src = LoggedDetections(log, identities=True)
+    off = d.frame_slices()
+    got = [src(type("F", (), {"rows": slice(off[f], off[f + 1])})()) for f in range(2)]
+    assert [g.z[:, 0].tolist() for g in got] == [[1.0, 3.0], [4.0]]
+    assert [g.ident.tolist() for g in got] == [[6, 8], [9]]
