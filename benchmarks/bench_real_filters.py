@@ -8,7 +8,7 @@ Run: ``python benchmarks/bench_real_filters.py [--data ../shared/data] [--filter
   the default settings, as ``detcal calibrate dataset1 --robot ... --name utias-notK``), and its settings are
   ``benchmarks/configs/utias_mrclam/robotK.yaml`` (unicycle noise and biases measured on the other four robots'
   ground truth, 20 particles, the optimal proposal). The filters read the barcodes' identities
-  (``detection.identities: auto``); ``--set detection.identities=false`` runs them without. Scored against Vicon: trajectory RMSE, map OSPA (c = 1 m, p = 1)
+  (``detection.identities: auto``); ``--set detection.identities=off`` runs them without. Scored against Vicon: trajectory RMSE, map OSPA (c = 1 m, p = 1)
   against the 15 surveyed landmarks, the map's features, the landmarks with a feature within 0.3 m (GOSPA, c = 0.3 m)
   and how far the RMSE lies below dead reckoning; then the RMSE and the landmarks within 0.3 m after the best rigid
   fit of the path onto Vicon (the map moved with it; ``slam_runtime.run.evaluate``), and the fit's angle. With
