@@ -196,7 +196,8 @@ class MapFilter(ABC):
         existence ex (P, J) (valid (P, J): the slots that hold one; None: every slot) weighted by their P_D from the
         motion prior's poses (times pd_factor (P, J) where given: a track's learned factor on P_D), and the frame's
         measurements, noise and kappa, handed to :func:`slam_runtime.proposal.pose_proposal`; ident (P, J) the
-        features' identities when the run takes them (``meas.ident``)."""
+        features' identities when the run takes them (``meas.ident``; None: features without, which any measurement
+        may have made)."""
         z, rz = self.measurements(meas)
         if z.shape[0] == 0 or mu.shape[1] == 0:
             return xbar, q, np.zeros(xbar.shape[0], dtype=np.int64)

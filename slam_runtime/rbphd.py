@@ -190,7 +190,7 @@ class RBPHD(MapFilter):
                 )
                 seen, pd_kept, id_kept = (pd > 0) & (w > 0), np.take_along_axis(pd, j_kept, axis=1), None
             else:
-                missed, w_kept, mu_det, cov_det, pd_kept, den, wsum, seen, id_kept = self._pairs(w, mu, cov, pd, buf, sp, z, rz, kappa, meas, prior.ident)
+                missed, w_kept, mu_det, cov_det, pd_kept, den, wsum, seen, id_kept = self._pairs(w, mu, cov, pd, buf, sp, z, rz, kappa, meas, None if meas.ident is None else prior.identities())
             upd = GMBatch(missed, mu, cov, prior.ident).concat(GMBatch(w_kept, mu_det, cov_det, id_kept))
             # what this step touched: the map features in view, the ones the last merge formed (their moments
             # changed), this step's births and every detection update; the rest was tested at the last merge
@@ -219,11 +219,12 @@ class RBPHD(MapFilter):
 
     def _pairs(self, w, mu, cov, pd, buf, sp, z, rz, kappa, meas, ident=None):
         """The numpy update of the prior mixtures w (P, J), mu (P, J, dx), cov (P, J, dx, dx) (identities ident
-        (P, J) or None) by the measurements z (M, dz): (missed-detection weights (P, J) with the buffer zone's floor
-        (eqs. 3.17, 3.21), the kept detection-updated components' weights (P, K), means and covariances (eq. 3.18),
-        their P_D (P, K), kappa + sum_j P_D w_j q_j (P, M), the share of each measurement the map took (P, M), the
-        components in view (P, J), the kept components' identities (P, K) or None). With ``meas.ident`` a component
-        takes part only in the measurements of its identity (:func:`slam_runtime.proposal.identity_match`)."""
+        (P, J), given with ``meas.ident``) by the measurements z (M, dz): (missed-detection weights (P, J) with the
+        buffer zone's floor (eqs. 3.17, 3.21), the kept detection-updated components' weights (P, K), means and
+        covariances (eq. 3.18), their P_D (P, K), kappa + sum_j P_D w_j q_j (P, M), the share of each measurement the
+        map took (P, M), the components in view (P, J), the kept components' identities (P, K) or None). With
+        ``meas.ident`` a component takes part only in the measurements of its identity
+        (:func:`slam_runtime.proposal.identity_match`)."""
         cfg, fm = self.cfg, self.feature
         dz = fm.dim_z
         m = z.shape[0]
@@ -251,7 +252,7 @@ class RBPHD(MapFilter):
         gated = m2 <= cfg.gate
         id_s = None
         if meas.ident is not None:
-            id_s = (np.full(w.shape, -1, np.int64) if ident is None else ident)[rows, sel]
+            id_s = ident[rows, sel]
             gated &= identity_match(id_s, meas.ident)
         q = np.zeros(m2.shape)
         q[gated] = gaussian(m2[gated], det_pair[gated], dz)
@@ -304,7 +305,7 @@ class RBPHD(MapFilter):
         the data-association covariance); the update itself uses R + H_m P H_m^T.
         Returns the mean (P, 3), covariance (P, 3, 3) and the number of measurements used (P,)."""
         gm = maps.gm
-        return self._proposal(xbar, q, meas, gm.mu, gm.cov, gm.w, None, gate=self.cfg.gate, share=share, iterations=iterations, ident=gm.identities())
+        return self._proposal(xbar, q, meas, gm.mu, gm.cov, gm.w, None, gate=self.cfg.gate, share=share, iterations=iterations, ident=gm.ident)
 
     def _birth(self, sp: np.ndarray, z: np.ndarray, rz: np.ndarray, unexplained: np.ndarray | None, ident: np.ndarray | None = None) -> GMBatch:
         """Birth mixture for the next step from this step's measurements (eq. 3.15).
