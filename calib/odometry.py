@@ -6,11 +6,25 @@ e.g. Vicon) is compared with the motion the odometry rows integrate to:
 * velocity odometry (v, omega commands): the heading change and the distance
   travelled along the heading; their mean errors per second are the biases
   (``omega_offset``: the turn rate the commands add; ``speed_scale``: true
-  distance along the path / commanded distance), and their spread (distance
-  errors once the scale is applied) the noise, expressed as the
+  distance along the path / commanded distance; ``omega_scale``: true heading
+  change / commanded heading change), and their spread (the errors once the
+  scales are applied) the noise, expressed as the
   per-row standard deviations a filter draws (a white error of std s per row of
   duration dt spreads as s sqrt(dt) per second: s = spread / sqrt(dt)). The plain
   standard deviation, not a robust spread: the errors are heavy-tailed.
+
+The motion may follow the commands late (``delay``): the delay is the one, on a
+grid of the row period up to ``max_delay``, at which the one-second windows'
+heading errors (after the least-squares scale and offset of that delay) have the
+smallest spread; every other figure is measured at it. The turn-rate scale is a
+least-squares fit of the true heading change on the commanded one (with the
+offset) over longer windows (``scale_window``, 5 s): what is left of the
+command dynamics (a lag that is not a pure delay) biases a short window's slope
+towards zero (regression dilution), a 5-s window's far less.
+
+Windows over which the ground truth turns faster than ``max_turn_rate``
+between two of its samples are left out: a motion-capture glitch (a heading
+that jumps by radians in one sample) is not odometry noise.
 
 The figures go into the SLAM settings' ``motion`` section (``detcal calibrate``
 writes ``motion.yaml`` beside the profile), so a robot's vehicle model can be
@@ -26,45 +40,93 @@ from detectors.sensor_log import SensorLog
 from profiles.errors import DataError
 
 
-def fit_velocity_odometry(logs: list[SensorLog], window: float = 1.0) -> dict:
-    """sigma_v [m/s], sigma_omega [rad/s] per row, speed_scale and omega_offset [rad/s], pooled over ``logs``."""
-    e_th, e_d, dist_true, dist_cmd, rows_dt = [], [], 0.0, 0.0, []
+class _Windows:
+    """Consecutive windows of ``per`` odometry rows inside the ground truth, the truth read ``shift`` ns after the
+    rows' stamps (the motion's delay): the true relative poses (W, 3), the commanded heading changes and distances (W,)
+    [rad, m] and the durations (W,) [s]; windows over a broken stretch of the truth (``bad``: (S-1,) per interval
+    between its samples) are left out."""
+
+    def __init__(self, o, g, bad: np.ndarray, per: int, shift: int) -> None:
+        st = o.stamp
+        ts = st + shift
+        start = np.arange(0, st.size - per - 1, per)
+        start = start[(ts[start] >= g.stamp[0]) & (ts[start + per] <= g.stamp[-1])]
+        if bad.any():  # any broken interval between the window's ends
+            cum = np.concatenate([[0], np.cumsum(bad)])
+            a = np.clip(np.searchsorted(g.stamp, ts[start], side="right") - 1, 0, bad.size)
+            b = np.clip(np.searchsorted(g.stamp, ts[start + per], side="left"), 0, bad.size)
+            start = start[cum[b] - cum[a] == 0]
+        self.rel = relative(interpolate_poses(g.stamp, g.poses, ts[start]), interpolate_poses(g.stamp, g.poses, ts[start + per]))
+        dt = np.diff(st) / 1e9
+        # the command of row k holds until row k + 1
+        cs_om = np.concatenate([[0.0], np.cumsum(o.values[:-1, 1] * dt)])
+        cs_d = np.concatenate([[0.0], np.cumsum(o.values[:-1, 0] * dt)])
+        self.om = cs_om[start + per] - cs_om[start]
+        self.d = cs_d[start + per] - cs_d[start]
+        self.span = (st[start + per] - st[start]) / 1e9
+        self.dth = np.mod(self.rel[:, 2] + np.pi, 2 * np.pi) - np.pi  # wrapped: a window turns well below pi
+
+
+def _turn_fit(w: list[_Windows]) -> tuple[float, np.ndarray]:
+    """Least squares of the true heading change on the commanded one and the duration: the scale and the residuals."""
+    dth = np.concatenate([x.dth for x in w])
+    a = np.column_stack([np.concatenate([x.om for x in w]), np.concatenate([x.span for x in w])])
+    if dth.size < 10 or float(np.sum(a[:, 0] ** 2)) == 0.0:
+        return 1.0, dth - a[:, 0]
+    sol = np.linalg.lstsq(a, dth, rcond=None)[0]
+    return float(sol[0]), dth - a @ sol
+
+
+def fit_velocity_odometry(
+    logs: list[SensorLog],
+    window: float = 1.0,
+    scale_window: float = 5.0,
+    max_delay: float = 0.5,
+    max_turn_rate: float = 10.0,
+) -> dict:
+    """sigma_v [m/s], sigma_omega [rad/s] per row, speed_scale, omega_scale, omega_offset [rad/s] and delay [s],
+    pooled over ``logs``."""
+    rows_dt, broken, usable = [], [], []
     for log in logs:
         o, g = log.odometry, log.reference.get("ground_truth")
         if o is None or o.kind != "velocity" or g is None:
             raise DataError(f"log {log.name!r}: measuring velocity odometry needs velocity odometry and ground-truth poses")
-        st = o.stamp
-        dt = np.diff(st) / 1e9
-        rows_dt.append(dt)
-        per = max(1, int(round(window / max(float(np.median(dt)), 1e-9))))
-        start = np.arange(0, st.size - per - 1, per)
-        inside = (st[start] >= g.stamp[0]) & (st[start + per] <= g.stamp[-1])
-        start = start[inside]
-        if start.size < 10:
-            continue
-        rel = relative(interpolate_poses(g.stamp, g.poses, st[start]), interpolate_poses(g.stamp, g.poses, st[start + per]))
-        # the command of row k holds until row k + 1
-        cs_om = np.concatenate([[0.0], np.cumsum(o.values[:-1, 1] * dt)])
-        cs_d = np.concatenate([[0.0], np.cumsum(o.values[:-1, 0] * dt)])
-        om = cs_om[start + per] - cs_om[start]
-        d = cs_d[start + per] - cs_d[start]
-        span = (st[start + per] - st[start]) / 1e9
-        e_th.append((np.mod(rel[:, 2] - om + np.pi, 2 * np.pi) - np.pi) / span)
-        # the true distance along the path: the chord over a constant-curvature arc of the true heading
-        # change (the displacement along the start heading alone is short by ~omega^2 T^2 / 6 on curves)
-        half = 0.5 * np.mod(rel[:, 2] + np.pi, 2 * np.pi) - 0.5 * np.pi
-        arc = np.hypot(rel[:, 0], rel[:, 1]) * np.where(np.abs(half) > 1e-9, half / np.sin(np.where(half == 0, 1.0, half)), 1.0)
-        arc = np.copysign(arc, rel[:, 0])
-        e_d.append(np.column_stack([arc, d, span]))
-        dist_true += float(np.abs(arc).sum())
-        dist_cmd += float(np.abs(d).sum())
-    if not e_th:
+        rows_dt.append(np.diff(o.stamp) / 1e9)
+        turn = np.abs(np.mod(np.diff(g.poses[:, 2]) + np.pi, 2 * np.pi) - np.pi)
+        gdt = np.diff(g.stamp) / 1e9
+        # samples that share a stamp (UTIAS: a quarter of them) are held to the truth's usual sample period
+        floor = float(np.median(gdt[gdt > 0])) if np.any(gdt > 0) else 1.0
+        broken.append(turn > max_turn_rate * np.maximum(gdt, floor))
+        usable.append((o, g))
+    dt = float(np.median(np.concatenate(rows_dt))) if rows_dt else 0.0
+    per = max(1, int(round(window / max(dt, 1e-9))))
+    # the delay: the grid of row periods up to max_delay, the smallest spread of the one-second heading errors
+    delays = np.arange(0.0, max_delay + 0.5 * dt, dt) if dt > 0 else np.zeros(1)
+    spread = []
+    for d in delays:
+        w = [_Windows(o, g, bad, per, int(round(d * 1e9))) for (o, g), bad in zip(usable, broken, strict=True)]
+        res = _turn_fit(w)[1]
+        spread.append(float(np.std(res)) if res.size >= 10 else np.inf)
+    if not np.isfinite(min(spread, default=np.inf)):
         raise DataError("too little odometry inside the ground truth to measure it")
+    delay = float(delays[int(np.argmin(spread))])
+    shift = int(round(delay * 1e9))
+    long_per = max(1, int(round(scale_window / max(dt, 1e-9))))
+    omega_scale = _turn_fit([_Windows(o, g, bad, long_per, shift) for (o, g), bad in zip(usable, broken, strict=True)])[0]
+    w = [_Windows(o, g, bad, per, shift) for (o, g), bad in zip(usable, broken, strict=True)]
+    span = np.concatenate([x.span for x in w])
+    rel = np.concatenate([x.rel for x in w])
+    e_th = (np.mod(rel[:, 2] - omega_scale * np.concatenate([x.om for x in w]) + np.pi, 2 * np.pi) - np.pi) / span
+    # the true distance along the path: the chord over a constant-curvature arc of the true heading
+    # change (the displacement along the start heading alone is short by ~omega^2 T^2 / 6 on curves)
+    half = 0.5 * np.mod(rel[:, 2] + np.pi, 2 * np.pi) - 0.5 * np.pi
+    arc = np.hypot(rel[:, 0], rel[:, 1]) * np.where(np.abs(half) > 1e-9, half / np.sin(np.where(half == 0, 1.0, half)), 1.0)
+    arc = np.copysign(arc, rel[:, 0])
+    d = np.concatenate([x.d for x in w])
+    dist_true, dist_cmd = float(np.abs(arc).sum()), float(np.abs(d).sum())
     scale = dist_true / dist_cmd if dist_cmd > 0 else 1.0
-    e_th, dd = np.concatenate(e_th), np.concatenate(e_d)
-    e_d = (dd[:, 0] - scale * dd[:, 1]) / dd[:, 2]  # the distance error once the scale is applied: the noise
-    dt = float(np.median(np.concatenate(rows_dt)))
-    omega_offset = -float(np.median(e_th))  # commands turn by omega; truth by omega - offset
+    e_d = (arc - scale * d) / span  # the distance error once the scale is applied: the noise
+    omega_offset = -float(np.median(e_th))  # commands turn by omega; truth by omega_scale * omega - offset
     # the plain standard deviation, not a robust one: the errors are heavy-tailed (slips, bumps; on UTIAS
     # the std of the heading error is 2-3x its MAD-based spread), and a Gaussian filter must cover the tails
     spread_th = float(np.std(e_th)) * np.sqrt(window)
@@ -75,8 +137,12 @@ def fit_velocity_odometry(logs: list[SensorLog], window: float = 1.0) -> dict:
             "sigma_omega": spread_th / np.sqrt(dt),
             "speed_scale": scale,
             "omega_offset": omega_offset,
+            "omega_scale": omega_scale,
+            "delay": delay,
         },
         "row_period_s": dt,
         "windows": int(e_th.size),
         "window_s": window,
+        "scale_window_s": scale_window,
+        "broken_truth_intervals": int(sum(int(b.sum()) for b in broken)),
     }

@@ -64,6 +64,7 @@ from slam_runtime.oracle_factors import (
     relative_pose_factors,
 )
 from slam_runtime.refine import association_weights
+from slam_runtime.sources import delayed
 
 
 
@@ -606,6 +607,7 @@ def log_oracle(
     mount = log.sensor.mount if log.sensor is not None else None
     if mount is not None and (mount.x, mount.y, mount.theta) != (0.0, 0.0, 0.0):
         raise DataError(f"{log.name}: the oracle models a sensor at the vehicle's reference point")
+    log = delayed(log, vehicle.delay)
     frames = list(log.frames())
     stamps = np.array([f.stamp for f in frames], dtype=np.int64)
     if not ref.stamp[0] <= stamps[0] <= ref.stamp[-1]:

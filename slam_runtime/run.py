@@ -29,7 +29,7 @@ from slam_runtime.config import SlamConfig, detection_model, feature_model, map_
 from slam_runtime.metrics import axis_rmse, gospa, ospa, trajectory_rmse
 from slam_runtime.refine import refine_map
 from slam_runtime.slam import RBSlam, resolve_proposal
-from slam_runtime.sources import control_rows, frames
+from slam_runtime.sources import control_rows, delayed, frames
 from slam_runtime.vehicle import VEHICLE_MODELS
 
 
@@ -245,6 +245,7 @@ def run_slam(
     """
     check_inputs(log, profile)
     b = build(log, profile, cfg)
+    log = delayed(log, b.vehicle.delay)
     stamps = log.frame_stamps()[:max_frames]
     n = stamps.size
     if n == 0:
@@ -312,6 +313,7 @@ def run_slam(
 def dead_reckoning(log: SensorLog, stamps: np.ndarray, start: np.ndarray, cfg: SlamConfig | None = None) -> np.ndarray:
     """(T, 3) the odometry alone at ``stamps`` (T,) from ``start``: the vehicle model without noise."""
     veh = vehicle_model(log.odometry.kind, (cfg or SlamConfig()).motion, log.vehicle)
+    log = delayed(log, veh.delay)
     out = np.zeros((stamps.size, 3))
     x = veh.initial(np.zeros(3), 1)
     o = log.odometry

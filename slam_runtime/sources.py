@@ -11,13 +11,15 @@ does not care which filter runs.
 Controls (:func:`control_rows`): pose odometry becomes increments between
 consecutive rows; increments are used as they are; a velocity or Ackermann
 command holds until the next row, so the interval ending at row k is driven
-by row k - 1 (the first row of the log has no interval before it).
+by row k - 1 (the first row of the log has no interval before it). A vehicle
+model whose motion follows its commands late (``motion.velocity.delay``) runs
+on the log with its odometry stamped when the rows act (:func:`delayed`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -34,6 +36,15 @@ class FrameInput:
     controls: np.ndarray  # (R, k) control rows since the previous frame
     dts: np.ndarray  # (R,) how long each is held [s]
     meas: Measurements
+
+
+def delayed(log: SensorLog, delay: float) -> SensorLog:
+    """The log with its odometry rows stamped ``delay`` seconds later, when they act on the motion (the frames, the
+    ground truth and the measurements keep their stamps); the log itself when the delay is 0."""
+    if not delay or log.odometry is None:
+        return log
+    o = log.odometry
+    return replace(log, odometry=replace(o, stamp=o.stamp + int(round(delay * 1e9))))
 
 
 def control_rows(log: SensorLog, rows: slice) -> tuple[np.ndarray, np.ndarray]:

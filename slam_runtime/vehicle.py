@@ -66,6 +66,9 @@ class VehicleModel(ABC):
     #: optimal proposal updates with the pose (:meth:`predict_joint`, :meth:`condition`); the state is then the pose
     #: and those two columns
     adaptive: bool = False
+    #: how late the motion follows the odometry rows [s] (a command acts this long after its stamp): the run hands
+    #: each frame interval the rows that act in it (:func:`slam_runtime.sources.delayed`)
+    delay: float = 0.0
 
     @property
     def planar(self) -> bool:
@@ -292,6 +295,8 @@ class VelocityNoise(BaseModel):
     sigma_omega: float = Field(default=0.05, ge=0.0, description="rad/s")
     speed_scale: float = Field(default=1.0, gt=0.5, lt=2.0, description="factor on every speed command")
     omega_offset: float = Field(default=0.0, ge=-0.5, le=0.5, description="turn-rate bias removed from every command [rad/s]")
+    omega_scale: float = Field(default=1.0, gt=0.5, lt=2.0, description="factor on every turn-rate command (before the offset)")
+    delay: float = Field(default=0.0, ge=0.0, le=1.0, description="how late the motion follows each command [s]")
 
 
 class Unicycle(VehicleModel):
@@ -304,16 +309,25 @@ class Unicycle(VehicleModel):
     features = ("points",)
     Noise = VelocityNoise
 
-    def __init__(self, *, sigma_v: float = 0.05, sigma_omega: float = 0.05, speed_scale: float = 1.0, omega_offset: float = 0.0) -> None:
+    def __init__(
+        self,
+        *,
+        sigma_v: float = 0.05,
+        sigma_omega: float = 0.05,
+        speed_scale: float = 1.0,
+        omega_offset: float = 0.0,
+        omega_scale: float = 1.0,
+        delay: float = 0.0,
+    ) -> None:
         self.sig = np.array([sigma_v, sigma_omega], dtype=np.float64)
-        self.speed_scale, self.omega_offset = speed_scale, omega_offset
+        self.speed_scale, self.omega_offset, self.omega_scale, self.delay = speed_scale, omega_offset, omega_scale, delay
 
     def control_sigmas(self, u, dt):
         return self.sig
 
     def step(self, x, u, dt, rng):
         vv, ww = _noisy(x.shape[0], u, self.sig, rng).T
-        vv, ww = vv * self.speed_scale, ww - self.omega_offset
+        vv, ww = vv * self.speed_scale, ww * self.omega_scale - self.omega_offset
         th = x[:, 2]
         small = np.abs(ww) < 1e-9
         w_safe = np.where(small, 1.0, ww)
@@ -322,7 +336,7 @@ class Unicycle(VehicleModel):
         return np.column_stack([x[:, 0] + dx, x[:, 1] + dy, wrap_angle(th + ww * dt)])
 
     def jacobian(self, x, u, dt):
-        v, w = float(u[0]) * self.speed_scale, float(u[1]) - self.omega_offset
+        v, w = float(u[0]) * self.speed_scale, float(u[1]) * self.omega_scale - self.omega_offset
         th = x[:, 2]
         f = np.tile(np.eye(3), (x.shape[0], 1, 1))
         if abs(w) < 1e-9:

@@ -25,7 +25,12 @@ def fill_detection_run(cal: DetectionCalibration, folder) -> list[str]:
         (tmp / "config.yaml").write_text(dump_yaml(cal.config.model_dump(mode="json")))
     if cal.motion is not None:  # SLAM settings for `detcal slam run --config`: the vehicle model measured on these logs
         v = {k: float(f"{x:.4g}") for k, x in cal.motion["velocity"].items()}
-        head = f"# velocity odometry measured against ground truth over {cal.motion['windows']} windows of {cal.motion['window_s']:g} s\n"
+        m = cal.motion
+        head = (
+            f"# velocity odometry measured against ground truth over {m['windows']} windows of {m['window_s']:g} s"
+            f" (the turn-rate scale over windows of {m['scale_window_s']:g} s; {m['broken_truth_intervals']} intervals"
+            " of the ground truth left out as glitches)\n"
+        )
         (tmp / "motion.yaml").write_text(head + dump_yaml({"motion": {"velocity": v}}))
     cal.pairs.to_csv(tmp / "pairs.csv.gz", index=False, float_format="%.9g", compression={"method": "gzip", "mtime": 0})
     if cal.profile.pd.two_d:

@@ -9,15 +9,26 @@ from detectors.sensor_log import Odometry, ReferencePoses, SensorLog
 from profiles.errors import DataError
 
 
-def _robot(rng: np.random.Generator, *, scale: float, offset: float, s_v: float, s_w: float, seconds: float = 900.0) -> SensorLog:
-    """Velocity commands at 50 Hz held for 2 s each; the true motion is scale * v and omega - offset plus
-    white noise of std (s_v, s_w) per row, integrated exactly as the unicycle does (slam_runtime.vehicle)."""
+def _robot(
+    rng: np.random.Generator,
+    *,
+    scale: float,
+    offset: float,
+    s_v: float,
+    s_w: float,
+    seconds: float = 900.0,
+    w_scale: float = 1.0,
+    delay: int = 0,
+) -> SensorLog:
+    """Velocity commands at 50 Hz held for 2 s each; the true motion is scale * v and w_scale * omega - offset
+    plus white noise of std (s_v, s_w) per row, integrated exactly as the unicycle does (slam_runtime.vehicle),
+    the turn rate ``delay`` rows after its command."""
     dt, n = 0.02, int(seconds / 0.02)
     hold = 100
     v = np.repeat(rng.uniform(0.0, 0.3, n // hold + 1), hold)[:n]
     w = np.repeat(rng.uniform(-0.4, 0.4, n // hold + 1), hold)[:n]
     vt = scale * v + rng.normal(0.0, s_v, n)
-    wt = w - offset + rng.normal(0.0, s_w, n)
+    wt = w_scale * np.concatenate([np.zeros(delay), w[: n - delay]]) - offset + rng.normal(0.0, s_w, n)
     pose = np.zeros((n, 3))
     for k in range(1, n):
         x, y, th = pose[k - 1]
@@ -45,6 +56,44 @@ def test_velocity_odometry_biases_and_noise_against_truth():
     assert v["sigma_v"] == pytest.approx(0.08, rel=0.06)
     assert v["sigma_omega"] == pytest.approx(0.3, rel=0.06)
     assert got["windows"] >= 1700 and got["row_period_s"] == pytest.approx(0.02)
+    assert v["omega_scale"] == pytest.approx(1.0, abs=0.01)
+
+
+def test_turn_rate_scale_and_delay():
+    """A robot turning 5 % less than commanded, 0.2 s after the command (UTIAS's robots: 0.94-0.96, 0.18-0.3 s):
+    the delay, the scale and the noise are recovered; measured as if the motion followed at once, the delay's
+    misattributed turns inflate the noise and dilute the scale."""
+    from calib.odometry import fit_velocity_odometry
+
+    rng = np.random.default_rng(7)
+    logs = [_robot(rng, scale=1.0, offset=0.0, s_v=0.05, s_w=0.3, w_scale=0.95, delay=10) for _ in range(2)]
+    got = fit_velocity_odometry(logs)["velocity"]
+    # the grid is the row period (0.02 s): a wrong step leaves a 0.02-s slice of every command change (every 2 s)
+    # in the errors, a spread the 1,800 windows resolve
+    assert got["delay"] == pytest.approx(0.2, abs=0.021)
+    # 360 five-second windows of commanded turns ~1 rad rms, heading noise 0.3 sqrt(0.02 x 5) ~ 0.09 rad each:
+    # slope error ~0.09 / (1 x sqrt(360)) ~ 0.005, plus the command changes inside a window (seeds 0-5 gave
+    # 0.944-0.963, delay 0.20-0.22 s, sigma_omega 0.294-0.302, and 0.415-0.428 without the delay)
+    assert got["omega_scale"] == pytest.approx(0.95, abs=0.02)
+    assert got["sigma_omega"] == pytest.approx(0.3, rel=0.08)
+    at_once = fit_velocity_odometry(logs, max_delay=0.0)["velocity"]
+    assert at_once["delay"] == 0.0 and at_once["sigma_omega"] > 1.3 * got["sigma_omega"]
+
+
+def test_a_glitch_in_the_ground_truth_is_not_odometry_noise():
+    """A motion-capture heading that jumps 2.5 rad for one sample (UTIAS robot 1 at 1,270 s): the windows over it are
+    left out, and the noise is that of the clean log."""
+    from calib.odometry import fit_velocity_odometry
+
+    log = _robot(np.random.default_rng(3), scale=1.0, offset=0.0, s_v=0.05, s_w=0.3)
+    g = log.reference["ground_truth"]
+    poses = g.poses.copy()
+    poses[20_000, 2] += 2.5
+    bad = SensorLog(name="robot", odometry=log.odometry, reference={"ground_truth": ReferencePoses("ground_truth", g.stamp, poses)})
+    clean, broken = fit_velocity_odometry([log]), fit_velocity_odometry([bad])
+    assert broken["broken_truth_intervals"] == 2 and clean["broken_truth_intervals"] == 0
+    assert broken["velocity"]["sigma_omega"] == pytest.approx(clean["velocity"]["sigma_omega"], rel=0.01)
+    assert broken["windows"] < clean["windows"]
 
 
 def test_velocity_odometry_needs_truth():
@@ -75,5 +124,5 @@ def test_calibrate_writes_the_motion_settings_it_measured(tmp_path, capsys):
     cfg = load_yaml_model(SlamConfig, tmp_path / "cal/motion.yaml")
     want = fit_velocity_odometry([read_log(src)])["velocity"]
     got = cfg.motion.velocity
-    for k in ("sigma_v", "sigma_omega", "speed_scale", "omega_offset"):
+    for k in ("sigma_v", "sigma_omega", "speed_scale", "omega_offset", "omega_scale", "delay"):
         assert getattr(got, k) == pytest.approx(want[k], rel=1e-3, abs=1e-6)

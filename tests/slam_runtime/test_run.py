@@ -25,6 +25,26 @@ def test_velocity_rows_split_across_frames_lose_nothing(frame_hz):
     np.testing.assert_allclose(out[:, 1:], 0.0, atol=1e-12)
 
 
+def test_a_delayed_motion_takes_the_rows_that_act_in_each_frame():
+    """Velocity rows at 50 Hz, 1 m/s from t = 2 s; with ``motion.velocity.delay: 0.2`` the robot starts moving 0.2 s
+    later: at a frame at t = 3 s it has gone 0.8 m, not 1.0 (the rows of 2.8-3.0 s act after the frame). Odometry
+    stamps shifted, the frames and the log itself untouched."""
+    from slam_runtime.config import with_settings, SlamConfig
+    from slam_runtime.sources import delayed
+
+    st = _stamps(250, 50.0)
+    v = np.where(st > 2e9 - 1, 1.0, 0.0)
+    log = SensorLog("v", odometry=Odometry("velocity", st, np.column_stack([v, np.zeros(250)])))
+    frames = np.array([1.5e9, 3e9, 4e9], dtype=np.int64)
+    cfg = with_settings(SlamConfig(), {"motion.velocity.delay": 0.2})
+    np.testing.assert_allclose(dead_reckoning(log, frames, np.zeros(3))[:, 0], [0.0, 1.0, 2.0], atol=1e-9)
+    np.testing.assert_allclose(dead_reckoning(log, frames, np.zeros(3), cfg)[:, 0], [0.0, 0.8, 1.8], atol=1e-9)
+    late = delayed(log, 0.2)
+    np.testing.assert_array_equal(late.odometry.stamp, st + 200_000_000)
+    np.testing.assert_array_equal(log.odometry.stamp, st)
+    assert delayed(log, 0.0) is log
+
+
 def test_ackermann_circle_is_independent_of_the_frame_rate():
     """Constant speed and steering: the same relative pose between t = 1 s and 10 s whatever the frames in between."""
     st = _stamps(400, 40.0)

@@ -44,6 +44,22 @@ def test_unicycle_closes_a_full_circle_and_goes_straight():
     np.testing.assert_allclose(q[0], [1.0, 2.0, np.pi / 2], atol=1e-12)
 
 
+def test_unicycle_turn_rate_scale_and_offset():
+    """A command omega turns by omega_scale * omega - omega_offset: a quarter circle commanded at pi/2 rad/s for 1 s
+    turns by 0.9 * pi/2 - 0.05 with the scale 0.9 and the offset 0.05; the Jacobian's heading terms use the same rate."""
+    veh = Unicycle(omega_scale=0.9, omega_offset=0.05)
+    q = veh.mean(np.zeros((1, 3)), np.array([1.0, np.pi / 2]), 1.0)[0]
+    w = 0.9 * np.pi / 2 - 0.05
+    np.testing.assert_allclose(q, [np.sin(w) / w, (1 - np.cos(w)) / w, w], atol=1e-12)
+    x = np.array([[0.3, -0.2, 0.4]])
+    f, h = veh.jacobian(x, np.array([1.0, np.pi / 2]), 0.5), 1e-6
+    xp, xm = x.copy(), x.copy()
+    xp[0, 2] += h
+    xm[0, 2] -= h
+    fd = (veh.mean(xp, np.array([1.0, np.pi / 2]), 0.5) - veh.mean(xm, np.array([1.0, np.pi / 2]), 0.5))[0] / (2 * h)
+    np.testing.assert_allclose(f[0, :, 2], fd, atol=1e-6)
+
+
 def test_ackermann_moves_the_encoder_speed_to_the_axle_and_removes_the_steering_offset():
     L, H = 2.83, 0.76
     veh = Ackermann(L, H)
