@@ -10,7 +10,8 @@ e.g. Vicon) is compared with the motion the odometry rows integrate to:
   change / commanded heading change), and their spread (the errors once the
   scales are applied) the noise, expressed as the
   per-row standard deviations a filter draws (a white error of std s per row of
-  duration dt spreads as s sqrt(dt) per second: s = spread / sqrt(dt)). The plain
+  duration dt spreads as s sqrt(dt) per second: s = spread / sqrt(dt)), on the
+  command, as the unicycle adds it (before its scales). The plain
   standard deviation, not a robust spread: the errors are heavy-tailed.
 
 The motion may follow the commands late (``delay``): the delay is the one, on a
@@ -49,12 +50,12 @@ class _Windows:
     def __init__(self, o, g, bad: np.ndarray, per: int, shift: int) -> None:
         st = o.stamp
         ts = st + shift
-        start = np.arange(0, st.size - per - 1, per)
+        start = np.arange(0, max(st.size - per - 1, 0), per)
         start = start[(ts[start] >= g.stamp[0]) & (ts[start + per] <= g.stamp[-1])]
-        if bad.any():  # any broken interval between the window's ends
+        if bad.any():  # any broken interval between the window's ends (a stamp shared by two samples: both sides)
             cum = np.concatenate([[0], np.cumsum(bad)])
             a = np.clip(np.searchsorted(g.stamp, ts[start], side="right") - 1, 0, bad.size)
-            b = np.clip(np.searchsorted(g.stamp, ts[start + per], side="left"), 0, bad.size)
+            b = np.clip(np.searchsorted(g.stamp, ts[start + per], side="right"), 0, bad.size)
             start = start[cum[b] - cum[a] == 0]
         self.rel = relative(interpolate_poses(g.stamp, g.poses, ts[start]), interpolate_poses(g.stamp, g.poses, ts[start + per]))
         dt = np.diff(st) / 1e9
@@ -64,17 +65,24 @@ class _Windows:
         self.om = cs_om[start + per] - cs_om[start]
         self.d = cs_d[start + per] - cs_d[start]
         self.span = (st[start + per] - st[start]) / 1e9
-        self.dth = np.mod(self.rel[:, 2] + np.pi, 2 * np.pi) - np.pi  # wrapped: a window turns well below pi
+        # the true heading change, unwrapped about the commanded one (a window may turn by more than pi)
+        self.dth = self.om + np.mod(self.rel[:, 2] - self.om + np.pi, 2 * np.pi) - np.pi
 
 
-def _turn_fit(w: list[_Windows]) -> tuple[float, np.ndarray]:
-    """Least squares of the true heading change on the commanded one and the duration: the scale and the residuals."""
+def _turn_fit(w: list[_Windows]) -> tuple[float | None, np.ndarray]:
+    """Least squares of the true heading change on the commanded one and the duration: the scale (None with fewer
+    than 10 windows or no turn) and the residuals."""
     dth = np.concatenate([x.dth for x in w])
     a = np.column_stack([np.concatenate([x.om for x in w]), np.concatenate([x.span for x in w])])
     if dth.size < 10 or float(np.sum(a[:, 0] ** 2)) == 0.0:
-        return 1.0, dth - a[:, 0]
+        return None, dth - a[:, 0]
     sol = np.linalg.lstsq(a, dth, rcond=None)[0]
     return float(sol[0]), dth - a @ sol
+
+
+def _rows(log: SensorLog, window: float) -> int:
+    """Odometry rows per window of ``window`` seconds at the log's own median row period."""
+    return max(1, int(round(window / max(float(np.median(np.diff(log.odometry.stamp))) / 1e9, 1e-9))))
 
 
 def fit_velocity_odometry(
@@ -84,36 +92,49 @@ def fit_velocity_odometry(
     max_delay: float = 0.5,
     max_turn_rate: float = 10.0,
 ) -> dict:
-    """sigma_v [m/s], sigma_omega [rad/s] per row, speed_scale, omega_scale, omega_offset [rad/s] and delay [s],
-    pooled over ``logs``."""
+    """sigma_v [m/s], sigma_omega [rad/s] per row, speed_scale, omega_scale, omega_offset [rad/s] and delay [s]
+    (0 to ``max_delay``, at most 1 s, the settings' bound), pooled over ``logs``."""
+    if not 0.0 <= max_delay <= 1.0:
+        raise ValueError(f"max_delay: expected 0-1 s, got {max_delay}")
     rows_dt, broken, usable = [], [], []
     for log in logs:
         o, g = log.odometry, log.reference.get("ground_truth")
         if o is None or o.kind != "velocity" or g is None:
             raise DataError(f"log {log.name!r}: measuring velocity odometry needs velocity odometry and ground-truth poses")
+        if len(o) < 3 or g.stamp.size < 2:
+            continue
         rows_dt.append(np.diff(o.stamp) / 1e9)
         turn = np.abs(np.mod(np.diff(g.poses[:, 2]) + np.pi, 2 * np.pi) - np.pi)
         gdt = np.diff(g.stamp) / 1e9
         # samples that share a stamp (UTIAS: a quarter of them) are held to the truth's usual sample period
         floor = float(np.median(gdt[gdt > 0])) if np.any(gdt > 0) else 1.0
-        broken.append(turn > max_turn_rate * np.maximum(gdt, floor))
-        usable.append((o, g))
-    dt = float(np.median(np.concatenate(rows_dt))) if rows_dt else 0.0
-    per = max(1, int(round(window / max(dt, 1e-9))))
+        broken.append(~(turn <= max_turn_rate * np.maximum(gdt, floor)))  # a heading that is not finite too
+        usable.append(log)
+    if not usable:
+        raise DataError("too little odometry inside the ground truth to measure it")
+    dt = float(np.median(np.concatenate(rows_dt)))
+
+    def windows(seconds: float, shift: int) -> list[_Windows]:
+        return [_Windows(lg.odometry, lg.reference["ground_truth"], bad, _rows(lg, seconds), shift) for lg, bad in zip(usable, broken, strict=True)]
+
     # the delay: the grid of row periods up to max_delay, the smallest spread of the one-second heading errors
     delays = np.arange(0.0, max_delay + 0.5 * dt, dt) if dt > 0 else np.zeros(1)
     spread = []
     for d in delays:
-        w = [_Windows(o, g, bad, per, int(round(d * 1e9))) for (o, g), bad in zip(usable, broken, strict=True)]
-        res = _turn_fit(w)[1]
+        res = _turn_fit(windows(window, int(round(d * 1e9))))[1]
         spread.append(float(np.std(res)) if res.size >= 10 else np.inf)
     if not np.isfinite(min(spread, default=np.inf)):
         raise DataError("too little odometry inside the ground truth to measure it")
     delay = float(delays[int(np.argmin(spread))])
     shift = int(round(delay * 1e9))
-    long_per = max(1, int(round(scale_window / max(dt, 1e-9))))
-    omega_scale = _turn_fit([_Windows(o, g, bad, long_per, shift) for (o, g), bad in zip(usable, broken, strict=True)])[0]
-    w = [_Windows(o, g, bad, per, shift) for (o, g), bad in zip(usable, broken, strict=True)]
+    w = windows(window, shift)
+    # the scale over the long windows; a log too short for 10 of them takes the one-second windows' (diluted) slope
+    omega_scale, _ = _turn_fit(windows(scale_window, shift))
+    scale_from = scale_window
+    if omega_scale is None:
+        omega_scale, _ = _turn_fit(w)
+        scale_from = window
+    omega_scale = 1.0 if omega_scale is None else omega_scale
     span = np.concatenate([x.span for x in w])
     rel = np.concatenate([x.rel for x in w])
     e_th = (np.mod(rel[:, 2] - omega_scale * np.concatenate([x.om for x in w]) + np.pi, 2 * np.pi) - np.pi) / span
@@ -127,14 +148,20 @@ def fit_velocity_odometry(
     scale = dist_true / dist_cmd if dist_cmd > 0 else 1.0
     e_d = (arc - scale * d) / span  # the distance error once the scale is applied: the noise
     omega_offset = -float(np.median(e_th))  # commands turn by omega; truth by omega_scale * omega - offset
+    if not (0.5 < scale < 2.0 and 0.5 < omega_scale < 2.0):  # the unicycle's bounds (slam_runtime.vehicle.VelocityNoise)
+        raise DataError(
+            f"the odometry and the ground truth do not describe one motion: the truth goes {scale:.3g} times the commanded"
+            f" distance and turns {omega_scale:.3g} times the commanded angle (a unicycle takes 0.5-2)"
+        )
     # the plain standard deviation, not a robust one: the errors are heavy-tailed (slips, bumps; on UTIAS
     # the std of the heading error is 2-3x its MAD-based spread), and a Gaussian filter must cover the tails
     spread_th = float(np.std(e_th)) * np.sqrt(window)
     spread_d = float(np.std(e_d)) * np.sqrt(window)
     return {
         "velocity": {
-            "sigma_v": spread_d / np.sqrt(dt),
-            "sigma_omega": spread_th / np.sqrt(dt),
+            # on the command: the unicycle draws the noise before it applies the scales
+            "sigma_v": spread_d / np.sqrt(dt) / scale,
+            "sigma_omega": spread_th / np.sqrt(dt) / abs(omega_scale),
             "speed_scale": scale,
             "omega_offset": omega_offset,
             "omega_scale": omega_scale,
@@ -143,6 +170,6 @@ def fit_velocity_odometry(
         "row_period_s": dt,
         "windows": int(e_th.size),
         "window_s": window,
-        "scale_window_s": scale_window,
+        "scale_window_s": scale_from,
         "broken_truth_intervals": int(sum(int(b.sum()) for b in broken)),
     }

@@ -214,7 +214,17 @@ class RBPHD(MapFilter):
             if cfg.update_rule == "existence":  # duplicates of one feature merged: still one feature
                 gm = GMBatch(np.minimum(gm.w, cfg.existence_max), gm.mu, gm.cov, gm.ident)
         # adaptive birth: a measurement the map already explains gives birth to little
-        birth = self._birth(sp, z, rz, 1.0 - np.clip(wsum, 0.0, 1.0) if cfg.adaptive_birth else None, meas.ident)
+        unexplained = 1.0 - np.clip(wsum, 0.0, 1.0) if cfg.adaptive_birth else None
+        if meas.ident is not None and m and prior.shape[1]:
+            # an identity names one landmark: the predicted map's mass of a measurement's identity is the share of
+            # its landmark mapped before this measurement, which a birth of the same identity would duplicate (a
+            # mapped landmark the measurement misses, the pose lost, is clutter to the map, not a second landmark)
+            known = meas.ident >= 0
+            same = (prior.identities()[:, :, None] == meas.ident[None, None, :]) & known[None, None, :]
+            mass = np.einsum("pj,pjm->pm", prior.w, same)
+            left = 1.0 - np.clip(mass, 0.0, 1.0)
+            unexplained = left if unexplained is None else np.minimum(unexplained, left)
+        birth = self._birth(sp, z, rz, unexplained, meas.ident)
         return PHDMaps(gm, birth, merged), loglik
 
     def _pairs(self, w, mu, cov, pd, buf, sp, z, rz, kappa, meas, ident=None):
@@ -311,9 +321,12 @@ class RBPHD(MapFilter):
         """Birth mixture for the next step from this step's measurements (eq. 3.15).
 
         unexplained (P, M): the share of each measurement the updated map did not
-        take, 1 - sum_j w_det; it scales the birth weight, so features seen every
-        step are not re-born and merged into themselves. ident (M,): the
-        measurements' identities, which their births take (None: no identities).
+        take, 1 - sum_j w_det, and with identities at most the share of the
+        landmark its identity names that the predicted map does not hold; it
+        scales the birth weight, so features seen every step are not re-born and
+        merged into themselves, and a mapped landmark is not born twice. ident
+        (M,): the measurements' identities, which their births take (None: no
+        identities).
         """
         p, m = sp.shape[0], z.shape[0]
         if m == 0:

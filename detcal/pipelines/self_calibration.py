@@ -25,7 +25,7 @@ from profiles.override import updated
 from profiles.profile import NAME_RE, SEMVER_RE
 from slam_runtime.config import SlamConfig, with_settings
 from slam_runtime.run import SlamResult, build, evaluate, run_slam
-from slam_runtime.sources import control_rows
+from slam_runtime.sources import control_rows, delayed
 from slam_runtime.vehicle import VEHICLE_MODELS
 
 
@@ -86,7 +86,7 @@ def self_calibration(
     history: list[Iteration] = []
     model = build(log, profile, cfg).vehicle
     group = next(n for n, c in VEHICLE_MODELS.items() if isinstance(model, c))
-    controls = frame_controls(log) if biases and model.biases else None
+    controls = frame_controls(delayed(log, model.delay)) if biases and model.biases else None
     for k in range(iterations):
         res = run_slam(log, profile, cfg, seed, progress=progress)
         res.metrics = evaluate(log, res, cfg.metric.ospa_c, cfg.metric.ospa_p, cfg)

@@ -89,6 +89,23 @@ def test_a_misread_identity_does_not_update_another_landmark_or_move_the_pose():
         assert upd.birth.ident[0].tolist() == [read]
 
 
+def test_a_mapped_identity_gives_no_second_birth():
+    """An identity names one landmark. A feature of identity 6 (weight 1) mapped 10 m ahead; the robot, its heading lost,
+    measures landmark 6 at 40 degrees off, outside every gate: the measurement is clutter to the map and gives birth
+    to no second feature of identity 6, while a measurement of unmapped identity 7 beside it gives birth at the full
+    weight. With half of landmark 6 mapped (weight 0.5), half the birth weight."""
+    mf = phd(model(rate=0.5, pd=0.9, buffer=False), sr=0.05, sb=0.005)
+    lm = np.array([[[10.0, 0.0]]])
+    z = np.array([[10.0, np.radians(40.0)], [8.0, np.radians(-30.0)]])
+    for mapped, want in ((1.0, 0.0), (0.5, 0.5), (0.0, 1.0)):
+        maps = PHDMaps(GMBatch(np.array([[max(mapped, 1e-9)]]), lm, np.array([[np.eye(2) * 1e-4]]), np.array([[6]])), GMBatch.empty(1, 0, 2, ident=True))
+        upd, _ = mf.update(maps, np.zeros((1, 3)), Measurements(z, ident=np.array([6, 7])))
+        born = dict(zip(upd.birth.ident[0].tolist(), upd.birth.w[0].tolist()))
+        assert born[7] == pytest.approx(mf.cfg.birth_weight)
+        assert born[6] == pytest.approx(mf.cfg.birth_weight * want)
+        assert upd.gm.w[0][upd.gm.ident[0] == 6].sum() == pytest.approx(0.1 * mapped)  # missed: (1 - P_D) w
+
+
 def test_logged_detections_carry_the_identity_they_read():
     from tests.calib.camera import camera_log
 

@@ -45,6 +45,38 @@ def test_a_delayed_motion_takes_the_rows_that_act_in_each_frame():
     assert delayed(log, 0.0) is log
 
 
+def test_the_run_drives_its_particles_with_the_delayed_rows():
+    """The rfs-sim log driven by velocity commands (its true increments per step as v and omega): one particle, no
+    motion noise, the motion prior as the proposal, so the path is the vehicle model's alone. With
+    ``motion.velocity.delay: 0.3`` the run's path is dead reckoning through the delayed rows (not the undelayed
+    path, which lies ~0.1 m away by the end)."""
+    import dataclasses
+
+    from calib.sim.rfs import RfsSimConfig, simulate_rfs, truth_profile
+    from slam_runtime.config import SlamConfig, with_settings
+    from slam_runtime.run import run_slam
+
+    sim = RfsSimConfig(steps=200)
+    log = simulate_rfs(sim, 2)
+    g = log.reference["ground_truth"]
+    dt = np.diff(g.stamp) / 1e9
+    rel = np.diff(g.poses, axis=0)
+    c, s_ = np.cos(g.poses[:-1, 2]), np.sin(g.poses[:-1, 2])
+    v = np.concatenate([(c * rel[:, 0] + s_ * rel[:, 1]) / dt, [0.0]])
+    w = np.concatenate([(np.mod(rel[:, 2] + np.pi, 2 * np.pi) - np.pi) / dt, [0.0]])
+    # the command of row k drives the interval after it
+    log = dataclasses.replace(log, odometry=Odometry("velocity", g.stamp, np.column_stack([v, w])))
+    base = with_settings(SlamConfig(particles=1, proposal="prior"), {"motion.velocity.sigma_v": 0.0, "motion.velocity.sigma_omega": 0.0})
+    paths = {}
+    for delay in (0.0, 0.3):
+        cfg = with_settings(base, {"motion.velocity.delay": delay})
+        res = run_slam(log, truth_profile(sim), cfg, 0)
+        dr = dead_reckoning(log, res.stamps, res.start, cfg)
+        np.testing.assert_allclose(res.trajectory, dr, atol=1e-9)
+        paths[delay] = dr
+    assert np.hypot(*(paths[0.3][-1, :2] - paths[0.0][-1, :2])) > 0.05
+
+
 def test_ackermann_circle_is_independent_of_the_frame_rate():
     """Constant speed and steering: the same relative pose between t = 1 s and 10 s whatever the frames in between."""
     st = _stamps(400, 40.0)
