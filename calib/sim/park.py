@@ -20,6 +20,7 @@ Same config and seed, same bytes: all draws come from one
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Literal
@@ -30,11 +31,39 @@ from scipy.spatial import cKDTree
 
 from calib.config import dump_yaml
 from calib.sim import SIMULATORS, Simulated, Simulator
-from detectors.geometry import cast, compose, relative
+from detectors.geometry import cast
 from detectors.sensor_log import Landmarks, Mount, Odometry, ReferencePoses, ScanBatch, SensorLog, SensorModel, seconds_to_stamp
 from profiles.errors import DataError
 from profiles.override import updated
 from profiles.parameters import check_order
+
+
+def _libm(fn, nin: int):
+    """``fn`` of the platform's libm (Python's math) element by element, as float64 arrays. numpy hands float64
+    sin, cos, exp, arctan2 and hypot to SIMD kernels chosen by the CPU, and the AVX-512 ones round some results
+    differently in the last bit: the simulated log (and the bundled profile's provenance hash of it) would depend on
+    the machine. The simulator's few thousand poses afford the scalar calls."""
+    u = np.frompyfunc(fn, nin, 1)
+    return lambda *a: np.asarray(u(*(np.asarray(x, dtype=np.float64) for x in a)), dtype=np.float64)
+
+
+_sin, _cos, _exp = _libm(math.sin, 1), _libm(math.cos, 1), _libm(math.exp, 1)
+_arctan2, _hypot = _libm(math.atan2, 2), _libm(math.hypot, 2)
+
+
+def _compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """detectors.geometry.compose through libm."""
+    c, s = _cos(a[..., 2]), _sin(a[..., 2])
+    th = np.mod(a[..., 2] + b[..., 2] + np.pi, 2 * np.pi) - np.pi
+    return np.stack([a[..., 0] + c * b[..., 0] - s * b[..., 1], a[..., 1] + s * b[..., 0] + c * b[..., 1], th], axis=-1)
+
+
+def _relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """detectors.geometry.relative through libm."""
+    c, s = _cos(a[..., 2]), _sin(a[..., 2])
+    dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
+    th = np.mod(b[..., 2] - a[..., 2] + np.pi, 2 * np.pi) - np.pi
+    return np.stack([c * dx + s * dy, -s * dx + c * dy, th], axis=-1)
 
 #: odometry ticks a simulated run may hold at most (about 14 hours at 200 Hz): a slower speed or a faster rate is refused
 MAX_TICKS = 10_000_000
@@ -281,7 +310,7 @@ def _figure8(cfg: ParkConfig) -> np.ndarray:
     if a <= 0 or b <= 0:
         raise DataError("path.margin leaves no room for the figure-eight")
     s = np.linspace(0.0, 2 * np.pi, 20001)
-    return np.column_stack([cfg.width / 2 + a * np.sin(s), cfg.height / 2 + b * np.sin(s) * np.cos(s) * 2.0])
+    return np.column_stack([cfg.width / 2 + a * _sin(s), cfg.height / 2 + b * _sin(s) * _cos(s) * 2.0])
 
 
 def _lawnmower(cfg: ParkConfig) -> np.ndarray:
@@ -302,13 +331,13 @@ def _lawnmower(cfg: ParkConfig) -> np.ndarray:
             cx = x1 if k % 2 == 0 else x0
             ang = np.linspace(-np.pi / 2, np.pi / 2, 200)[1:-1]
             side = 1.0 if k % 2 == 0 else -1.0
-            pts.append(np.column_stack([cx + side * r * np.cos(ang), y + r + r * np.sin(ang)]))
+            pts.append(np.column_stack([cx + side * r * _cos(ang), y + r + r * _sin(ang)]))
     return np.vstack(pts)
 
 
 def _trajectory(cfg: ParkConfig, dense: np.ndarray, closed: bool) -> tuple[np.ndarray, np.ndarray]:
     """Poses (K, 3) at the odometry ticks moving along ``dense`` at constant speed, and their times (K,)."""
-    seg = np.hypot(*np.diff(dense, axis=0).T)
+    seg = _hypot(*np.diff(dense, axis=0).T)
     s = np.concatenate([[0.0], np.cumsum(seg)])
     length = s[-1]
     total = length * cfg.path.laps if closed else length
@@ -329,7 +358,7 @@ def _trajectory(cfg: ParkConfig, dense: np.ndarray, closed: bool) -> tuple[np.nd
 
     xy = at(dist)
     ahead, behind = at(dist + 0.05), at(dist - 0.05)  # heading from a central difference along the path
-    theta = np.arctan2(ahead[:, 1] - behind[:, 1], ahead[:, 0] - behind[:, 0])
+    theta = _arctan2(ahead[:, 1] - behind[:, 1], ahead[:, 0] - behind[:, 0])
     return np.column_stack([xy, theta]), t
 
 
@@ -348,7 +377,7 @@ def _place(rng: np.random.Generator, n: int, radius: np.ndarray, cfg: ParkConfig
             p = rng.uniform([0.0, 0.0], [cfg.width, cfg.height])
             if path_tree.query(p)[0] < cfg.path.clearance + radius[i]:
                 continue
-            if xy_all.shape[0] and np.min(np.hypot(*(xy_all - p).T) - r_all) < radius[i] + gap:
+            if xy_all.shape[0] and np.min(_hypot(*(xy_all - p).T) - r_all) < radius[i] + gap:
                 continue
             break
         else:
@@ -363,7 +392,7 @@ def _place(rng: np.random.Generator, n: int, radius: np.ndarray, cfg: ParkConfig
 def _radii(rng: np.random.Generator, d: RadiusDist, n: int) -> np.ndarray:
     if d.kind == "uniform":
         return rng.uniform(d.min, d.max, n)
-    return np.clip(d.median * np.exp(d.sigma * rng.standard_normal(n)), d.min, d.max)
+    return np.clip(d.median * _exp(d.sigma * rng.standard_normal(n)), d.min, d.max)
 
 
 def make_world(cfg: ParkConfig, rng: np.random.Generator, path: np.ndarray) -> World:
@@ -384,9 +413,9 @@ def make_world(cfg: ParkConfig, rng: np.random.Generator, path: np.ndarray) -> W
     post_xy = _place(rng, p.count, post_r, cfg, path_tree, taken, 0.5)
     ang = np.sort(rng.uniform(0, 2 * np.pi, (b.count, b.vertices)), axis=1)
     rad = bush_r[:, None] * (1.0 - b.irregularity * rng.uniform(0, 1, (b.count, b.vertices)))
-    verts = bush_c[:, None, :] + rad[..., None] * np.stack([np.cos(ang), np.sin(ang)], axis=-1)
+    verts = bush_c[:, None, :] + rad[..., None] * np.stack([_cos(ang), _sin(ang)], axis=-1)
     heading = rng.uniform(0, np.pi, w.count)
-    u = np.column_stack([np.cos(heading), np.sin(heading)])
+    u = np.column_stack([_cos(heading), _sin(heading)])
     fence = rng.uniform(0, 1, w.count) < w.fence_fraction
     p0, p1 = [], []
     for k in range(w.count):  # a fence is panels of 2 m with 0.5 m gaps; a wall is one segment
@@ -431,7 +460,7 @@ def sensor_model(cfg: ParkConfig) -> SensorModel:
 
 def sensor_poses(vehicle_poses: np.ndarray, mount: Mount) -> np.ndarray:
     """(K, 3) sensor poses, world frame, from vehicle poses and the mounting pose."""
-    return compose(vehicle_poses, np.array([mount.x, mount.y, mount.theta]))
+    return _compose(vehicle_poses, np.array([mount.x, mount.y, mount.theta]))
 
 
 def cast_world(world: World, pose: np.ndarray, sensor: SensorModel) -> tuple[np.ndarray, np.ndarray]:
@@ -442,8 +471,8 @@ def cast_world(world: World, pose: np.ndarray, sensor: SensorModel) -> tuple[np.
 
 
 def _noisy_increments(rng: np.random.Generator, poses: np.ndarray, cfg: OdometryConfig) -> np.ndarray:
-    inc = relative(poses[:-1], poses[1:])
-    d = np.hypot(inc[:, 0], inc[:, 1])
+    inc = _relative(poses[:-1], poses[1:])
+    d = _hypot(inc[:, 0], inc[:, 1])
     n = rng.standard_normal((inc.shape[0], 3))
     out = inc.copy()
     out[:, 0] += cfg.alpha_trans * d * n[:, 0]
@@ -486,7 +515,7 @@ def simulate_park(cfg: ParkConfig, seed: int, progress=None) -> Simulation:
         r = np.where(dust & (dust_r > las.spurious_min), dust_r, r)
         r = np.where(r > las.range_max, np.nan, r)
         if las.landmark_dropout > 0 and n_trees:  # drawn only when asked for: the default run keeps its random stream
-            lost = (rng.uniform(size=n_trees) < las.landmark_dropout) & (np.hypot(*(world.tree_xy - spose[k, :2]).T) > las.dropout_beyond)
+            lost = (rng.uniform(size=n_trees) < las.landmark_dropout) & (_hypot(*(world.tree_xy - spose[k, :2]).T) > las.dropout_beyond)
             on_tree = (hit >= 0) & (hit < n_trees)
             r = np.where(on_tree & lost[np.where(on_tree, hit, 0)], np.nan, r)
         ranges[k] = np.maximum(r, 0.0)
@@ -514,7 +543,7 @@ def park_summary(sim: Simulation) -> dict:
         "beams": log.scans.n_beams,
         "odometry_rows": len(log.odometry),
         "duration_s": float((log.scans.stamp[-1] - log.scans.stamp[0]) / 1e9),
-        "path_length_m": float(np.sum(np.hypot(*np.diff(log.reference["ground_truth"].poses[:, :2], axis=0).T))),
+        "path_length_m": float(np.sum(_hypot(*np.diff(log.reference["ground_truth"].poses[:, :2], axis=0).T))),
         "returning_beam_share": float(np.isfinite(r).mean()),
         "trees": int(sim.world.tree_r.size),
         "posts": int(sim.world.post_r.size),
