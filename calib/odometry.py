@@ -41,14 +41,37 @@ from detectors.sensor_log import SensorLog
 from profiles.errors import DataError
 
 
-class _Windows:
-    """Consecutive windows of ``per`` odometry rows inside the ground truth, the truth read ``shift`` ns after the
-    rows' stamps (the motion's delay): the true relative poses (W, 3), the commanded heading changes and distances (W,)
-    [rad, m] and the durations (W,) [s]; windows over a broken stretch of the truth (``bad``: (S-1,) per interval
-    between its samples) are left out."""
+class _Log:
+    """One log's odometry and ground truth, prepared once for every window length and delay the fit tries: the
+    commanded heading and distance integrated over the rows (a row's command holds until the next row), the
+    truth's broken intervals (``bad`` (S-1,): a turn faster than ``max_turn_rate`` between two samples, or a heading
+    that is not finite) and the median row period [s]."""
 
-    def __init__(self, o, g, bad: np.ndarray, per: int, shift: int) -> None:
-        st = o.stamp
+    def __init__(self, log: SensorLog, max_turn_rate: float) -> None:
+        o, g = log.odometry, log.reference["ground_truth"]
+        self.stamp, self.g = o.stamp, g
+        dt = np.diff(o.stamp) / 1e9
+        self.period = float(np.median(dt))
+        self.cs_om = np.concatenate([[0.0], np.cumsum(o.values[:-1, 1] * dt)])
+        self.cs_d = np.concatenate([[0.0], np.cumsum(o.values[:-1, 0] * dt)])
+        turn = np.abs(np.mod(np.diff(g.poses[:, 2]) + np.pi, 2 * np.pi) - np.pi)
+        gdt = np.diff(g.stamp) / 1e9
+        # samples that share a stamp (UTIAS: a quarter of them) are held to the truth's usual sample period
+        floor = float(np.median(gdt[gdt > 0])) if np.any(gdt > 0) else 1.0
+        self.bad = ~(turn <= max_turn_rate * np.maximum(gdt, floor))
+
+    def rows(self, seconds: float) -> int:
+        """Odometry rows per window of ``seconds`` at this log's own row period."""
+        return max(1, int(round(seconds / max(self.period, 1e-9))))
+
+
+class _Windows:
+    """Consecutive windows of ``seconds`` of a log's odometry rows inside the ground truth, the truth read ``shift``
+    ns after the rows' stamps (the motion's delay): the true relative poses (W, 3), the commanded heading changes
+    and distances (W,) [rad, m] and the durations (W,) [s]; windows over a broken stretch of the truth are left out."""
+
+    def __init__(self, lg: _Log, seconds: float, shift: int) -> None:
+        st, g, bad, per = lg.stamp, lg.g, lg.bad, lg.rows(seconds)
         ts = st + shift
         start = np.arange(0, max(st.size - per - 1, 0), per)
         start = start[(ts[start] >= g.stamp[0]) & (ts[start + per] <= g.stamp[-1])]
@@ -58,12 +81,8 @@ class _Windows:
             b = np.clip(np.searchsorted(g.stamp, ts[start + per], side="right"), 0, bad.size)
             start = start[cum[b] - cum[a] == 0]
         self.rel = relative(interpolate_poses(g.stamp, g.poses, ts[start]), interpolate_poses(g.stamp, g.poses, ts[start + per]))
-        dt = np.diff(st) / 1e9
-        # the command of row k holds until row k + 1
-        cs_om = np.concatenate([[0.0], np.cumsum(o.values[:-1, 1] * dt)])
-        cs_d = np.concatenate([[0.0], np.cumsum(o.values[:-1, 0] * dt)])
-        self.om = cs_om[start + per] - cs_om[start]
-        self.d = cs_d[start + per] - cs_d[start]
+        self.om = lg.cs_om[start + per] - lg.cs_om[start]
+        self.d = lg.cs_d[start + per] - lg.cs_d[start]
         self.span = (st[start + per] - st[start]) / 1e9
         # the true heading change, unwrapped about the commanded one (a window may turn by more than pi)
         self.dth = self.om + np.mod(self.rel[:, 2] - self.om + np.pi, 2 * np.pi) - np.pi
@@ -80,11 +99,6 @@ def _turn_fit(w: list[_Windows]) -> tuple[float | None, np.ndarray]:
     return float(sol[0]), dth - a @ sol
 
 
-def _rows(log: SensorLog, window: float) -> int:
-    """Odometry rows per window of ``window`` seconds at the log's own median row period."""
-    return max(1, int(round(window / max(float(np.median(np.diff(log.odometry.stamp))) / 1e9, 1e-9))))
-
-
 def fit_velocity_odometry(
     logs: list[SensorLog],
     window: float = 1.0,
@@ -96,38 +110,31 @@ def fit_velocity_odometry(
     (0 to ``max_delay``, at most 1 s, the settings' bound), pooled over ``logs``."""
     if not 0.0 <= max_delay <= 1.0:
         raise ValueError(f"max_delay: expected 0-1 s, got {max_delay}")
-    rows_dt, broken, usable = [], [], []
+    usable = []
     for log in logs:
         o, g = log.odometry, log.reference.get("ground_truth")
         if o is None or o.kind != "velocity" or g is None:
             raise DataError(f"log {log.name!r}: measuring velocity odometry needs velocity odometry and ground-truth poses")
-        if len(o) < 3 or g.stamp.size < 2:
-            continue
-        rows_dt.append(np.diff(o.stamp) / 1e9)
-        turn = np.abs(np.mod(np.diff(g.poses[:, 2]) + np.pi, 2 * np.pi) - np.pi)
-        gdt = np.diff(g.stamp) / 1e9
-        # samples that share a stamp (UTIAS: a quarter of them) are held to the truth's usual sample period
-        floor = float(np.median(gdt[gdt > 0])) if np.any(gdt > 0) else 1.0
-        broken.append(~(turn <= max_turn_rate * np.maximum(gdt, floor)))  # a heading that is not finite too
-        usable.append(log)
+        if len(o) >= 3 and g.stamp.size >= 2:
+            usable.append(_Log(log, max_turn_rate))
     if not usable:
         raise DataError("too little odometry inside the ground truth to measure it")
-    dt = float(np.median(np.concatenate(rows_dt)))
+    dt = float(np.median(np.concatenate([np.diff(lg.stamp) / 1e9 for lg in usable])))
 
     def windows(seconds: float, shift: int) -> list[_Windows]:
-        return [_Windows(lg.odometry, lg.reference["ground_truth"], bad, _rows(lg, seconds), shift) for lg, bad in zip(usable, broken, strict=True)]
+        return [_Windows(lg, seconds, shift) for lg in usable]
 
     # the delay: the grid of row periods up to max_delay, the smallest spread of the one-second heading errors
-    delays = np.arange(0.0, max_delay + 0.5 * dt, dt) if dt > 0 else np.zeros(1)
-    spread = []
-    for d in delays:
-        res = _turn_fit(windows(window, int(round(d * 1e9))))[1]
-        spread.append(float(np.std(res)) if res.size >= 10 else np.inf)
-    if not np.isfinite(min(spread, default=np.inf)):
+    best, delay, w = np.inf, 0.0, []
+    for d in np.arange(0.0, max_delay + 0.5 * dt, dt) if dt > 0 else np.zeros(1):
+        at = windows(window, int(round(d * 1e9)))
+        res = _turn_fit(at)[1]
+        spread = float(np.std(res)) if res.size >= 10 else np.inf
+        if spread < best:  # the first of equal spreads: the shorter delay
+            best, delay, w = spread, float(d), at
+    if not np.isfinite(best):
         raise DataError("too little odometry inside the ground truth to measure it")
-    delay = float(delays[int(np.argmin(spread))])
     shift = int(round(delay * 1e9))
-    w = windows(window, shift)
     # the scale over the long windows; a log too short for 10 of them takes the one-second windows' (diluted) slope
     omega_scale, _ = _turn_fit(windows(scale_window, shift))
     scale_from = scale_window
@@ -171,5 +178,5 @@ def fit_velocity_odometry(
         "windows": int(e_th.size),
         "window_s": window,
         "scale_window_s": scale_from,
-        "broken_truth_intervals": int(sum(int(b.sum()) for b in broken)),
+        "broken_truth_intervals": int(sum(int(lg.bad.sum()) for lg in usable)),
     }

@@ -9,22 +9,23 @@ from __future__ import annotations
 import numpy as np
 
 
-def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Pose composition a (+) b for (..., 3) arrays (x, y, theta); b is expressed in a's frame."""
+def compose(a: np.ndarray, b: np.ndarray, *, cos=np.cos, sin=np.sin) -> np.ndarray:
+    """Pose composition a (+) b for (..., 3) arrays (x, y, theta); b is expressed in a's frame. ``cos``, ``sin``: the
+    trigonometry to use (the park simulator hands in libm's, the same on every CPU)."""
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    c, s = cos(a[..., 2]), sin(a[..., 2])
     x = a[..., 0] + c * b[..., 0] - s * b[..., 1]
     y = a[..., 1] + s * b[..., 0] + c * b[..., 1]
     th = np.mod(a[..., 2] + b[..., 2] + np.pi, 2 * np.pi) - np.pi
     return np.stack([x, y, th], axis=-1)
 
 
-def relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Pose of b in the frame of a, (-)a (+) b, for (..., 3) arrays."""
+def relative(a: np.ndarray, b: np.ndarray, *, cos=np.cos, sin=np.sin) -> np.ndarray:
+    """Pose of b in the frame of a, (-)a (+) b, for (..., 3) arrays; ``cos``, ``sin`` as in :func:`compose`."""
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    c, s = cos(a[..., 2]), sin(a[..., 2])
     dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
     th = np.mod(b[..., 2] - a[..., 2] + np.pi, 2 * np.pi) - np.pi
     return np.stack([c * dx + s * dy, -s * dx + c * dy, th], axis=-1)

@@ -41,6 +41,15 @@ LABEL_BITS = 20
 DUPLICATE_OF = 0.99
 
 
+def _room(buf: np.ndarray, size: int) -> np.ndarray:
+    """``buf`` with room for ``size`` entries: itself, or a copy twice as long (amortised appends)."""
+    if buf.size >= size:
+        return buf
+    out = np.zeros(max(size, 2 * buf.size), buf.dtype)
+    out[: buf.size] = buf
+    return out
+
+
 def label_parts(label: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(step, measurement) a label was born from: the filter step whose measurement gave the birth track."""
     label = np.asarray(label, dtype=np.int64)
@@ -252,9 +261,11 @@ class LabelledFilter(MapFilter):
         self._rec_step = -1
         # identities (detection.identities): the identity each recorded step's measurements read, flat, the steps
         # recorded (ascending) and each one's offset into it (a label names the step and the measurement it was born
-        # from: its identity is that one's; a step without identities has none)
-        self._id_step: list[int] = []
-        self._id_off = [0]
+        # from: its identity is that one's; a step without identities has none); buffers that grow by doubling, the
+        # first _id_n steps (and _id_n + 1 offsets) in use
+        self._id_n = 0
+        self._id_step = np.zeros(0, np.int64)
+        self._id_off = np.zeros(1, np.int64)
         self._id_flat = np.zeros(0, np.int64)
         self._frame_ident: np.ndarray | None = None
 
@@ -558,10 +569,11 @@ class LabelledFilter(MapFilter):
         label = np.asarray(label, dtype=np.int64)
         out = np.full(label.shape, -1, np.int64)
         ok = label >= 0
-        if not self._id_step or not ok.any():
+        n = self._id_n
+        if not n or not ok.any():
             return out
         step, m = label_parts(label[ok])
-        steps, off = np.asarray(self._id_step, np.int64), np.asarray(self._id_off, np.int64)
+        steps, off = self._id_step[:n], self._id_off[: n + 1]
         at = np.minimum(np.searchsorted(steps, step), steps.size - 1)
         known = (steps[at] == step) & (m < off[at + 1] - off[at])
         got = np.full(step.shape, -1, np.int64)
@@ -572,12 +584,16 @@ class LabelledFilter(MapFilter):
     def _begin(self, poses: np.ndarray, meas: Measurements):
         self._frame_ident = meas.ident
         if meas.ident is not None:  # this step's births take these identities
-            if self._id_step and self._id_step[-1] == self.step:  # (the step begun again: its record replaced)
-                self._id_step.pop()
-                self._id_off.pop()
-            self._id_flat = np.concatenate([self._id_flat[: self._id_off[-1]], np.asarray(meas.ident, np.int64)])
-            self._id_step.append(self.step)
-            self._id_off.append(self._id_flat.size)
+            n = self._id_n
+            if n and self._id_step[n - 1] == self.step:  # (the step begun again: its record replaced)
+                n -= 1
+            ident = np.asarray(meas.ident, np.int64)
+            a = int(self._id_off[n])
+            self._id_flat = _room(self._id_flat, a + ident.size)
+            self._id_flat[a : a + ident.size] = ident
+            self._id_step = _room(self._id_step, n + 1)
+            self._id_off = _room(self._id_off, n + 2)
+            self._id_step[n], self._id_off[n + 1], self._id_n = self.step, a + ident.size, n + 1
         z, rz = self.measurements(meas)
         sp = self.feature.sensor_pose(np.asarray(poses, dtype=np.float64))
         return z, rz, sp, self._log_kappa(z, meas)

@@ -31,7 +31,7 @@ from scipy.spatial import cKDTree
 
 from calib.config import dump_yaml
 from calib.sim import SIMULATORS, Simulated, Simulator
-from detectors.geometry import cast
+from detectors.geometry import cast, compose, relative
 from detectors.sensor_log import Landmarks, Mount, Odometry, ReferencePoses, ScanBatch, SensorLog, SensorModel, seconds_to_stamp
 from profiles.errors import DataError
 from profiles.override import updated
@@ -50,20 +50,6 @@ def _libm(fn, nin: int):
 _sin, _cos, _exp = _libm(math.sin, 1), _libm(math.cos, 1), _libm(math.exp, 1)
 _arctan2, _hypot = _libm(math.atan2, 2), _libm(math.hypot, 2)
 
-
-def _compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """detectors.geometry.compose through libm."""
-    c, s = _cos(a[..., 2]), _sin(a[..., 2])
-    th = np.mod(a[..., 2] + b[..., 2] + np.pi, 2 * np.pi) - np.pi
-    return np.stack([a[..., 0] + c * b[..., 0] - s * b[..., 1], a[..., 1] + s * b[..., 0] + c * b[..., 1], th], axis=-1)
-
-
-def _relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """detectors.geometry.relative through libm."""
-    c, s = _cos(a[..., 2]), _sin(a[..., 2])
-    dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
-    th = np.mod(b[..., 2] - a[..., 2] + np.pi, 2 * np.pi) - np.pi
-    return np.stack([c * dx + s * dy, -s * dx + c * dy, th], axis=-1)
 
 #: odometry ticks a simulated run may hold at most (about 14 hours at 200 Hz): a slower speed or a faster rate is refused
 MAX_TICKS = 10_000_000
@@ -460,7 +446,7 @@ def sensor_model(cfg: ParkConfig) -> SensorModel:
 
 def sensor_poses(vehicle_poses: np.ndarray, mount: Mount) -> np.ndarray:
     """(K, 3) sensor poses, world frame, from vehicle poses and the mounting pose."""
-    return _compose(vehicle_poses, np.array([mount.x, mount.y, mount.theta]))
+    return compose(vehicle_poses, np.array([mount.x, mount.y, mount.theta]), cos=_cos, sin=_sin)
 
 
 def cast_world(world: World, pose: np.ndarray, sensor: SensorModel) -> tuple[np.ndarray, np.ndarray]:
@@ -471,7 +457,7 @@ def cast_world(world: World, pose: np.ndarray, sensor: SensorModel) -> tuple[np.
 
 
 def _noisy_increments(rng: np.random.Generator, poses: np.ndarray, cfg: OdometryConfig) -> np.ndarray:
-    inc = _relative(poses[:-1], poses[1:])
+    inc = relative(poses[:-1], poses[1:], cos=_cos, sin=_sin)
     d = _hypot(inc[:, 0], inc[:, 1])
     n = rng.standard_normal((inc.shape[0], 3))
     out = inc.copy()

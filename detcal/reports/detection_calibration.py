@@ -24,8 +24,8 @@ def fill_detection_run(cal: DetectionCalibration, folder) -> list[str]:
     if cal.config is not None:
         (tmp / "config.yaml").write_text(dump_yaml(cal.config.model_dump(mode="json")))
     if cal.motion is not None:  # SLAM settings for `detcal slam run --config`: the vehicle model measured on these logs
-        v = {k: float(f"{x:.4g}") for k, x in cal.motion["velocity"].items()}
         m = cal.motion
+        v = {k: float(f"{x:.4g}") for k, x in m["velocity"].items()}
         head = (
             f"# velocity odometry measured against ground truth over {m['windows']} windows of {m['window_s']:g} s"
             f" (the turn-rate scale over windows of {m['scale_window_s']:g} s; {m['broken_truth_intervals']} intervals"
